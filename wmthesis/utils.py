@@ -44,3 +44,17 @@ def check_choice(kind: str, value, valid) -> None:
     """Fail at once, listing the valid choices, when `value` is not one of them."""
     if value not in valid:
         raise ValueError(f"unknown {kind} {value!r}; valid: {', '.join(map(str, valid))}")
+
+
+def data_dir(*parts: str) -> Path:
+    """Where run-time artifacts go: ``$WMTHESIS_DATA`` if set, else the checkout's ``data/``.
+
+    Extra ``parts`` are joined on and the folder is created.
+    """
+    root = os.environ.get("WMTHESIS_DATA")
+    if root is None:
+        checkout = Path(__file__).resolve().parents[1]
+        root = checkout / "data" if (checkout / "pyproject.toml").exists() else Path.cwd() / "data"
+    path = Path(root, *parts)
+    path.mkdir(parents=True, exist_ok=True)
+    return path

@@ -6,6 +6,7 @@ Sokoban is this package's own procedurally generated, seeded implementation.
 from __future__ import annotations
 
 import gymnasium as gym
+import numpy as np
 
 from wmthesis.utils import check_choice
 
@@ -43,6 +44,27 @@ def make_env(name: str, **options) -> gym.Env:
     return SokobanEnv(**SOKOBAN_VARIANTS[name], **options)
 
 
+def random_frames(name: str, n: int, every: int = 1, seed: int = 0, **options) -> np.ndarray:
+    """``n`` observations along one seeded random rollout of ``make_env(name, **options)``.
+
+    Every ``every``-th observation is kept; the episode restarts (same seed stream) if it ends.
+    Returns (n, *observation_shape).
+    """
+    env = make_env(name, **options)
+    env.action_space.seed(seed)
+    observation, _ = env.reset(seed=seed)
+    frames, step = [], 0
+    while len(frames) < n:
+        if step % every == 0:
+            frames.append(observation)
+        observation, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            observation, _ = env.reset()
+        step += 1
+    env.close()
+    return np.stack(frames)
+
+
 def _check_options(name: str, options: dict, valid: tuple) -> None:
     unknown = sorted(set(options) - set(valid))
     if unknown:
@@ -59,4 +81,4 @@ def _register() -> None:
 
 _register()
 
-__all__ = ["make_env", "ENV_NAMES", "ATARI_GAMES", "SOKOBAN_VARIANTS"]
+__all__ = ["make_env", "random_frames", "ENV_NAMES", "ATARI_GAMES", "SOKOBAN_VARIANTS"]

@@ -1,0 +1,100 @@
+"""Command line: ``python -m wmthesis COMMAND ...`` (also installed as ``wmthesis``).
+
+    collect ENV [--episodes N] [--workers K] [--out PATH] [--seed S] [--max-steps M]
+        Random rollouts into an HDF5 episode store; re-running resumes up to N episodes.
+    view PATH [--episode I] [--out DIR]
+        Summarise a store; write a frame strip (PNG) and a rerun recording of one episode.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from wmthesis.config import PROFILES, CollectConfig, for_profile
+from wmthesis.envs import ATARI_GAMES, ENV_NAMES
+from wmthesis.utils import data_dir
+
+
+
+
+def default_store_path(env: str, preprocessing: str | None) -> Path:
+    return data_dir() / f"{env}-{preprocessing or 'raw'}.h5"
+
+
+def cmd_collect(args) -> int:
+    from wmthesis.data import collect
+
+    cfg = for_profile(CollectConfig, args.profile)
+    episodes = args.episodes or cfg.episodes
+    max_steps = args.max_steps if args.max_steps is not None else cfg.max_steps
+    preprocessing = args.preprocessing or ("world_models" if args.env in ATARI_GAMES else None)
+    out = Path(args.out) if args.out else default_store_path(args.env, preprocessing)
+    path = collect(args.env, episodes, out, workers=args.workers or cfg.workers, seed=args.seed,
+                   preprocessing=preprocessing, max_steps=max_steps)
+    print(f"{path}: {episodes} episodes")
+    return 0
+
+
+def cmd_view(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import numpy as np
+
+    from wmthesis.data import EpisodeStore
+    from wmthesis.viz import image_grid, record_frames
+
+    with EpisodeStore(args.path) as store:
+        attrs = dict(store.attrs)
+        if not 0 <= args.episode < len(store):
+            raise SystemExit(f"{args.path}: episode {args.episode} out of range (store has {len(store)})")
+        returns = [float(store.episode(i)["rewards"].sum()) for i in range(len(store))]
+        episode = store.episode(args.episode)
+    print(f"{args.path}: {len(returns)} episodes, env={attrs.get('env')}, "
+          f"preprocessing={attrs.get('preprocessing')}, seed={attrs.get('seed')}")
+    print(f"returns: mean {np.mean(returns):.2f}, std {np.std(returns):.2f}, "
+          f"min {np.min(returns):.1f}, max {np.max(returns):.1f}")
+    out = Path(args.out) if args.out else Path(args.path).with_suffix("")
+    out.mkdir(parents=True, exist_ok=True)
+    frames = episode["observations"]
+    picks = np.linspace(0, len(frames) - 1, num=min(16, len(frames))).astype(int)
+    fig = image_grid([frames[i] for i in picks], ncols=8, titles=[f"t={i}" for i in picks])
+    fig.savefig(out / f"episode{args.episode}.png", dpi=80)
+    recording = record_frames(out / f"episode{args.episode}.rrd", {"observation": frames},
+                              {"reward": episode["rewards"], "action": episode["actions"]})
+    print(f"wrote {out / f'episode{args.episode}.png'} and {recording} (open with: rerun {recording})")
+    return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    top = argparse.ArgumentParser(prog="python -m wmthesis", description=__doc__,
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = top.add_subparsers(dest="command", required=True)
+
+    collect = commands.add_parser("collect", help="random rollouts into an HDF5 store")
+    collect.add_argument("env", choices=ENV_NAMES)
+    collect.add_argument("--episodes", type=int, help="episodes wanted in the store (default: profile's)")
+    collect.add_argument("--workers", type=int)
+    collect.add_argument("--out", help="store path (default: data/ENV-PREPROCESSING.h5)")
+    collect.add_argument("--seed", type=int, default=0)
+    collect.add_argument("--max-steps", type=int, help="cut episodes after this many steps")
+    collect.add_argument("--preprocessing", choices=("none", "world_models", "planet"))
+    collect.add_argument("--profile", choices=PROFILES)
+    collect.set_defaults(run=cmd_collect)
+
+    view = commands.add_parser("view", help="summarise a store, write a frame strip and a rerun recording")
+    view.add_argument("path")
+    view.add_argument("--episode", type=int, default=0)
+    view.add_argument("--out", help="folder for the PNG and .rrd (default: next to the store)")
+    view.set_defaults(run=cmd_view)
+    return top
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    return args.run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
