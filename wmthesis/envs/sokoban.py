@@ -1,0 +1,489 @@
+"""Sokoban, gymnasium-native and procedurally generated (thesis 5.1.2): a new level each reset.
+
+Levels follow gym-sokoban's algorithm (M. Schrader, MIT, ``room_utils.py``):
+
+1. room topology: a random walk of ``int(1.7 * (h + w))`` steps that changes direction with
+   probability 0.35 and stamps one of gym-sokoban's five 3x3 floor masks at every step; the
+   outer ring stays wall;
+2. the player and ``num_boxes`` targets go on random floor cells;
+3. reverse play from the solved state (every box on its target): the player moves and pulls
+   boxes; the state that maximises ``box swaps x total box displacement`` is the level. A level
+   whose best score is 0 (or whose room has too few floor cells) is generated again.
+
+Each pull is a push played backwards, so every level is solvable by construction.
+
+Fixed here, against gym-sokoban: all randomness comes from the generator that gymnasium's
+``reset(seed=...)`` seeds (the same seed gives the same level in any process); a box swap counts
+only when the pulled box differs from the previously pulled one (gym-sokoban counted every pull);
+and the exhaustive depth-first reverse search (depth 300, a median 1.9 s per 10x10 level with 4
+boxes) is replaced by a beam search over pulls with a fixed budget (tens of milliseconds; the
+budget counts states, not seconds, so levels do not depend on the machine's speed).
+
+Board codes (``SokobanEnv.board``): 0 wall, 1 floor, 2 target, 3 box on target, 4 box,
+5 player, 6 player on target. ``solve(board)`` finds a solution by A* over pushes.
+"""
+from __future__ import annotations
+
+import heapq
+import time
+from collections import deque
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from wmthesis.utils import check_choice
+
+WALL, FLOOR, TARGET, BOX_ON_TARGET, BOX, PLAYER, PLAYER_ON_TARGET = range(7)
+CELL_NAMES = ("wall", "floor", "target", "box on target", "box", "player", "player on target")
+ACTIONS = ("push up", "push down", "push left", "push right",
+           "move up", "move down", "move left", "move right")
+MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # up, down, left, right: action % 4
+
+OBSERVATIONS = ("rgb", "grid")
+RENDER_MODES = ("rgb_array", None)
+
+STEP_PENALTY = -0.1
+BOX_ON_TARGET_REWARD = 1.0
+BOX_OFF_TARGET_PENALTY = -1.0
+SOLVED_REWARD = 10.0
+
+# Room topology (gym-sokoban): walk directions, direction change probability, floor masks
+# whose centre sits on the walker.
+WALK_DIRECTIONS = ((1, 0), (0, 1), (-1, 0), (0, -1))
+P_CHANGE_DIRECTION = 0.35
+FLOOR_MASKS = (((0, 0, 0), (1, 1, 1), (0, 0, 0)),   # horizontal bar
+               ((0, 1, 0), (0, 1, 0), (0, 1, 0)),   # vertical bar
+               ((0, 0, 0), (1, 1, 0), (0, 1, 0)),   # L (left, down)
+               ((0, 0, 0), (1, 1, 0), (1, 1, 0)),   # 2x2 square
+               ((0, 0, 0), (0, 1, 1), (0, 1, 0)))   # L (right, down)
+
+# Reverse play budget: a beam of WIDTH states, DEPTH pulls deep (gym-sokoban searched
+# exhaustively, 300 actions deep, up to 300,000 states).
+REVERSE_WIDTH = 40
+REVERSE_DEPTH = 80
+MAX_TRIES = 1000
+
+# Sprite colours (RGB), after gym-sokoban's tiles.
+COLOURS = dict(floor=(24, 24, 24), brick=(165, 62, 38), mortar=(110, 104, 96),
+               target=(254, 126, 125), box=(214, 160, 62), box_edge=(120, 80, 30),
+               box_on_target=(254, 95, 56), box_on_target_edge=(150, 40, 20),
+               player=(160, 212, 56), player_on_target=(219, 212, 56))
+
+
+class SokobanEnv(gym.Env):
+    """Procedurally generated Sokoban with gym-sokoban's rules; a new level every ``reset()``.
+
+    Actions, ``Discrete(8)``: 0 push up, 1 push down, 2 push left, 3 push right, 4 move up,
+    5 move down, 6 move left, 7 move right. A push moves the player, pushing the box in the way
+    when the cell behind it is floor or target; a move only steps onto floor or target.
+
+    Observations: ``rgb``: uint8 (h * tile_size, w * tile_size, 3) sprites, the same image as
+    ``render()``; ``grid``: uint8 ((h - 2) * (w - 2),), the board codes of the inner cells
+    (``board[1:-1, 1:-1].ravel()``).
+
+    Rewards: -0.1 a step, +1 when a box goes onto a target, -1 when one goes off, +10 when all
+    boxes are on targets (terminated). Truncated after ``max_steps`` steps.
+
+    State: ``board``, (h, w) integer codes (module docstring); it may be replaced between steps
+    (wall-bordered, one player). ``generation_info``: score, box_swaps, displacement, pulls,
+    tries and seconds of the latest generated level.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
+
+    def __init__(self, dim_room=(10, 10), num_boxes=4, max_steps=120, observation="rgb",
+                 render_mode="rgb_array", tile_size=16):
+        check_choice("observation", observation, OBSERVATIONS)
+        check_choice("render_mode", render_mode, RENDER_MODES)
+        h, w = (int(n) for n in dim_room)
+        if min(h, w) < 3 or num_boxes < 1 or max_steps < 1 or tile_size < 1:
+            raise ValueError(f"need dim_room >= (3, 3), num_boxes >= 1, max_steps >= 1 and "
+                             f"tile_size >= 1; got {dim_room}, {num_boxes}, {max_steps}, {tile_size}")
+        self.dim_room, self.num_boxes, self.max_steps = (h, w), int(num_boxes), int(max_steps)
+        self.observation, self.render_mode, self.tile_size = observation, render_mode, int(tile_size)
+        self.action_space = spaces.Discrete(len(ACTIONS))
+        if observation == "rgb":
+            shape = (h * self.tile_size, w * self.tile_size, 3)
+            self.observation_space = spaces.Box(0, 255, shape, np.uint8)
+        else:
+            self.observation_space = spaces.Box(0, len(CELL_NAMES) - 1, ((h - 2) * (w - 2),), np.uint8)
+        self._tiles = make_tiles(self.tile_size)
+        self.board = np.zeros((h, w), np.uint8)
+        self.generation_info: dict = {}
+        self.steps = 0
+
+    def reset(self, *, seed=None, options=None):
+        """Generate a new level from ``self.np_random`` (or start from ``options["board"]``)."""
+        super().reset(seed=seed)
+        if options and options.get("board") is not None:
+            self.board = np.array(options["board"], dtype=np.uint8)
+        else:
+            self.board, self.generation_info = generate_level(self.dim_room, self.num_boxes, self.np_random)
+        self.steps = 0
+        return self._observe(), {"boxes_on_target": self.boxes_on_target()}
+
+    def step(self, action):
+        box_change = apply_action(self.board, int(action))
+        self.steps += 1
+        reward = STEP_PENALTY
+        if box_change > 0:
+            reward += BOX_ON_TARGET_REWARD
+        elif box_change < 0:
+            reward += BOX_OFF_TARGET_PENALTY
+        terminated = not np.any(self.board == BOX)
+        if terminated:
+            reward += SOLVED_REWARD
+        truncated = not terminated and self.steps >= self.max_steps
+        info = {"boxes_on_target": self.boxes_on_target()}
+        return self._observe(), float(reward), terminated, truncated, info
+
+    def render(self):
+        """The board as an RGB image, uint8 (h * tile_size, w * tile_size, 3); None without render mode."""
+        return render_board(self.board, self._tiles) if self.render_mode == "rgb_array" else None
+
+    def boxes_on_target(self) -> int:
+        return int(np.count_nonzero(self.board == BOX_ON_TARGET))
+
+    def _observe(self) -> np.ndarray:
+        if self.observation == "rgb":
+            return render_board(self.board, self._tiles)
+        return self.board[1:-1, 1:-1].ravel().astype(np.uint8)
+
+
+# ---------------------------------------------------------------------------- game rules
+
+def apply_action(board: np.ndarray, action: int) -> int:
+    """Play `action` on `board` (h, w codes, in place). Returns +1 when a box went onto a target,
+    -1 when one went off, else 0. A blocked action leaves the board as it was."""
+    dr, dc = MOVES[action % 4]
+    r, c = (int(x) for x in np.argwhere((board == PLAYER) | (board == PLAYER_ON_TARGET))[0])
+    nr, nc = r + dr, c + dc
+    box_change = 0
+    if board[nr, nc] in (BOX, BOX_ON_TARGET):
+        br, bc = nr + dr, nc + dc
+        if action >= 4 or board[br, bc] not in (FLOOR, TARGET):
+            return 0
+        box_change = int(board[br, bc] == TARGET) - int(board[nr, nc] == BOX_ON_TARGET)
+        board[br, bc] = BOX_ON_TARGET if board[br, bc] == TARGET else BOX
+        board[nr, nc] = TARGET if board[nr, nc] == BOX_ON_TARGET else FLOOR
+    if board[nr, nc] not in (FLOOR, TARGET):
+        return 0
+    board[r, c] = TARGET if board[r, c] == PLAYER_ON_TARGET else FLOOR
+    board[nr, nc] = PLAYER_ON_TARGET if board[nr, nc] == TARGET else PLAYER
+    return box_change
+
+
+# ---------------------------------------------------------------------------- generation
+
+def generate_level(dim_room, num_boxes: int, rng: np.random.Generator,
+                   width: int = REVERSE_WIDTH, depth: int = REVERSE_DEPTH):
+    """A new solvable level drawn from `rng` alone.
+
+    Returns (board, info): board, uint8 (h, w) codes; info, dict with score (box_swaps x
+    displacement), box_swaps, displacement (sum over boxes of the Manhattan distance to its
+    target), pulls, tries (rooms generated) and seconds.
+    """
+    start = time.perf_counter()
+    for tries in range(1, MAX_TRIES + 1):
+        room = room_topology(dim_room, rng)
+        if np.count_nonzero(room) <= num_boxes + 1:  # gym-sokoban's "not enough free spots"
+            continue
+        player, targets = place_player_and_targets(room, num_boxes, rng)
+        boxes, player, pulled, score = reverse_play(room, targets, player, rng, width, depth)
+        if score > 0:
+            break
+    else:
+        raise RuntimeError(f"no level with a positive score in {MAX_TRIES} rooms of {dim_room}")
+    info = dict(score=score, box_swaps=count_box_swaps(pulled),
+                displacement=box_displacement(boxes, targets), pulls=len(pulled), tries=tries,
+                seconds=time.perf_counter() - start)
+    return make_board(room, targets, boxes, player), info
+
+
+def room_topology(dim_room, rng: np.random.Generator) -> np.ndarray:
+    """Walls (0) and floor (1), uint8 (h, w), carved by gym-sokoban's random walk."""
+    h, w = dim_room
+    room = np.zeros((h, w), np.uint8)
+    masks = np.array(FLOOR_MASKS, np.uint8)
+    direction = WALK_DIRECTIONS[rng.integers(4)]
+    r, c = int(rng.integers(1, h)), int(rng.integers(1, w))
+    for _ in range(int(1.7 * (h + w))):
+        if rng.random() < P_CHANGE_DIRECTION:
+            direction = WALK_DIRECTIONS[rng.integers(4)]
+        r = min(max(r + direction[0], 1), h - 2)
+        c = min(max(c + direction[1], 1), w - 2)
+        room[r - 1:r + 2, c - 1:c + 2] |= masks[rng.integers(len(masks))]
+    room[[0, -1], :] = 0
+    room[:, [0, -1]] = 0
+    return room
+
+
+def place_player_and_targets(room: np.ndarray, num_boxes: int, rng: np.random.Generator):
+    """Distinct random floor cells: the player's (row, col) and a list of num_boxes targets."""
+    cells = rng.choice(np.flatnonzero(room), size=num_boxes + 1, replace=False)
+    rows, cols = np.unravel_index(cells, room.shape)
+    cells = list(zip(rows.tolist(), cols.tolist()))
+    return cells[0], cells[1:]
+
+
+def reverse_play(room: np.ndarray, targets, player, rng: np.random.Generator,
+                 width: int = REVERSE_WIDTH, depth: int = REVERSE_DEPTH):
+    """Pull the boxes away from their targets by a beam search over reverse play.
+
+    From the solved state (box k on targets[k], the player on `player`), each of `depth` rounds
+    expands every state in the beam by all its pulls (the player walks to a cell it reaches next
+    to a box and steps straight away from it, pulling the box one cell) and keeps the `width`
+    children with the most box swaps x displacement, ties broken at random; a state (boxes,
+    player's region) is expanded once. Returns (boxes, player, pulled, score) of the best state
+    seen by ``level_score`` (no box on a target; the first found on ties): box k's (row, col),
+    the player's, the ids of the boxes pulled on the way, and its score (empty and 0, with the
+    solved state, when no state scores above 0).
+    """
+    h, w = room.shape
+    free = (room.ravel() != WALL).tolist()
+    steps = (-w, w, -1, 1)
+    flat_targets = tuple(r * w + c for r, c in targets)
+    distance = [[abs(i // w - t // w) + abs(i % w - t % w) for i in range(h * w)] for t in flat_targets]
+    # a state: (boxes (cell of box k), player, box swaps, displacement, pulled as (k, earlier) links)
+    beam = [(flat_targets, player[0] * w + player[1], 0, 0, None)]
+    best, expanded, target_cells = beam[0], set(), set(flat_targets)
+    for _ in range(depth):
+        children = [child for state in beam for child in _pulls(free, steps, state, distance, expanded)]
+        if not children:
+            break
+        for child in children:
+            if child[2] * child[3] > best[2] * best[3] and not target_cells.intersection(child[0]):
+                best = child
+        noise = rng.random(len(children)).tolist()
+        ranked = sorted(range(len(children)), key=lambda i: (-children[i][2] * children[i][3], noise[i]))
+        beam = [children[i] for i in ranked[:width]]
+    boxes, flat_player, swaps, displacement, links = best
+    pulled = []
+    while links is not None:
+        k, links = links
+        pulled.append(k)
+    return [divmod(b, w) for b in boxes], divmod(flat_player, w), pulled[::-1], swaps * displacement
+
+
+def _pulls(free, steps, state, distance, expanded):
+    """The states one pull away from `state` (flat cells), unless its region was expanded before."""
+    boxes, player, swaps, displacement, links = state
+    occupied = set(boxes)
+    reach = _reachable(free, steps, occupied, player)
+    key = (boxes, min(reach))
+    if key in expanded:
+        return []
+    expanded.add(key)
+    last = links[0] if links is not None else -1
+    children = []
+    for k, box in enumerate(boxes):
+        for step in steps:
+            stand, away = box + step, box + 2 * step  # player: from next to the box, one cell away
+            if stand in reach and free[away] and away not in occupied:
+                moved = boxes[:k] + (stand,) + boxes[k + 1:]
+                children.append((moved, away, swaps + (k != last),
+                                 displacement + distance[k][stand] - distance[k][box], (k, links)))
+    return children
+
+
+def _reachable(free, steps, boxes, player) -> set:
+    """Cells the player reaches without pushing."""
+    seen, stack = {player}, [player]
+    while stack:
+        x = stack.pop()
+        for step in steps:
+            y = x + step
+            if free[y] and y not in boxes and y not in seen:
+                seen.add(y)
+                stack.append(y)
+    return seen
+
+
+def count_box_swaps(pulled) -> int:
+    """Pulls whose box differs from the previously pulled box; the first pull counts.
+
+    ``[0, 0, 0] -> 1``, ``[0, 1, 0, 1] -> 4``. (gym-sokoban counted every pull as a swap.)
+    """
+    return sum(1 for i, k in enumerate(pulled) if i == 0 or k != pulled[i - 1])
+
+
+def box_displacement(boxes, targets) -> int:
+    """Sum over boxes of the Manhattan distance between box k's (row, col) and targets[k]."""
+    return sum(abs(r - tr) + abs(c - tc) for (r, c), (tr, tc) in zip(boxes, targets))
+
+
+def level_score(pulled, boxes, targets) -> int:
+    """box swaps x total box displacement; 0 while any box is on a target.
+
+    (gym-sokoban's rule; it also scored 0 while the player stood on a target, an accident of its
+    encoding, dropped here.)
+    """
+    if set(map(tuple, boxes)) & set(map(tuple, targets)):
+        return 0
+    return count_box_swaps(pulled) * box_displacement(boxes, targets)
+
+
+def make_board(room: np.ndarray, targets, boxes, player) -> np.ndarray:
+    """Board codes, uint8 (h, w), from the room (0/1) and (row, col) cells."""
+    board = room.astype(np.uint8)
+    for cell in targets:
+        board[cell] = TARGET
+    for cell in boxes:
+        board[cell] = BOX_ON_TARGET if board[cell] == TARGET else BOX
+    board[player] = PLAYER_ON_TARGET if board[player] == TARGET else PLAYER
+    return board
+
+
+# ---------------------------------------------------------------------------- rendering
+
+def make_tiles(tile_size: int) -> np.ndarray:
+    """The seven cell sprites, uint8 (7, tile_size, tile_size, 3), indexed by board code.
+
+    Below 4 pixels a sprite is its main colour.
+    """
+    if tile_size < 4:
+        main = [COLOURS[name] for name in ("brick", "floor", "target", "box_on_target", "box",
+                                           "player", "player_on_target")]
+        return np.broadcast_to(np.array(main, np.uint8)[:, None, None], (7, tile_size, tile_size, 3)).copy()
+    v, u = np.meshgrid((np.arange(tile_size) + 0.5) / tile_size,
+                       (np.arange(tile_size) + 0.5) / tile_size, indexing="ij")  # row, column in (0, 1)
+    square = np.maximum(abs(u - 0.5), abs(v - 0.5))  # 0 at the centre, 0.5 at the edge
+
+    def paint(base, mask, colour):
+        out = base.copy()
+        out[mask] = colour
+        return out
+
+    floor = np.empty((tile_size, tile_size, 3), np.uint8)
+    floor[:] = COLOURS["floor"]
+    course = np.floor(v * 4)  # four brick courses, every other one shifted by half a brick
+    mortar = (v * 4 % 1 < 0.2) | ((u * 2 + course % 2 / 2) % 1 < 0.1)
+    wall = paint(paint(floor, square >= 0, COLOURS["brick"]), mortar, COLOURS["mortar"])
+    target = paint(floor, ((square > 0.22) & (square < 0.38)) | (square < 0.13), COLOURS["target"])
+
+    def box(base, fill, edge):
+        cross = (abs(u - v) < 0.07) | (abs(u + v - 1) < 0.07)
+        out = paint(base, square < 0.42, fill)
+        return paint(out, (square < 0.42) & ((square > 0.32) | cross), edge)
+
+    def player(base, colour):
+        head = (u - 0.5) ** 2 + (v - 0.28) ** 2 < 0.16 ** 2
+        body = (abs(u - 0.5) < 0.2) & (v > 0.42) & (v < 0.7)
+        legs = (abs(abs(u - 0.5) - 0.11) < 0.06) & (v >= 0.7) & (v < 0.9)
+        return paint(base, head | body | legs, colour)
+
+    return np.stack([wall, floor, target,
+                     box(target, COLOURS["box_on_target"], COLOURS["box_on_target_edge"]),
+                     box(floor, COLOURS["box"], COLOURS["box_edge"]),
+                     player(floor, COLOURS["player"]),
+                     player(target, COLOURS["player_on_target"])])
+
+
+def render_board(board: np.ndarray, tiles: np.ndarray) -> np.ndarray:
+    """RGB image, uint8 (h * t, w * t, 3), of board (h, w) codes with tiles (7, t, t, 3)."""
+    h, w = board.shape
+    t = tiles.shape[1]
+    return tiles[board].transpose(0, 2, 1, 3, 4).reshape(h * t, w * t, 3)
+
+
+# ---------------------------------------------------------------------------- solver
+
+def solve(board: np.ndarray, max_nodes: int = 100_000):
+    """Actions that solve `board` (h, w codes, wall-bordered), or None.
+
+    A* over pushes (optimal in pushes; the walks between pushes are shortest paths), with the
+    sum of each box's push distance to its nearest target as heuristic and cells from which no
+    target can be reached pruned. None when unsolvable or after expanding `max_nodes` states.
+    """
+    h, w = board.shape
+    cells = np.asarray(board).ravel().tolist()
+    free = [c != WALL for c in cells]
+    steps = (-w, w, -1, 1)
+    goal = frozenset(i for i, c in enumerate(cells) if c in (TARGET, BOX_ON_TARGET, PLAYER_ON_TARGET))
+    boxes = frozenset(i for i, c in enumerate(cells) if c in (BOX, BOX_ON_TARGET))
+    player = next(i for i, c in enumerate(cells) if c in (PLAYER, PLAYER_ON_TARGET))
+    distance = _push_distances(free, steps, goal)
+    if any(distance[b] < 0 for b in boxes):
+        return None  # a box that no push brings to a target
+    start = (boxes, player)
+    parent, pushes_to = {start: None}, {start: 0}
+    closed = set()
+    frontier = [(sum(distance[b] for b in boxes), 0, 0, start)]
+    while frontier:
+        _, pushes, _, state = heapq.heappop(frontier)
+        if pushes > pushes_to[state]:
+            continue
+        if state[0] == goal:
+            return _actions(free, steps, parent, state, player)
+        reach = _reachable(free, steps, *state)
+        key = (state[0], min(reach))
+        if key in closed:
+            continue
+        closed.add(key)
+        if len(closed) > max_nodes:
+            return None
+        for child, move in _pushes(free, steps, state[0], reach, distance):
+            if pushes + 1 < pushes_to.get(child, float("inf")):
+                parent[child], pushes_to[child] = (state, *move), pushes + 1
+                cost = pushes + 1 + sum(distance[x] for x in child[0])
+                heapq.heappush(frontier, (cost, pushes + 1, len(parent), child))
+    return None
+
+
+def _pushes(free, steps, boxes, reach, distance):
+    """Pushes from a state: ((boxes after, player after), (box cell, direction)) pairs."""
+    for b in boxes:
+        for k, step in enumerate(steps):
+            to = b + step
+            if b - step in reach and free[to] and to not in boxes and distance[to] >= 0:
+                yield (boxes - {b} | {to}, b), (b, k)
+
+
+def _push_distances(free, steps, goal):
+    """Per cell, the fewest pushes that bring a lone box there to a target (-1: never)."""
+    distance = [-1] * len(free)
+    queue = deque(goal)
+    for t in goal:
+        distance[t] = 0
+    while queue:
+        x = queue.popleft()
+        for step in steps:  # a box pushed by `step` from x - step; the player stood at x - 2 step
+            y = x - step
+            if free[y] and free[y - step] and distance[y] < 0:
+                distance[y] = distance[x] + 1
+                queue.append(y)
+    return distance
+
+
+def _walk(free, steps, boxes, start, goal) -> list:
+    """Move actions (4-7) along a shortest path from start to goal avoiding boxes."""
+    came = {start: None}
+    queue = deque([start])
+    while goal not in came:
+        x = queue.popleft()
+        for k, step in enumerate(steps):
+            y = x + step
+            if free[y] and y not in boxes and y not in came:
+                came[y] = (x, k)
+                queue.append(y)
+    path = []
+    while came[goal] is not None:
+        goal, k = came[goal]
+        path.append(4 + k)
+    return path[::-1]
+
+
+def _actions(free, steps, parent, state, player) -> list:
+    """Replay the pushes leading to `state` as walks and pushes from the real start `player`."""
+    pushes = []
+    while parent[state] is not None:
+        state, b, k = parent[state]
+        pushes.append((b, k))
+    boxes, actions = set(state[0]), []
+    for b, k in reversed(pushes):
+        actions += _walk(free, steps, boxes, player, b - steps[k]) + [k]
+        boxes.remove(b)
+        boxes.add(b + steps[k])
+        player = b
+    return actions
