@@ -35,6 +35,31 @@ class CollectConfig:
     workers: int = 2
 
 
+@dataclass(frozen=True)
+class VisionConfig:
+    """Thesis defaults: latent 16, Adam lr 1e-3, eps 1e-7, batch 256."""
+
+    latent_size: int = 16
+    lr: float = 1e-3
+    adam_eps: float = 1e-7
+    batch_size: int = 256
+
+
+@dataclass(frozen=True)
+class MemoryConfig:
+    """Thesis defaults: LSTM 256, 5 Gaussians, Adam lr 1e-3, eps 1e-8, batch 128 x 1000 steps."""
+
+    kind: str = "mdn"
+    hidden_size: int = 256
+    n_gaussians: int = 5
+    auxiliary: bool = False
+    temperature: float = 1.0
+    lr: float = 1e-3
+    adam_eps: float = 1e-8
+    batch_size: int = 128
+    sequence_length: int = 1000
+
+
 # Per profile, per config class name: the fields that differ from the thesis defaults.
 OVERRIDES: dict[str, dict[str, dict]] = {
     "smoke": {

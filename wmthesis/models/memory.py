@@ -16,7 +16,6 @@ Monte-Carlo return from ``h_t``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import torch
@@ -26,21 +25,6 @@ from torch import nn
 from wmthesis.utils import check_choice
 
 KINDS = ("mdn", "deterministic")
-
-
-@dataclass(frozen=True)
-class MemoryConfig:
-    """Thesis defaults: LSTM 256, 5 Gaussians, Adam lr 1e-3, eps 1e-8, batch 128 x 1000 steps."""
-
-    kind: str = "mdn"
-    hidden_size: int = 256
-    n_gaussians: int = 5
-    auxiliary: bool = False
-    temperature: float = 1.0
-    lr: float = 1e-3
-    adam_eps: float = 1e-8
-    batch_size: int = 128
-    sequence_length: int = 1000
 
 
 class Mixture(NamedTuple):

@@ -16,21 +16,9 @@ estimated with one reparameterised sample z = mu + exp(logvar / 2) * eps.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 import torch.nn.functional as F
 from torch import nn
-
-
-@dataclass(frozen=True)
-class VisionConfig:
-    """Thesis defaults: latent 16, Adam lr 1e-3, eps 1e-7, batch 256."""
-
-    latent_size: int = 16
-    lr: float = 1e-3
-    adam_eps: float = 1e-7
-    batch_size: int = 256
 
 
 class Encoder(nn.Module):
