@@ -1,0 +1,140 @@
+"""One gradient-descent loop for every model: validation, early stopping, checkpoints, resume.
+
+:func:`train` repeats ``loss_fn(sample("train"))`` steps, evaluates on ``sample("val")``
+every ``eval_every`` steps, keeps the best weights, and writes a checkpoint (model,
+optimiser, step, the sampling RNG states, history, config) atomically after every
+evaluation. Calling it again with the same checkpoint path resumes where it stopped and
+reaches the same weights as an uninterrupted run on a CPU. A changed config, or a
+non-finite loss, stops with a clear message; the last good checkpoint is kept.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from wmthesis.utils import atomic_path
+
+
+class ConfigMismatch(ValueError):
+    """Resuming a run whose saved config differs from the one given."""
+
+
+class NonFiniteLoss(FloatingPointError):
+    """A loss became NaN or infinite; the message names the step."""
+
+
+def config_dict(config) -> dict:
+    return dataclasses.asdict(config) if dataclasses.is_dataclass(config) else dict(config)
+
+
+def check_same_config(path: Path, saved: dict, wanted: dict) -> None:
+    """Raise :class:`ConfigMismatch` naming the fields that differ between two configs."""
+    if saved != wanted:
+        keys = sorted(set(saved) | set(wanted))
+        diff = {k: (saved.get(k), wanted.get(k)) for k in keys if saved.get(k) != wanted.get(k)}
+        raise ConfigMismatch(f"{path} was written with another config: {diff} (saved, given); "
+                             "use another run folder or delete the checkpoint to start over")
+
+
+def train(model: torch.nn.Module, optimiser: torch.optim.Optimizer, loss_fn: Callable[[dict], dict],
+          sample: Callable[[str, np.random.Generator], dict], *, steps: int, checkpoint: str | Path,
+          config, seed: int = 0, eval_every: int = 100, eval_batches: int = 4, patience: int | None = None,
+          clip_norm: float | None = None, desc: str = "training", progress: bool = True) -> list[dict]:
+    """Train ``model`` for up to ``steps`` updates; return the evaluation history.
+
+    ``sample(split, rng)`` returns a batch for ``split`` in ``("train", "val")``;
+    ``loss_fn(batch)`` returns a dict of scalar tensors with a ``"loss"`` entry.
+    ``patience``: stop after this many evaluations without a better validation loss.
+    The best weights (lowest validation loss) are saved beside ``checkpoint`` with the
+    suffix ``.best.pt`` and loaded into ``model`` at the end.
+    """
+    checkpoint = Path(checkpoint)
+    best_path = checkpoint.with_suffix(".best.pt")
+    wanted = config_dict(config)
+    state = {"step": 0, "best": math.inf, "bad_evals": 0, "history": [], "stopped": False,
+             "rng": np.random.default_rng(seed).bit_generator.state, "torch_rng": _seeded_torch_state(seed)}
+    if checkpoint.exists():
+        state = _resume(checkpoint, model, optimiser, wanted)
+    rng = np.random.default_rng()
+    rng.bit_generator.state = state["rng"]
+    torch.set_rng_state(state["torch_rng"])
+    bar = tqdm(total=steps, initial=state["step"], desc=desc, disable=not progress)
+    while state["step"] < steps and not state["stopped"]:
+        model.train()
+        terms = loss_fn(sample("train", rng))
+        _check_finite(terms, state["step"] + 1, checkpoint)
+        optimiser.zero_grad(set_to_none=True)
+        terms["loss"].backward()
+        if clip_norm is not None:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), clip_norm)
+        optimiser.step()
+        state["step"] += 1
+        bar.update(1)
+        if state["step"] % eval_every == 0 or state["step"] == steps:
+            _evaluate(model, loss_fn, sample, rng, eval_batches, terms, state, patience, best_path)
+            bar.set_postfix(train=f"{state['history'][-1]['train_loss']:.4g}", val=f"{state['history'][-1]['val_loss']:.4g}")
+            state["rng"], state["torch_rng"] = rng.bit_generator.state, torch.get_rng_state()
+            _save(checkpoint, model, optimiser, state, wanted)
+    bar.close()
+    if best_path.exists():
+        model.load_state_dict(torch.load(best_path, weights_only=True))
+    return state["history"]
+
+
+def _seeded_torch_state(seed: int) -> torch.Tensor:
+    generator = torch.Generator().manual_seed(seed)
+    return generator.get_state()
+
+
+def _check_finite(terms: dict, step: int, checkpoint: Path) -> None:
+    bad = {k: float(v.detach()) for k, v in terms.items() if not torch.isfinite(v).all()}
+    if bad:
+        kept = f"the last good checkpoint is kept at {checkpoint}" if checkpoint.exists() else "no checkpoint yet"
+        raise NonFiniteLoss(f"non-finite loss at step {step}: {bad}; {kept}")
+
+
+@torch.no_grad()
+def _evaluate(model, loss_fn, sample, rng, eval_batches, train_terms, state, patience, best_path) -> None:
+    model.eval()
+    val_terms = [loss_fn(sample("val", rng)) for _ in range(eval_batches)]
+    record = {"step": state["step"], "train_loss": float(train_terms["loss"].detach())}
+    for key in val_terms[0]:
+        record[f"val_{key}"] = float(np.mean([float(t[key]) for t in val_terms]))
+    state["history"].append(record)
+    if record["val_loss"] < state["best"]:
+        state["best"], state["bad_evals"] = record["val_loss"], 0
+        with atomic_path(best_path) as tmp:
+            torch.save(model.state_dict(), tmp)
+    else:
+        state["bad_evals"] += 1
+        state["stopped"] = patience is not None and state["bad_evals"] >= patience
+
+
+def _save(path: Path, model, optimiser, state: dict, config: dict) -> None:
+    with atomic_path(path) as tmp:
+        torch.save({"model": model.state_dict(), "optimiser": optimiser.state_dict(), "state": state,
+                    "config": config}, tmp)
+
+
+def _resume(path: Path, model, optimiser, wanted: dict) -> dict:
+    try:
+        saved = torch.load(path, weights_only=False)
+    except Exception as error:  # a truncated or foreign file
+        raise ValueError(f"cannot read checkpoint {path}: {error}; delete it to start over") from error
+    check_same_config(path, saved["config"], wanted)
+    model.load_state_dict(saved["model"])
+    optimiser.load_state_dict(saved["optimiser"])
+    return saved["state"]
+
+
+def load_weights(path: str | Path, model: torch.nn.Module) -> torch.nn.Module:
+    """Load the weights of a ``.best.pt`` file or a checkpoint into ``model``."""
+    saved = torch.load(path, weights_only=False, map_location="cpu")
+    model.load_state_dict(saved["model"] if "optimiser" in saved else saved)
+    return model
