@@ -59,7 +59,7 @@ def image_rows(rows: dict[str, Sequence[np.ndarray]], scale: float = 1.1):
 
 
 class RerunRecorder(Callback):
-    """Logs every step of :func:`wmthesis.core.loop` to a rerun recording file.
+    """Logs every step of one :func:`wmthesis.core.loop` call to a rerun recording file.
 
     Logged per step on the ``step`` timeline (and ``episode`` as a second timeline):
     ``observation`` (an image state; other states are logged as a tensor), ``action``,
@@ -94,7 +94,9 @@ class RerunRecorder(Callback):
         self.global_step += 1
 
     def on_loop_end(self, is_aborted):
+        """Finish the file: a recorder makes one recording, of one :func:`loop` call."""
         self.stream.flush()
+        self.stream.disconnect()
 
 
 def _as_rerun(state):
@@ -125,6 +127,7 @@ def record_frames(path: str | Path, streams: dict[str, np.ndarray], scalars: dic
             if step < len(values):
                 stream.log(name, rr.Scalars([float(values[step])]))
     stream.flush()
+    stream.disconnect()
     return path
 
 
