@@ -1,0 +1,38 @@
+"""Measures the thesis judged "with the eye of the researcher", and score statistics.
+
+Open-loop prediction error (thesis 5.3): after warming a model up on real steps, it predicts
+the future from its own predictions; we compare the predicted frames (and latents) with the
+true ones, step by step. The curve of error against horizon, and its value at a game's
+cut-off horizon, turn the eye's judgement into a number.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def horizon_errors(truth: np.ndarray, prediction: np.ndarray) -> np.ndarray:
+    """Mean squared error per horizon step between two sequences, (T, ...) -> (T,).
+
+    uint8 frames are compared in [0, 1] (divided by 255); floats (latents) as they are.
+    """
+    truth, prediction = np.asarray(truth), np.asarray(prediction)
+    if truth.shape != prediction.shape:
+        raise ValueError(f"truth {truth.shape} and prediction {prediction.shape} differ in shape")
+    scale = 255.0 if truth.dtype == np.uint8 else 1.0
+    diff = truth.astype(np.float64) / scale - prediction.astype(np.float64) / scale
+    return (diff ** 2).reshape(len(diff), -1).mean(axis=1)
+
+
+def error_at(curve: np.ndarray, horizon: int) -> float:
+    """The error at ``horizon`` steps ahead (1-based), or the last one if the curve is shorter."""
+    curve = np.asarray(curve)
+    return float(curve[min(horizon, len(curve)) - 1])
+
+
+def score_summary(returns) -> dict:
+    """Mean, std (population), min, max and count of episode returns."""
+    returns = np.asarray(returns, dtype=np.float64)
+    if returns.size == 0:
+        raise ValueError("no returns to summarise")
+    return {"mean": float(returns.mean()), "std": float(returns.std()), "min": float(returns.min()),
+            "max": float(returns.max()), "episodes": int(returns.size)}
