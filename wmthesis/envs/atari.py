@@ -1,0 +1,75 @@
+"""Atari games through ale-py's gymnasium environments (thesis 5.1.1).
+
+Deterministic settings as in the thesis: sticky actions off (``repeat_action_probability=0``),
+frame skip = action repeat (4 by default), the game's own (minimal) action set, full-length
+episodes (ALE's own limit only). Preprocessing is an observation wrapper:
+
+- ``none``: raw frames, (210, 160, 3) uint8;
+- ``world_models``: crop the border (:data:`~wmthesis.envs.preprocessing.CROPS`), resize to
+  64x64, RGB, (64, 64, 3) uint8;
+- ``planet``: resize the whole frame to 64x64 and keep 5 bits, (64, 64, 3) uint8 with values
+  that are multiples of 8 (turn into floats with :func:`~wmthesis.envs.preprocessing.to_float`
+  with ``bits=5``).
+"""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize
+from wmthesis.utils import check_choice
+
+PREPROCESSING = ("none", "world_models", "planet")
+FRAME_SIZE = 64
+
+
+class FramePreprocessing(gym.ObservationWrapper):
+    """Observation wrapper applying one of :data:`PREPROCESSING` to raw Atari frames."""
+
+    def __init__(self, env: gym.Env, mode: str, crop: tuple[int, int, int, int] | None = None):
+        check_choice("preprocessing", mode, PREPROCESSING)
+        super().__init__(env)
+        self.mode = mode
+        self.crop = crop
+        if mode != "none":
+            channels = env.observation_space.shape[-1]
+            self.observation_space = gym.spaces.Box(
+                0, 255, (FRAME_SIZE, FRAME_SIZE, channels), np.uint8)
+
+    def observation(self, frame: np.ndarray) -> np.ndarray:
+        """(210, 160, 3) uint8 -> the mode's observation (see the module docstring)."""
+        if self.mode == "world_models":
+            return crop_resize(frame, self.crop, FRAME_SIZE)
+        if self.mode == "planet":
+            return quantize(crop_resize(frame, None, FRAME_SIZE), bits=5)
+        return frame
+
+
+def make_atari(game: str, preprocessing: str = "none", action_repeat: int = 4,
+               max_steps: int | None = None, render_mode: str | None = None) -> gym.Env:
+    """ale-py's ``ALE/{game}-v5`` with the thesis's deterministic settings.
+
+    `game` is ``"Boxing"`` (18 actions) or ``"Freeway"`` (3 actions); `preprocessing` one of
+    :data:`PREPROCESSING`; `action_repeat` frames per agent step; `max_steps` truncates episodes
+    (``truncated=True``) after that many agent steps.
+    """
+    check_choice("Atari game", game, tuple(CROPS))
+    check_choice("preprocessing", preprocessing, PREPROCESSING)
+    _check_positive("action_repeat", action_repeat)
+    if max_steps is not None:
+        _check_positive("max_steps", max_steps)
+    import ale_py
+
+    gym.register_envs(ale_py)
+    env = gym.make(f"ALE/{game}-v5", frameskip=action_repeat, repeat_action_probability=0.0,
+                   full_action_space=False, render_mode=render_mode)
+    if preprocessing != "none":
+        env = FramePreprocessing(env, preprocessing, CROPS[game])
+    if max_steps is not None:
+        env = gym.wrappers.TimeLimit(env, max_episode_steps=max_steps)
+    return env
+
+
+def _check_positive(name: str, value) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
