@@ -37,17 +37,26 @@ class CollectConfig:
 
 @dataclass(frozen=True)
 class VisionConfig:
-    """Thesis defaults: latent 16, Adam lr 1e-3, eps 1e-7, batch 256."""
+    """Vision (thesis 4.2.5): latent 16 (64 for the grid variant, 5.3.2), Adam lr 1e-3,
+    eps 1e-7, batch 256. Not stated in the thesis: the number of updates, the validation
+    split (the last episodes of the store) and early stopping."""
 
     latent_size: int = 16
     lr: float = 1e-3
     adam_eps: float = 1e-7
     batch_size: int = 256
+    steps: int = 20_000
+    eval_every: int = 500
+    patience: int | None = 5
+    val_fraction: float = 0.1
 
 
 @dataclass(frozen=True)
 class MemoryConfig:
-    """Thesis defaults: LSTM 256, 5 Gaussians, Adam lr 1e-3, eps 1e-8, batch 128 x 1000 steps."""
+    """Memory (thesis 4.2.5, 4.3.1, 5.3.3): LSTM 256, 5 Gaussians, Adam lr 1e-3, eps 1e-8,
+    batch 128 chunks of 1000 steps; ``kind`` ``mdn`` or ``deterministic``; ``auxiliary`` adds
+    the value head (Monte-Carlo return with ``discount``). Not stated in the thesis: the number
+    of updates, the validation split and early stopping."""
 
     kind: str = "mdn"
     hidden_size: int = 256
@@ -58,15 +67,104 @@ class MemoryConfig:
     adam_eps: float = 1e-8
     batch_size: int = 128
     sequence_length: int = 1000
+    discount: float = 0.99
+    steps: int = 20_000
+    eval_every: int = 500
+    patience: int | None = 5
+    val_fraction: float = 0.1
+
+
+@dataclass(frozen=True)
+class PlaNetConfig:
+    """PlaNet (thesis 4.4.3-4.4.5): model, loss, optimiser, data collection, CEM planner.
+
+    RSSM: GRU 200, stochastic state 30, other functions FC 200 (ReLU), reward FF 100 x 2.
+    Loss: KL scale and free nats (the tuned knobs, 5.6.3-5.6.5; these defaults are PlaNet's),
+    decoder variance (5.6.3), latent overshooting with its KL terms scaled by 1/50.
+    Adam lr 1e-3, eps 1e-4, gradient clipping 1000, 50 chunks of 50 steps. 6 random seed
+    episodes, then one planner episode every C = ``update_steps`` updates (5000, 4.4.3; the
+    PlaNet paper used 100), epsilon-greedy 0.3, action repeat 4. CEM: H 12, J 1000, K 100, I 10.
+    """
+
+    belief_size: int = 200
+    state_size: int = 30
+    hidden_size: int = 200
+    reward_hidden_size: int = 100
+    min_std: float = 0.1
+    bits: int = 5
+    kl_scale: float = 1.0
+    free_nats: float = 3.0
+    decoder_variance: float = 1.0
+    reward_scale: float = 10.0           # the official code's default (the thesis used that code)
+    overshooting_distance: int = 50      # 0 or 1: no latent overshooting
+    overshooting_scale: float = 1 / 50
+    lr: float = 1e-3
+    adam_eps: float = 1e-4
+    grad_clip: float = 1000.0
+    batch_size: int = 50
+    chunk_length: int = 50
+    seed_episodes: int = 6
+    update_steps: int = 5000
+    action_repeat: int = 4
+    max_episode_steps: int | None = None  # None: full-length episodes
+    env_steps: int = 1_000_000           # agent steps in the store when training stops
+    epsilon: float = 0.3
+    horizon: int = 12
+    candidates: int = 1000
+    top_k: int = 100
+    iterations: int = 10
+    test_interval: int = 10              # planner episodes between greedy tests (not in the thesis)
+    test_episodes: int = 5               # not in the thesis
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Controller evolution (thesis 4.2.2, 4.2.5): CMA-ES, population 64, 5 episodes per
+    candidate, fitness = mean return; a linear greedy controller on ``[z h]``.
+
+    Not stated in the thesis: the initial sigma (0.1, Ha & Schmidhuber's), the number of
+    generations, and the start variation: each episode begins with a seeded random number of
+    no-op actions in ``[0, noop_max)`` (Boxing with sticky actions off is deterministic, so five
+    episodes of a greedy controller would otherwise be identical). ``dream=True`` (beyond the
+    thesis) evolves inside the memory with sampling temperature ``temperature``; every
+    ``eval_every`` generations the CMA-ES mean plays ``eval_episodes`` real episodes.
+    """
+
+    population: int = 64
+    episodes: int = 5                    # per candidate; fitness = mean return over them
+    generations: int = 200               # not stated in the thesis
+    sigma: float = 0.1                   # initial CMA-ES step size; the search starts at zero
+    max_steps: int | None = None         # None: full-length episodes
+    noop_max: int = 30
+    seed: int = 0
+    dream: bool = False
+    temperature: float = 1.0
+    dream_max_steps: int = 1800          # a Boxing bout (2 minutes) is ~1,780 agent steps
+    eval_every: int = 10                 # 0: never play the mean in the real game
+    eval_episodes: int = 5
 
 
 # Per profile, per config class name: the fields that differ from the thesis defaults.
 OVERRIDES: dict[str, dict[str, dict]] = {
     "smoke": {
         "CollectConfig": dict(episodes=4, max_steps=50, workers=1),
+        "VisionConfig": dict(batch_size=16, steps=6, eval_every=3),
+        "MemoryConfig": dict(hidden_size=32, batch_size=4, sequence_length=16, steps=6, eval_every=3),
+        "ControllerConfig": dict(population=8, episodes=2, generations=2, max_steps=50,
+                                 dream_max_steps=50, eval_every=1, eval_episodes=2),
+        "PlaNetConfig": dict(belief_size=32, state_size=4, hidden_size=32, reward_hidden_size=16,
+                             batch_size=4, chunk_length=8, overshooting_distance=3, seed_episodes=2,
+                             update_steps=2, max_episode_steps=16, env_steps=80, horizon=3,
+                             candidates=16, top_k=4, iterations=2, test_interval=1, test_episodes=1),
     },
     "quick": {
         "CollectConfig": dict(episodes=20),
+        "VisionConfig": dict(batch_size=64, steps=1500, eval_every=100),
+        "MemoryConfig": dict(batch_size=16, sequence_length=100, steps=1500, eval_every=100),
+        "ControllerConfig": dict(population=16, episodes=3, generations=60, max_steps=400,
+                                 dream_max_steps=400, eval_every=10, eval_episodes=3),
+        "PlaNetConfig": dict(batch_size=12, chunk_length=24, update_steps=100, env_steps=20_000,
+                             candidates=100, top_k=10, iterations=3, test_interval=3, test_episodes=1),
     },
     "thesis": {},
 }
