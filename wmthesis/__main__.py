@@ -4,6 +4,8 @@
         Random rollouts into an HDF5 episode store; re-running resumes up to N episodes.
     view PATH [--episode I] [--out DIR]
         Summarise a store; write a frame strip (PNG) and a rerun recording of one episode.
+    reproduce EXPERIMENT [--profile smoke|quick|thesis] [--seed S]
+        Run a thesis experiment end to end; results under data/results/EXPERIMENT/.
 """
 from __future__ import annotations
 
@@ -67,6 +69,20 @@ def cmd_view(args) -> int:
     return 0
 
 
+def cmd_reproduce(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from wmthesis.experiments import reproduce
+
+    metrics = reproduce(args.experiment, args.profile, args.seed)
+    score = metrics["score"]
+    print(f"{args.experiment} ({metrics['profile']}, seed {args.seed}): score {score['mean']:.1f} +- {score['std']:.1f} "
+          f"over {score['episodes']} episodes; wall time {metrics['wall_seconds']:.0f} s")
+    print("results:", *metrics["files"]["figures"], metrics["files"]["recording"], sep="\n  ")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m wmthesis", description=__doc__,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -88,6 +104,14 @@ def parser() -> argparse.ArgumentParser:
     view.add_argument("--episode", type=int, default=0)
     view.add_argument("--out", help="folder for the PNG and .rrd (default: next to the store)")
     view.set_defaults(run=cmd_view)
+
+    from wmthesis.experiments import EXPERIMENTS
+
+    reproduce = commands.add_parser("reproduce", help="run a thesis experiment end to end (resumable)")
+    reproduce.add_argument("experiment", choices=EXPERIMENTS)
+    reproduce.add_argument("--profile", choices=PROFILES)
+    reproduce.add_argument("--seed", type=int, default=0)
+    reproduce.set_defaults(run=cmd_reproduce)
     return top
 
 
