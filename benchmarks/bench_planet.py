@@ -1,0 +1,161 @@
+"""PlaNet: CEM planning time per action and RSSM training updates per second.
+
+    python benchmarks/bench_planet.py [--repeats 5] [--updates 2] [--threads N] [--seed 0]
+
+Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
+
+- ``bare forward``: the same RSSM advanced over I x H x J = 10 x 12 x 1000 = 120,000 latent
+  steps in I batched passes of (J, H) random one-hot actions (transition, prior sample, reward):
+  the floor any CEM at these sizes must pay.
+- ``cem_plan``: one plan at the thesis sizes (H 12, J 1000, K 100, I 10); ``ratio`` is its time
+  over the bare forward pass (target <= 1.2).
+- ``agent step``: :class:`~wmthesis.agents.planet.PlanetMind` ``plan``: encode one frame,
+  update the belief, then the CEM.
+- The same two at the ``quick`` profile's planner sizes.
+- ``update``: one training step (loss, backward, clipping, Adam) on 50 chunks of 50 steps of
+  64x64 frames, with latent overshooting (distance 50, the thesis default) and without (the
+  best Boxing run); and at the ``quick`` profile's batch.
+
+Times are medians over ``--repeats`` (``--updates`` for the training rows) after one warm-up;
+the bare pass, the CEM and the agent step take turns, so their ratios survive a changing load.
+On a shared machine, ``--threads 1`` avoids the OpenMP slowdown of two threads on busy cores.
+Writes ``benchmarks/results/planet.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from wmthesis.agents.planet import (PlanetMind, batch_loss, build_model, make_optimizer,  # noqa: E402
+                                    optimizer_step)
+from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
+from wmthesis.planning.cem import cem_plan  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results" / "planet.json"
+N_ACTIONS = 18
+
+
+def median_seconds(fns: dict, repeats: int) -> dict[str, float]:
+    """Median wall time of each ``fns[name]()`` over `repeats` rounds after one warm-up.
+
+    The functions take turns within each round, so that a machine whose load changes during
+    the benchmark slows them alike and their ratios stay fair. CUDA is synchronised.
+    """
+    sync = torch.cuda.synchronize if torch.cuda.is_available() else (lambda: None)
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for round_ in range(repeats + 1):
+        for name, fn in fns.items():
+            start = time.perf_counter()
+            fn()
+            sync()
+            if round_:
+                times[name].append(time.perf_counter() - start)
+    return {name: statistics.median(values) for name, values in times.items()}
+
+
+def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int) -> list[dict]:
+    """Bare forward pass, cem_plan and a PlanetMind step at the planner sizes of `cfg`."""
+    dev = next(model.parameters()).device
+    g = torch.Generator(dev).manual_seed(seed)
+    belief = torch.randn(1, cfg.belief_size, generator=g, device=dev)
+    state = torch.randn(1, cfg.state_size, generator=g, device=dev)
+    sizes = (cfg.horizon, cfg.candidates, cfg.top_k, cfg.iterations)
+    shape = (cfg.iterations, cfg.candidates, cfg.horizon)
+    actions = F.one_hot(torch.randint(0, N_ACTIONS, shape, generator=g, device=dev), N_ACTIONS).float()
+    rollout = lambda a: model.imagined_returns(belief, state, a, g)  # noqa: E731
+
+    def bare():
+        for batch in actions:
+            rollout(batch)
+
+    mind = PlanetMind.from_config(model, cfg, seed)
+    frame = np.random.default_rng(seed).integers(0, 32, (64, 64, 3), dtype=np.uint8) * 8
+    with torch.inference_mode():
+        seconds = median_seconds({"bare": bare, "cem": lambda: cem_plan(rollout, N_ACTIONS, *sizes, g),
+                                  "step": lambda: mind.plan(frame)}, repeats)
+    bare_s, cem_s, step_s = seconds["bare"], seconds["cem"], seconds["step"]
+    steps = cfg.iterations * cfg.horizon * cfg.candidates
+    name = f"H{cfg.horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}"
+    return [dict(what=f"bare forward, {steps:,} latent steps ({label})", sizes=name, seconds=bare_s,
+                 latent_steps_per_s=steps / bare_s),
+            dict(what=f"cem_plan ({label})", sizes=name, seconds=cem_s, ratio=cem_s / bare_s),
+            dict(what=f"agent step: encode + CEM ({label})", sizes=name, seconds=step_s, ratio=step_s / bare_s)]
+
+
+def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
+    """Seconds per training update at the config's batch."""
+    torch.manual_seed(seed)
+    model = build_model(cfg, N_ACTIONS)
+    optimizer = make_optimizer(model, cfg)
+    dev = next(model.parameters()).device
+    g = torch.Generator(dev).manual_seed(seed)
+    shape = (cfg.batch_size, cfg.chunk_length)
+    observations = torch.randint(0, 32, (*shape, 64, 64, 3), generator=g, device=dev, dtype=torch.uint8) * 8
+    actions = torch.randint(0, N_ACTIONS, shape, generator=g, device=dev)
+    rewards = torch.randn(shape, generator=g, device=dev)
+
+    batch = dict(observations=observations, actions=actions, rewards=rewards)
+
+    def update():
+        optimizer_step(model, optimizer, batch_loss(model, batch, cfg, g)["loss"], cfg)
+
+    seconds = median_seconds({"update": update}, updates)["update"]
+    sizes = f"batch {shape[0]}x{shape[1]}, overshooting {cfg.overshooting_distance}"
+    return dict(what=f"update ({label})", sizes=sizes,
+                seconds=seconds, updates_per_s=1 / seconds, frames_per_s=shape[0] * shape[1] / seconds)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--updates", type=int, default=2)
+    parser.add_argument("--threads", type=int, help="torch threads (default: torch's own choice)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    load_before = os.getloadavg()[0]
+    thesis, quick = PlaNetConfig(), for_profile(PlaNetConfig, "quick")
+    torch.manual_seed(args.seed)
+    model = build_model(thesis, N_ACTIONS).eval()
+    results = planning_rows(model, thesis, "thesis", args.repeats, args.seed)
+    results += planning_rows(model, quick, "quick", args.repeats, args.seed)
+    results.append(update_row(thesis, "thesis", args.updates, args.seed))
+    results.append(update_row(PlaNetConfig(overshooting_distance=0), "thesis, no overshooting",
+                              args.updates, args.seed))
+    results.append(update_row(quick, "quick", args.updates, args.seed))
+
+    columns = ("what", "sizes", "seconds", "ratio", "updates_per_s", "latent_steps_per_s")
+    print(" | ".join(columns))
+    for row in results:
+        print(" | ".join(f"{row[c]:.4g}" if isinstance(row.get(c), float) else str(row.get(c, ""))
+                         for c in columns))
+    meta = dict(seed=args.seed, repeats=args.repeats, updates=args.updates,
+                threads=torch.get_num_threads(),
+                device=str(next(model.parameters()).device), torch=torch.__version__,
+                machine=platform.processor() or platform.machine(),
+                cpus=os.cpu_count(), load_average_before=load_before, load_average_after=os.getloadavg()[0],
+                python=platform.python_version(), date=date.today().isoformat())
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(dict(meta=meta, results=results), indent=2) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

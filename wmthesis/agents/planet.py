@@ -1,0 +1,520 @@
+"""PlaNet's training pipeline (thesis 4.4.3, 5.5, 5.6): seed episodes, then train and plan.
+
+1. Play ``seed_episodes`` random episodes (6) into the run's episode store.
+2. Repeat until the store holds ``env_steps`` agent steps: ``update_steps`` (C) updates of the
+   RSSM on batches of ``batch_size`` x ``chunk_length`` chunks (50 x 50), then one episode
+   collected by the CEM planner with epsilon-greedy exploration (0.3); every
+   ``test_interval`` collected episodes (and at the end), ``test_episodes`` greedy episodes.
+3. After every collected episode a checkpoint (model, optimiser, random states, learning
+   curve) is written atomically, so a run stopped anywhere resumes from its last episode;
+   ``curve.json`` holds the learning curve (score against agent steps) in plain JSON.
+
+Run folder: ``episodes.h5`` (:class:`~wmthesis.data.EpisodeStore` of 5-bit 64x64 frames),
+``checkpoint.pt`` and ``curve.json``. :func:`train_planet` is the entry point;
+:class:`PlanetMind` is the agent for :func:`wmthesis.core.loop`; :func:`open_loop` and
+:func:`open_loop_figure` give the thesis's open-loop figures (Fig. 58, 59, 510, 511) and the
+prediction error per horizon.
+
+Variants (:data:`VARIANTS`) are the thesis's experiments as config changes.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm.auto import tqdm
+
+from wmthesis.config import PlaNetConfig
+from wmthesis.core import Callback, Interpreter, Mind, loop
+from wmthesis.data import EpisodeBuffer, EpisodeStore, episode_seeds, play_random_episode
+from wmthesis.envs import ATARI_GAMES, make_env
+from wmthesis.envs.preprocessing import crop_resize, quantize, to_float
+from wmthesis.models.rssm import RSSM, frames_out, one_hot_previous, planet_loss
+from wmthesis.planning.cem import cem_belief
+from wmthesis.utils import atomic_path, check_choice, device, seed_everything
+
+FRAME_SIZE = 64
+CHECKPOINT, CURVE, STORE = "checkpoint.pt", "curve.json", "episodes.h5"
+# Config fields that may change when a run resumes (a larger budget); any other must match.
+RESUMABLE_CHANGES = ("env_steps",)
+
+# The thesis's experiments (section: config changes on top of the defaults).
+VARIANTS: dict[str, dict] = {
+    "unchanged": {},                                     # 5.5.1, 5.6.1: PlaNet as published
+    "action-repeat": dict(action_repeat=8),              # 5.6.2 (the thesis gives no value)
+    "decoder-variance": dict(decoder_variance=0.03),     # 5.6.3: = KL scale 3e-2 (rssm docstring)
+    "free-nats": dict(kl_scale=0.03, free_nats=12.0,     # 5.6.4: Boxing's best, no overshooting
+                      overshooting_distance=0),
+    "freeway-tuned": dict(kl_scale=8e-3, free_nats=3.0),  # 5.6.5
+    "long-horizon": dict(kl_scale=8e-3, free_nats=3.0, horizon=25),  # 5.6.6 (also tried: 50)
+}
+
+
+# ---------------------------------------------------------------------------- setup
+def with_variant(config: PlaNetConfig, variant: str | dict | None) -> PlaNetConfig:
+    """``config`` with a :data:`VARIANTS` entry (by name) or a dict of changes applied."""
+    if variant is None:
+        return config
+    if isinstance(variant, str):
+        check_choice("PlaNet variant", variant, VARIANTS)
+        variant = VARIANTS[variant]
+    return dataclasses.replace(config, **variant)
+
+
+def make_planet_env(env_name: str, config: PlaNetConfig):
+    """The environment with PlaNet's settings: Atari with ``planet`` preprocessing and the
+    config's action repeat; Sokoban as is (frames are resized by :func:`planet_frame`).
+    ``max_episode_steps`` truncates episodes."""
+    options = {} if config.max_episode_steps is None else {"max_steps": config.max_episode_steps}
+    if env_name in ATARI_GAMES:
+        return make_env(env_name, preprocessing="planet", action_repeat=config.action_repeat, **options)
+    return make_env(env_name, **options)
+
+
+def planet_frame(frame: np.ndarray, bits: int = 5) -> np.ndarray:
+    """Any (H, W, 3) uint8 frame -> (64, 64, 3) with ``bits`` bits (a no-op on Atari frames
+    that ``planet`` preprocessing already made so)."""
+    if frame.shape[:2] != (FRAME_SIZE, FRAME_SIZE):
+        frame = crop_resize(frame, None, FRAME_SIZE)
+    return quantize(frame, bits)
+
+
+def planet_interpreter(bits: int = 5) -> Interpreter:
+    """The :class:`~wmthesis.core.Interpreter` that applies :func:`planet_frame`."""
+    return Interpreter(state_fn=lambda frame: planet_frame(frame, bits))
+
+
+def build_model(config: PlaNetConfig, n_actions: int) -> RSSM:
+    """An RSSM of the config's sizes on :func:`wmthesis.utils.device`."""
+    return RSSM(n_actions, config.belief_size, config.state_size, config.hidden_size,
+                config.reward_hidden_size, config.min_std).to(device())
+
+
+def make_optimizer(model: RSSM, config: PlaNetConfig) -> torch.optim.Adam:
+    return torch.optim.Adam(model.parameters(), lr=config.lr, eps=config.adam_eps)
+
+
+# ---------------------------------------------------------------------------- agent
+class PlanetMind(Mind, Callback):
+    """The PlaNet agent for :func:`~wmthesis.core.loop`: filter the belief, plan with CEM.
+
+    Pass it as the mind AND among the callbacks: ``on_episode_start`` resets the belief and
+    ``on_step_taken`` records the action taken (the policy may differ from the plan). Each
+    :meth:`plan` first updates ``(h, s)`` with the observation (5-bit frame, dequantisation
+    noise as in training) and the previous action, then returns the scores of the final CEM
+    belief for the first step (argmax = the plan's action). :meth:`reset` does the episode
+    reset by hand.
+    """
+
+    def __init__(self, model: RSSM, *, horizon: int, candidates: int, top_k: int,
+                 iterations: int, bits: int = 5, generator: torch.Generator | None = None):
+        self.model, self.bits = model, bits
+        self.sizes = dict(horizon=horizon, candidates=candidates, top_k=top_k, iterations=iterations)
+        weight = next(model.parameters())
+        self.generator = generator if generator is not None else torch.Generator(weight.device).manual_seed(0)
+        self.reset()
+
+    @classmethod
+    def from_config(cls, model: RSSM, config: PlaNetConfig, seed: int = 0) -> "PlanetMind":
+        generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
+        return cls(model, horizon=config.horizon, candidates=config.candidates, top_k=config.top_k,
+                   iterations=config.iterations, bits=config.bits, generator=generator)
+
+    def reset(self) -> None:
+        """Start of an episode: zero belief, state and previous action."""
+        self.belief, self.state = self.model.initial(1)
+        self.prev_action = self.belief.new_zeros(1, self.model.n_actions)
+
+    def on_episode_start(self, episode, train_mode):
+        self.reset()
+
+    def on_step_taken(self, step, transition, info):
+        self.prev_action = F.one_hot(torch.tensor([transition.action], device=self.belief.device),
+                                     self.model.n_actions).float()
+
+    @torch.inference_mode()
+    def observe(self, frame: np.ndarray) -> None:
+        """Advance ``(h, s)`` with a (64, 64, 3) uint8 frame and the previous action."""
+        x = to_float(torch.as_tensor(frame, device=self.belief.device), self.bits, noise=self.generator)
+        self.belief, _ = self.model.transition(self.belief, self.state, self.prev_action)
+        posterior = self.model.posterior(self.belief, self.model.encode(x[None]))
+        self.state = posterior.sample(self.generator)
+
+    @torch.inference_mode()
+    def plan(self, state, train_mode: bool = True, debug_mode: bool = False):
+        self.observe(state)
+        rollout = lambda actions: self.model.imagined_returns(  # noqa: E731
+            self.belief, self.state, actions, self.generator)
+        belief = cem_belief(rollout, self.model.n_actions, generator=self.generator, **self.sizes)
+        scores = belief.mean[0].cpu().numpy()
+        if debug_mode:
+            return scores, {"std": belief.std[0].cpu().numpy(), "best_return": float(belief.returns.max())}
+        return scores
+
+
+# ---------------------------------------------------------------------------- training
+class _RunState:
+    """What a checkpoint holds besides the model and optimiser."""
+
+    def __init__(self, seed: int, dev: torch.device):
+        self.updates = 0
+        self.np_rng = np.random.default_rng(seed)
+        self.torch_rng = torch.Generator(dev).manual_seed(seed)
+        self.curve: dict[str, list] = {"train": [], "test": []}
+        self.seconds = 0.0
+
+
+def train_planet(env_name: str, config: PlaNetConfig, run_dir, *, seed: int,
+                 variant: str | dict | None = None, progress: bool = True) -> dict:
+    """Train PlaNet on ``env_name`` until the store holds ``config.env_steps`` agent steps.
+
+    Resumes from ``run_dir`` when it holds a run of the same environment, seed and config
+    (only :data:`RESUMABLE_CHANGES` may differ, e.g. a larger ``env_steps``); a finished run
+    returns at once. A non-finite loss raises ``FloatingPointError`` naming the update and
+    leaves the last good checkpoint in place. Returns a dict: ``run_dir``, ``env``,
+    ``config`` (as a dict), ``episodes``, ``env_steps``, ``updates``, ``seconds``, ``curve``
+    (``train`` and ``test`` lists) and ``final_test`` (the last test entry or None).
+    """
+    config = with_variant(config, variant)
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    seed_everything(seed)
+    dev = device()
+    env = make_planet_env(env_name, config)
+    model = build_model(config, env.action_space.n)
+    optimizer = make_optimizer(model, config)
+    run = _RunState(seed, dev)
+    known = _load_checkpoint(run_dir / CHECKPOINT, model, optimizer, run, env_name, seed, config)
+    store_options = dict(action_repeat=config.action_repeat, max_steps=config.max_episode_steps,
+                         bits=config.bits)
+    try:
+        with EpisodeStore(run_dir / STORE, "a", env=env_name, preprocessing="planet", seed=seed,
+                          obs_shape=(FRAME_SIZE, FRAME_SIZE, 3), env_options=store_options) as store:
+            _seed_episodes(store, env, config, seed)
+            _note_unknown_episodes(store, known, run, config)
+            _train_loop(store, env, model, optimizer, run, config, env_name, seed, run_dir, progress)
+            return _results(run_dir, env_name, config, store, run)
+    finally:
+        env.close()
+
+
+def _train_loop(store, env, model, optimizer, run, config, env_name, seed, run_dir, progress):
+    bar = tqdm(total=config.env_steps, initial=min(store.num_steps, config.env_steps), unit="step",
+               desc=f"planet {env_name}", disable=not progress)
+    with bar:
+        while store.num_steps < config.env_steps:
+            start = time.perf_counter()
+            losses = train_updates(model, optimizer, store, config, run, run_dir)
+            entry = _collect_episode(store, env, model, config, seed)
+            entry.update(updates=run.updates, **losses)
+            run.curve["train"].append(entry)
+            collected = len(store) - config.seed_episodes
+            if collected % config.test_interval == 0 or store.num_steps >= config.env_steps:
+                run.curve["test"].append(_test(env, model, config, seed, store, run))
+            run.seconds += time.perf_counter() - start
+            entry["seconds"] = run.seconds
+            _save_checkpoint(run_dir, model, optimizer, run, env_name, seed, config, len(store))
+            bar.update(min(store.num_steps, config.env_steps) - bar.n)
+            bar.set_postfix(ret=f"{entry['return']:.1f}", loss=f"{losses.get('loss', math.nan):.1f}")
+
+
+def train_updates(model: RSSM, optimizer, store: EpisodeStore, config: PlaNetConfig, run: _RunState,
+                  run_dir: Path | None = None) -> dict[str, float]:
+    """``config.update_steps`` updates on chunks from ``store``; the mean of each loss term.
+
+    Raises ``FloatingPointError`` on a non-finite loss, before the step is taken.
+    """
+    dev = next(model.parameters()).device
+    sums: dict[str, float] = {}
+    model.train()
+    for _ in range(config.update_steps):
+        batch = store.sample_chunks(config.batch_size, config.chunk_length, run.np_rng)
+        terms = batch_loss(model, {key: value.to(dev) for key, value in batch.items()}, config, run.torch_rng)
+        if not torch.isfinite(terms["loss"]):
+            where = f" in {run_dir}" if run_dir else ""
+            raise FloatingPointError(
+                f"PlaNet loss is {terms['loss'].item()} at update {run.updates + 1}{where} "
+                f"(terms: { {k: round(v.item(), 4) for k, v in terms.items()} }); stopped, the last good "
+                f"checkpoint (update {_checkpoint_updates(run_dir)}) is kept")
+        optimizer_step(model, optimizer, terms["loss"], config)
+        run.updates += 1
+        for key, value in terms.items():
+            sums[key] = sums.get(key, 0.0) + float(value.detach())
+    return {key: value / config.update_steps for key, value in sums.items()}
+
+
+def batch_loss(model: RSSM, batch: dict[str, torch.Tensor], config: PlaNetConfig,
+               generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    """:func:`~wmthesis.models.rssm.planet_loss` with the config's knobs on a batch of
+    :meth:`~wmthesis.data.EpisodeStore.sample_chunks` (on the model's device)."""
+    return planet_loss(model, batch["observations"], batch["actions"], batch["rewards"], bits=config.bits,
+                       kl_scale=config.kl_scale, free_nats=config.free_nats,
+                       decoder_variance=config.decoder_variance, reward_scale=config.reward_scale,
+                       overshooting_distance=config.overshooting_distance,
+                       overshooting_scale=config.overshooting_scale, generator=generator)
+
+
+def optimizer_step(model: RSSM, optimizer, loss: torch.Tensor, config: PlaNetConfig) -> None:
+    """Backpropagate ``loss``, clip the gradient norm at ``grad_clip``, take an Adam step."""
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+    optimizer.step()
+
+
+def _checkpoint_updates(run_dir: Path | None):
+    path = run_dir / CHECKPOINT if run_dir else None
+    if path is None or not path.exists():
+        return "none: no checkpoint yet"
+    return torch.load(path, map_location="cpu", weights_only=False)["updates"]
+
+
+def _seed_episodes(store: EpisodeStore, env, config: PlaNetConfig, seed: int) -> None:
+    """Random episodes until the store holds ``seed_episodes`` (episode i seeded from (seed, i))."""
+    interpreter = planet_interpreter(config.bits)
+    for index in range(len(store), config.seed_episodes):
+        episode = play_random_episode(env, seed, index)
+        episode["observations"] = np.stack([interpreter(frame)[0] for frame in episode["observations"]])
+        store.append_episode(**episode)
+
+
+def _collect_episode(store: EpisodeStore, env, model: RSSM, config: PlaNetConfig, seed: int) -> dict:
+    """One epsilon-greedy planner episode, seeded from (seed, its index), into the store."""
+    index = len(store)
+    env_seed, mind_seed = episode_seeds(seed, index)
+    mind = PlanetMind.from_config(model, config, mind_seed)
+    buffer = EpisodeBuffer()
+    model.eval()
+    history = loop(env, mind, planet_interpreter(config.bits), policy="epsilon-greedy",
+                   policy_options={"epsilon": config.epsilon}, callbacks=[mind, buffer],
+                   seed=env_seed, train_mode=True)
+    store.append_episode(**buffer.episode)
+    return {"episode": index, "env_steps": store.num_steps,
+            "frames": store.num_steps * _repeat(store, config),
+            "return": history[0]["return"], "steps": history[0]["steps"]}
+
+
+def _test(env, model: RSSM, config: PlaNetConfig, seed: int, store: EpisodeStore, run: _RunState) -> dict:
+    """``test_episodes`` greedy episodes; seeds from (seed, episodes in the store, k)."""
+    returns = []
+    model.eval()
+    for k in range(config.test_episodes):
+        env_seed, mind_seed = np.random.SeedSequence([seed, 1, len(store), k]).generate_state(2)
+        mind = PlanetMind.from_config(model, config, int(mind_seed))
+        history = loop(env, mind, planet_interpreter(config.bits), policy="deterministic",
+                       callbacks=[mind], seed=int(env_seed), train_mode=False)
+        returns.append(history[0]["return"])
+    return {"episode": len(store) - 1, "env_steps": store.num_steps,
+            "frames": store.num_steps * _repeat(store, config), "updates": run.updates,
+            "returns": returns, "mean": float(np.mean(returns)), "std": float(np.std(returns))}
+
+
+def _repeat(store: EpisodeStore, config: PlaNetConfig) -> int:
+    return config.action_repeat if store.attrs.get("env") in ATARI_GAMES else 1
+
+
+def _note_unknown_episodes(store: EpisodeStore, known: int | None, run: _RunState, config) -> None:
+    """Episodes the checkpoint does not know (a stop between the store's append and the
+    checkpoint) are kept as data; their train-curve entries are rebuilt from the store."""
+    known = config.seed_episodes if known is None else known
+    if len(store) <= known:
+        return
+    warnings.warn(f"{store.path}: {len(store) - known} episode(s) after the last checkpoint; "
+                  "keeping them as data and resuming from the checkpoint", stacklevel=3)
+    ends = np.cumsum(store.episode_lengths)
+    for index in range(known, len(store)):
+        rewards = store.episode(index)["rewards"]
+        run.curve["train"].append({"episode": index, "env_steps": int(ends[index]),
+                                   "frames": int(ends[index]) * _repeat(store, config),
+                                   "return": float(rewards.sum()), "steps": len(rewards),
+                                   "updates": run.updates, "recovered": True})
+
+
+# ---------------------------------------------------------------------------- checkpoints
+def _save_checkpoint(run_dir: Path, model, optimizer, run: _RunState, env_name, seed, config, episodes):
+    state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "updates": run.updates,
+             "np_rng": run.np_rng.bit_generator.state, "torch_rng": run.torch_rng.get_state(),
+             "curve": run.curve, "seconds": run.seconds, "episodes": episodes, "env": env_name,
+             "seed": seed, "config": dataclasses.asdict(config), "n_actions": model.n_actions}
+    with atomic_path(run_dir / CHECKPOINT) as tmp:
+        torch.save(state, tmp)
+    with atomic_path(run_dir / CURVE) as tmp:
+        tmp.write_text(json.dumps({"env": env_name, "seed": seed, "config": dataclasses.asdict(config),
+                                   "updates": run.updates, "seconds": run.seconds, **run.curve}, indent=1))
+
+
+def _load_checkpoint(path: Path, model, optimizer, run: _RunState, env_name, seed, config) -> int | None:
+    """Restore a checkpoint into ``model``, ``optimizer`` and ``run``; return the number of
+    episodes it knows (None without a checkpoint)."""
+    if not path.exists():
+        return None
+    state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
+    if (state["env"], state["seed"]) != (env_name, seed):
+        raise ValueError(f"{path}: a run of {state['env']!r} with seed {state['seed']}, not "
+                         f"{env_name!r} with seed {seed}; use another run_dir")
+    saved, wanted = state["config"], dataclasses.asdict(config)
+    differ = sorted(k for k in wanted if k not in RESUMABLE_CHANGES and saved.get(k) != wanted[k])
+    if differ:
+        changes = ", ".join(f"{k}: {saved.get(k)!r} -> {wanted[k]!r}" for k in differ)
+        raise ValueError(f"{path}: cannot resume with a different config ({changes}); use another run_dir")
+    model.load_state_dict(state["model"])
+    optimizer.load_state_dict(state["optimizer"])
+    run.updates, run.curve, run.seconds = state["updates"], state["curve"], state["seconds"]
+    run.np_rng.bit_generator.state = state["np_rng"]
+    run.torch_rng.set_state(state["torch_rng"].cpu())
+    return state["episodes"]
+
+
+def load_planet(run_dir) -> tuple[RSSM, PlaNetConfig, dict]:
+    """The trained model (eval mode), its config and the checkpoint's metadata (``env``,
+    ``seed``, ``updates``, ``episodes``, ``curve``) from a run folder."""
+    path = Path(run_dir) / CHECKPOINT
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no PlaNet checkpoint (train with train_planet first)")
+    state = torch.load(path, map_location=device(), weights_only=False)
+    config = PlaNetConfig(**state["config"])
+    model = build_model(config, state["n_actions"])
+    model.load_state_dict(state["model"])
+    model.eval()
+    meta = {key: state[key] for key in ("env", "seed", "updates", "episodes", "curve", "seconds")}
+    return model, config, meta
+
+
+def _results(run_dir: Path, env_name, config, store: EpisodeStore, run: _RunState) -> dict:
+    tests = run.curve["test"]
+    return {"run_dir": str(run_dir), "env": env_name, "config": dataclasses.asdict(config),
+            "episodes": len(store), "env_steps": store.num_steps, "updates": run.updates,
+            "seconds": run.seconds, "curve": run.curve, "final_test": tests[-1] if tests else None}
+
+
+# ---------------------------------------------------------------------------- open loop
+@torch.inference_mode()
+def open_loop(model: RSSM, observations: torch.Tensor, actions: torch.Tensor, *, context: int = 5,
+              bits: int = 5, generator: torch.Generator | None = None, sample: bool = False) -> dict:
+    """Filter ``context`` frames, then predict the rest open-loop from the actions taken.
+
+    ``observations`` (B, T, H, W, 3) uint8, ``actions`` (B, T) long (row t: ``a_t``). The
+    frames after the context are decoded from the prior (its means; samples with
+    ``sample=True``). Returns numpy arrays: ``truth`` and ``prediction`` (B, T, H, W, 3)
+    uint8 (the first ``context`` predictions are the posterior reconstructions), and ``mse``
+    (T - context,): the squared error per pixel of each horizon, averaged over the batch, in
+    the model's float units (frames in [-0.5, 0.5), the truth at its bins' centres).
+    """
+    if not 1 <= context < observations.shape[1]:
+        raise ValueError(f"context must be in 1..T-1, got {context} for T = {observations.shape[1]}")
+    dev = next(model.parameters()).device
+    truth = to_float(observations.to(dev), bits) + 0.5 / 2 ** bits
+    prev_actions = one_hot_previous(actions.to(dev), model.n_actions)
+    trajectory = model.observe(model.encode(truth[:, :context]), prev_actions[:, :context], generator)
+    beliefs, states = model.imagine(trajectory.beliefs[:, -1], trajectory.states[:, -1],
+                                    prev_actions[:, context:], generator, sample)
+    predicted = model.decode(beliefs, states)
+    reconstructed = model.decode(trajectory.beliefs, trajectory.states)
+    mse = (predicted - truth[:, context:]).pow(2).mean((0, 2, 3, 4))
+    prediction = frames_out(torch.cat([reconstructed, predicted], 1), bits)
+    return {"truth": observations.cpu().numpy(), "prediction": prediction.cpu().numpy(),
+            "mse": mse.cpu().numpy(), "context": context}
+
+
+def evaluate_open_loop(model: RSSM, store: EpisodeStore, *, sequences: int = 6, length: int = 20,
+                       context: int = 5, bits: int = 5, seed: int = 0) -> dict:
+    """:func:`open_loop` on ``sequences`` random chunks of ``length`` steps from ``store``."""
+    batch = store.sample_chunks(sequences, length, np.random.default_rng(seed))
+    generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
+    return open_loop(model, batch["observations"], batch["actions"], context=context, bits=bits,
+                     generator=generator)
+
+
+# ---------------------------------------------------------------------------- figures
+def open_loop_figure(result: dict, *, sequences: int = 3, columns: int | None = None,
+                     scale: float = 0.9, title: str | None = None):
+    """Thesis Fig. 58 style: per sequence a row of true frames and a row of the model's
+    frames; the model row shows the ``context`` true frames, then its open-loop predictions
+    (columns titled +1, +2, ...). ``result`` is :func:`open_loop`'s output."""
+    truth, prediction, context = result["truth"], result["prediction"], result["context"]
+    sequences = min(sequences, len(truth))
+    columns = min(columns or truth.shape[1], truth.shape[1])
+    fig, axes = plt.subplots(2 * sequences, columns, squeeze=False,
+                             figsize=(scale * columns, scale * 2 * sequences + (0.3 if title else 0)))
+    for index in range(sequences):
+        model_row = np.concatenate([truth[index, :context], prediction[index, context:]])
+        for row, (label, frames) in enumerate((("truth", truth[index]), ("model", model_row))):
+            for t, ax in enumerate(axes[2 * index + row]):
+                ax.imshow(frames[t], interpolation="nearest")
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if t >= context and row == 1:
+                    for spine in ax.spines.values():
+                        spine.set_edgecolor("tab:red")
+            axes[2 * index + row, 0].set_ylabel(f"{label} {index + 1}", fontsize=7)
+    for t, ax in enumerate(axes[0]):
+        ax.set_title("context" if t == context // 2 else (f"+{t - context + 1}" if t >= context else ""),
+                     fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout(pad=0.2, rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight() if title else 1))
+    return fig
+
+
+def horizon_error_figure(curves: dict[str, Sequence[float]], *, title: str | None = None):
+    """Open-loop prediction error against the prediction horizon, one line per entry
+    (e.g. ``{"unchanged": result["mse"], "free nats 12": other["mse"]}``)."""
+    fig, ax = plt.subplots(figsize=(4.5, 3))
+    for label, mse in curves.items():
+        ax.plot(np.arange(1, len(mse) + 1), mse, marker=".", label=label)
+    ax.set_xlabel("steps predicted open-loop")
+    ax.set_ylabel("MSE per pixel")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def learning_curve_figure(curves: dict[str, dict], *, references: dict[str, float] | None = None,
+                          x: str = "env_steps", title: str | None = None):
+    """Test score (mean and std band) against agent steps, one line per run; training
+    episodes' returns as faint dots. ``curves`` maps labels to :func:`train_planet`'s
+    ``curve`` (or ``curve.json``); ``references`` draws horizontal lines (e.g. random, human).
+    """
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    for label, curve in curves.items():
+        tests = curve.get("test", [])
+        line = None
+        if tests:
+            steps = np.array([entry[x] for entry in tests])
+            mean = np.array([entry["mean"] for entry in tests])
+            std = np.array([entry["std"] for entry in tests])
+            (line,) = ax.plot(steps, mean, marker=".", label=f"{label} (test)")
+            ax.fill_between(steps, mean - std, mean + std, alpha=0.2, color=line.get_color())
+        train = curve.get("train", [])
+        if train:
+            ax.scatter([entry[x] for entry in train], [entry["return"] for entry in train], s=6, alpha=0.4,
+                       color=None if line is None else line.get_color(),
+                       label=None if line is not None else f"{label} (train)")
+    for name, value in (references or {}).items():
+        ax.axhline(value, linestyle="--", linewidth=0.8, color="gray")
+        ax.annotate(name, (ax.get_xlim()[0], value), fontsize=7, color="gray", va="bottom")
+    ax.set_xlabel({"env_steps": "agent steps", "frames": "frames"}.get(x, x))
+    ax.set_ylabel("score")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+__all__ = ["train_planet", "train_updates", "batch_loss", "optimizer_step", "PlanetMind", "VARIANTS", "with_variant", "make_planet_env",
+           "planet_frame", "planet_interpreter", "build_model", "load_planet", "open_loop",
+           "evaluate_open_loop", "open_loop_figure", "horizon_error_figure", "learning_curve_figure"]
