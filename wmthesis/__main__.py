@@ -75,7 +75,7 @@ def cmd_reproduce(args) -> int:
     matplotlib.use("Agg")
     from wmthesis.experiments import reproduce
 
-    metrics = reproduce(args.experiment, args.profile, args.seed)
+    metrics = reproduce(args.experiment, args.profile, args.seed, args.variant)
     score = metrics["score"]
     print(f"{args.experiment} ({metrics['profile']}, seed {args.seed}): score {score['mean']:.1f} +- {score['std']:.1f} "
           f"over {score['episodes']} episodes; wall time {metrics['wall_seconds']:.0f} s")
@@ -111,6 +111,7 @@ def parser() -> argparse.ArgumentParser:
     reproduce.add_argument("experiment", choices=EXPERIMENTS)
     reproduce.add_argument("--profile", choices=PROFILES)
     reproduce.add_argument("--seed", type=int, default=0)
+    reproduce.add_argument("--variant", help="a variant of the experiment (PlaNet's: see its --help)")
     reproduce.set_defaults(run=cmd_reproduce)
     return top
 

@@ -26,10 +26,18 @@ EXPERIMENTS = ("boxing-wm",)
 BOXING_REFERENCE = {"random": 0.1, "human": 12.1, "thesis World Models": "above 18"}
 
 
-def reproduce(name: str, profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
-    """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics."""
+def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
+              progress: bool = True) -> dict:
+    """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics.
+
+    ``variant`` selects a variant of experiments that have them (PlaNet's); others refuse one.
+    """
     check_choice("experiment", name, EXPERIMENTS)
-    return {"boxing-wm": boxing_world_models}[name](profile, seed, progress)
+    if name == "boxing-wm":
+        if variant is not None:
+            raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
+        return boxing_world_models(profile, seed, progress)
+    raise AssertionError(f"experiment {name!r} is listed but not wired")
 
 
 def boxing_world_models(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
