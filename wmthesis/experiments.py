@@ -94,9 +94,19 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
         "open_loop_pixel_error": rollout["pixel_error"].tolist(),
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
+    metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
+
+
+def _first_run_seconds(path: Path, seconds: float) -> float:
+    """The wall time of the run that computed everything: kept from an earlier metrics file
+    (a resumed or cached run is faster), else this run's."""
+    try:
+        return json.loads(path.read_text())["first_run_wall_seconds"]
+    except (OSError, ValueError, KeyError):
+        return seconds
 
 
 def _boxing_figures(out: Path, frames, reconstructions, rollout, curve) -> list[Path]:

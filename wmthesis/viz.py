@@ -160,3 +160,13 @@ def grid_state_figure(rgb: np.ndarray, grid: np.ndarray, names: Sequence[str], s
         ax.set_yticks([])
     fig.tight_layout()
     return fig
+
+
+def markdown_table(rows: Sequence[Sequence], headers: Sequence[str]) -> str:
+    """A Markdown table (for ``IPython.display.Markdown``) of ``rows`` under ``headers``."""
+    def cell(value):
+        return f"{value:.2f}" if isinstance(value, float) else str(value)
+
+    lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
+    return "\n".join(lines)
