@@ -53,6 +53,12 @@ def test_rerun_recorder_logs_every_step_of_every_episode(tmp_path):
     assert rows["/observation"] == 14 and rows["/reward"] == 14 and rows["/return"] == 14
 
 
+def test_long_recordings_count_every_chunk(tmp_path):
+    frames = np.zeros((3000, 4, 4, 3), np.uint8)
+    rows = recording_rows(record_frames(tmp_path / "long.rrd", {"frames": frames}, {"value": np.arange(3000.0)}))
+    assert rows["/frames"] == 3000 and rows["/value"] == 3000
+
+
 def test_record_frames_side_by_side(tmp_path):
     truth = np.zeros((5, 8, 8, 3), np.uint8)
     rows = recording_rows(record_frames(tmp_path / "r.rrd", {"truth": truth, "prediction": truth[:3]},

@@ -6,6 +6,9 @@
         Summarise a store; write a frame strip (PNG) and a rerun recording of one episode.
     reproduce EXPERIMENT [--profile smoke|quick|thesis] [--seed S]
         Run a thesis experiment end to end; results under data/results/EXPERIMENT/.
+    search planet-boxing|planet-freeway --trials N [--workers K] [--storage URL] [--profile P]
+        Random search over KL scale x free nats (optuna); re-running continues the study, and
+        any optuna storage URL (e.g. PostgreSQL) lets workers on many machines share it.
 """
 from __future__ import annotations
 
@@ -83,6 +86,26 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
+def cmd_search(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from wmthesis.search import GAMES, ranked, run_search, trial_rows
+
+    study = run_search(args.name, trials=args.trials, workers=args.workers, storage=args.storage,
+                       profile=args.profile, objective=args.objective, seed=args.seed)
+    rows = trial_rows(study)
+    states = {state: sum(row["state"] == state for row in rows) for state in ("COMPLETE", "PRUNED", "FAIL")}
+    print(f"{study.study_name}: " + ", ".join(f"{n} {state.lower()}" for state, n in states.items()))
+    best, game = ranked(study), GAMES[args.name]
+    if best:
+        top = best[0]
+        print(f"best: trial {top['number']}: KL scale {top['kl_scale']:.3g}, free nats {top['free_nats']:.2f}, "
+              f"score {top['score']:.1f}, open-loop error at +{top['horizon']} {top['error']:.4f}")
+    print(f"thesis: KL scale {game.thesis_kl_scale:g}, free nats {game.thesis_free_nats:g}")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m wmthesis", description=__doc__,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -113,6 +136,16 @@ def parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--seed", type=int, default=0)
     reproduce.add_argument("--variant", help="a variant of the experiment (PlaNet's: see its --help)")
     reproduce.set_defaults(run=cmd_reproduce)
+
+    search = commands.add_parser("search", help="random search over KL scale x free nats (optuna)")
+    search.add_argument("name", choices=("planet-boxing", "planet-freeway"))
+    search.add_argument("--trials", type=int, help="finished trials wanted in the study (default: profile's)")
+    search.add_argument("--workers", type=int, help="worker processes on this machine")
+    search.add_argument("--storage", help="optuna storage URL (default: sqlite file under data/search/)")
+    search.add_argument("--profile", choices=PROFILES)
+    search.add_argument("--objective", choices=("score", "error", "both"))
+    search.add_argument("--seed", type=int, help="study seed (the sampler's and every trial's)")
+    search.set_defaults(run=cmd_search)
     return top
 
 

@@ -144,6 +144,30 @@ class ControllerConfig:
     eval_episodes: int = 5
 
 
+@dataclass(frozen=True)
+class SearchConfig:
+    """Random search over KL scale x free nats (thesis 5.6.3-5.6.5; the thesis gives no
+    ranges, trial count or budget: these are ours, wide enough to hold both games' best values,
+    Boxing 3e-2 / 12 and Freeway 8e-3 / 3). KL scale is log-uniform, free nats uniform.
+    ``objective``: ``score`` (final greedy test score, maximised), ``error`` (open-loop MSE at the
+    game's cut-off horizon, minimised) or ``both`` (a two-objective study). ``env_steps``
+    overrides the PlaNet budget of each trial (None: the profile's). Heartbeats: a trial whose
+    worker has not beaten for ``grace_period`` seconds is marked failed."""
+
+    trials: int = 50
+    workers: int = 2
+    seed: int = 0
+    objective: str = "both"
+    kl_scale_low: float = 1e-3
+    kl_scale_high: float = 1.0
+    free_nats_low: float = 0.0
+    free_nats_high: float = 20.0
+    env_steps: int | None = 100_000
+    open_loop_sequences: int = 6
+    open_loop_length: int = 30           # 5 context frames + 25 predicted
+    heartbeat_interval: int = 60
+    grace_period: int = 300
+
 # Per profile, per config class name: the fields that differ from the thesis defaults.
 OVERRIDES: dict[str, dict[str, dict]] = {
     "smoke": {
@@ -156,6 +180,8 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                              batch_size=4, chunk_length=8, overshooting_distance=3, seed_episodes=2,
                              update_steps=2, max_episode_steps=16, env_steps=80, horizon=3,
                              candidates=16, top_k=4, iterations=2, test_interval=1, test_episodes=1),
+        "SearchConfig": dict(trials=2, workers=1, env_steps=48, open_loop_sequences=2, open_loop_length=10,
+                             heartbeat_interval=1, grace_period=3),
     },
     "quick": {
         "CollectConfig": dict(episodes=20),
@@ -165,6 +191,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                                  dream_max_steps=400, eval_every=10, eval_episodes=3),
         "PlaNetConfig": dict(batch_size=12, chunk_length=24, update_steps=100, env_steps=20_000,
                              candidates=100, top_k=10, iterations=3, test_interval=3, test_episodes=1),
+        "SearchConfig": dict(trials=8, env_steps=2_500, heartbeat_interval=10, grace_period=60),
     },
     "thesis": {},
 }

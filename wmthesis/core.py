@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from wmthesis.utils import check_choice
 

@@ -48,7 +48,7 @@ import h5py
 import hdf5plugin
 import numpy as np
 import torch
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from wmthesis.core import Callback, RandomMind, loop
 from wmthesis.utils import atomic_path, check_choice

@@ -135,8 +135,11 @@ def recording_rows(path: str | Path) -> dict[str, int]:
     """How many rows each entity of a rerun recording holds, e.g. ``{"/observation": 120, ...}``."""
     from rerun.chunk import RrdReader
 
-    summary = RrdReader(str(path)).store().summary()
-    return {match[1]: int(match[2]) for match in re.finditer(r"^(\S+) rows=(\d+)", summary, re.M)}
+    summary = RrdReader(str(path)).store().summary()  # one line per chunk of an entity
+    rows: dict[str, int] = {}
+    for match in re.finditer(r"^(\S+) rows=(\d+)", summary, re.M):
+        rows[match[1]] = rows.get(match[1], 0) + int(match[2])
+    return rows
 
 
 def grid_state_figure(rgb: np.ndarray, grid: np.ndarray, names: Sequence[str], scale: float = 3.0):

@@ -39,7 +39,7 @@ from typing import Callable
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from wmthesis.core import Callback, Mind
 from wmthesis.models.controller import Controller, features, num_parameters, population_scores, unflatten

@@ -31,7 +31,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import torch
 import torch.nn.functional as F
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from wmthesis.config import PlaNetConfig
 from wmthesis.core import Callback, Interpreter, Mind, loop

@@ -95,7 +95,7 @@ def encode_store(store_path: str | Path, vae: VAE, out_path: str | Path, *, batc
     ``terminals`` (N,) and ``episode_ends`` (E,), episodes back to back. An existing file
     made from the same store (same episode count and latent size) is kept.
     """
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     out_path = Path(out_path)
     dev = next(vae.parameters()).device
