@@ -1,0 +1,87 @@
+"""VAE training throughput: the real pipeline (frames sampled from a compressed HDF5 store)
+against a bare PyTorch loop on the same batch held in memory. Target: >= 90%.
+
+    python benchmarks/bench_vision.py [--batch 256] [--steps 20]
+
+Prints a table and writes benchmarks/results/vision.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wmthesis.data import EpisodeStore, collect
+from wmthesis.models.vae import VAE, elbo_loss, frames_to_input
+
+
+def bare_loop(frames: torch.Tensor, steps: int) -> float:
+    """Images/s of VAE updates on one batch kept in memory (the floor of what training costs)."""
+    torch.manual_seed(0)
+    vae = VAE(16)
+    optimiser = torch.optim.Adam(vae.parameters(), lr=1e-3, eps=1e-7)
+    x = frames_to_input(frames)
+    started = time.perf_counter()
+    for _ in range(steps):
+        loss = elbo_loss(x, *vae(x))["loss"]
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    return steps * len(frames) / (time.perf_counter() - started)
+
+
+def pipeline(store_path: Path, batch: int, steps: int) -> tuple[float, float]:
+    """Images/s of the same updates with every batch sampled from the store, and the share of
+    time spent sampling."""
+    torch.manual_seed(0)
+    vae = VAE(16)
+    optimiser = torch.optim.Adam(vae.parameters(), lr=1e-3, eps=1e-7)
+    rng = np.random.default_rng(0)
+    sampling = 0.0
+    with EpisodeStore(store_path) as store:
+        started = time.perf_counter()
+        for _ in range(steps):
+            t = time.perf_counter()
+            x = frames_to_input(store.sample_chunks(batch, 1, rng)["observations"][:, 0])
+            sampling += time.perf_counter() - t
+            loss = elbo_loss(x, *vae(x))["loss"]
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+        total = time.perf_counter() - started
+    return steps * batch / total, sampling / total
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--batch", type=int, default=256)
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "vision.json")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        store = collect("boxing", 4, Path(tmp) / "boxing.h5", workers=2, seed=0, max_steps=500, progress=False)
+        with EpisodeStore(store) as s:
+            frames = s.sample_chunks(args.batch, 1, np.random.default_rng(1))["observations"][:, 0]
+        bare = bare_loop(frames, args.steps)
+        real, sampling_share = pipeline(store, args.batch, args.steps)
+    rows = [{"what": "bare PyTorch loop, batch in memory", "images_per_s": bare},
+            {"what": "train_vision pipeline, batches from HDF5", "images_per_s": real, "vs_bare": real / bare,
+             "sampling_share": sampling_share}]
+    print(f"{'what':45} {'images/s':>10} {'vs bare':>8} {'sampling':>9}")
+    for row in rows:
+        print(f"{row['what']:45} {row['images_per_s']:10.0f} {row.get('vs_bare', 1):8.2f} {row.get('sampling_share', 0):9.1%}")
+    meta = {"batch": args.batch, "steps": args.steps, "torch_threads": torch.get_num_threads(),
+            "load_average": os.getloadavg(), "machine": platform.machine(), "date": time.strftime("%Y-%m-%d")}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"meta": meta, "results": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
