@@ -153,12 +153,16 @@ PLANET_REFERENCE = {
     "planet-sokoban": {},
 }
 
+# Changes on top of the profile for every PlaNet experiment. Smoke: one planner episode after
+# the two seed episodes (notebook 05 runs six variants in the smoke test).
+PLANET_CHANGES = {"smoke": dict(env_steps=48), "quick": {}, "thesis": {}}
+
 # Sokoban-small needs its own sizes: its episodes are at most 120 steps, where a Boxing bout is
 # ~1,780 agent steps, so the profiles' ``env_steps`` (sized for Boxing) would give Sokoban 10-15
 # times as many planner episodes, each followed by ``update_steps`` updates. These changes keep
 # Sokoban's number of updates near Boxing's in the same profile: quick ~1,250 updates (Boxing's
 # quick: ~11 episodes x 100), thesis ~2M (Boxing's thesis: ~560 episodes x 5000). The thesis does
-# not state Sokoban's budget. Smoke's 16-step episodes already fit.
+# not state Sokoban's budget. Smoke's 16-step episodes already fit (PLANET_CHANGES applies).
 SOKOBAN_CHANGES = {
     "smoke": {},
     "quick": dict(env_steps=3_000, update_steps=50, test_interval=5, test_episodes=2),
@@ -212,7 +216,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     started = time.time()
     work = data_dir(profile, name, f"{variant}-seed{seed}")
     out = data_dir("results", name, f"{profile}-seed{seed}", variant)
-    changes = SOKOBAN_CHANGES[profile] if env_name == "sokoban-small" else {}
+    changes = {**PLANET_CHANGES[profile], **(SOKOBAN_CHANGES[profile] if env_name == "sokoban-small" else {})}
     config = for_profile(PlaNetConfig, profile, **changes)
 
     run = train_planet(env_name, config, work, seed=seed, variant=variant, progress=progress)
@@ -233,7 +237,8 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     title = {"planet-sokoban": "Fig. 58", "planet-boxing": "Fig. 59/510", "planet-freeway": "Fig. 511"}[name]
     label = f"{env_name}, {variant}"
     figures = [
-        _save(open_loop_figure(rollout, sequences=3, columns=min(context + horizon, 20),
+        _save(open_loop_figure(rollout, sequences=1 if profile == "smoke" else 3,
+                               columns=min(context + horizon, 20),
                                title=f"{title}: {label}, open-loop after {context} context frames"),
               out / "open_loop.png"),
         _save(horizon_error_figure({label: rollout["mse"]}, title=f"open-loop error, {label}"),

@@ -1,0 +1,23 @@
+"""The command line: collect and view a store; bad input gives a message and exit status 2."""
+from wmthesis.__main__ import main
+from wmthesis.data import EpisodeStore
+from wmthesis.viz import recording_rows
+
+
+def test_collect_then_view(tmp_path, capsys):
+    store = tmp_path / "box.h5"
+    assert main(["collect", "boxing", "--episodes", "2", "--max-steps", "30", "--workers", "1",
+                 "--out", str(store), "--profile", "smoke"]) == 0
+    with EpisodeStore(store) as s:
+        assert len(s) == 2 and s.num_steps == 60 and s.attrs["preprocessing"] == "world_models"
+    assert main(["view", str(store), "--episode", "1", "--out", str(tmp_path / "view")]) == 0
+    assert "2 episodes" in capsys.readouterr().out
+    assert (tmp_path / "view" / "episode1.png").stat().st_size > 1000
+    assert recording_rows(tmp_path / "view" / "episode1.rrd")["/observation"] == 30
+
+
+def test_bad_input_is_a_message_not_a_traceback(tmp_path, capsys):
+    assert main(["view", str(tmp_path / "missing.h5")]) == 2
+    assert "missing.h5: no such episode store" in capsys.readouterr().err
+    assert main(["reproduce", "planet-boxing", "--variant", "nope", "--profile", "smoke"]) == 2
+    assert "valid: unchanged, action-repeat" in capsys.readouterr().err
