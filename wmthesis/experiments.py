@@ -2,8 +2,8 @@
 
 Each experiment writes its artifacts (stores, checkpoints) under ``data/<profile>/<name>/``
 and its results (figures, ``metrics.json``, rerun recordings) under
-``data/results/<name>/<profile>-seed<seed>/``. Every step skips work whose artifact exists,
-so re-running resumes.
+``data/results/<name>/<profile>-seed<seed>/`` (PlaNet's: one subfolder per variant).
+Every step skips work whose artifact exists, so re-running resumes.
 """
 from __future__ import annotations
 
