@@ -1,0 +1,127 @@
+"""Random search over KL scale x free nats: reproducible suggestions, two worker processes on
+one study (SQLite, and PostgreSQL when ``WMTHESIS_TEST_POSTGRES_URL`` is set, as in CI), a
+killed worker, divergence, and the command line, all with smoke-sized trials."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+import optuna
+import pytest
+
+matplotlib.use("Agg")
+
+from wmthesis.__main__ import main  # noqa: E402
+from wmthesis.agents import planet as planet_module  # noqa: E402
+from wmthesis.config import SearchConfig, for_profile  # noqa: E402
+from wmthesis.search import (TrialSeededSampler, load_study, make_storage, open_study,  # noqa: E402
+                             planned_settings, ranked, run_search, search_figure, study_name,
+                             trial_rows)
+
+POSTGRES = os.environ.get("WMTHESIS_TEST_POSTGRES_URL")
+SMOKE = for_profile(SearchConfig, "smoke")
+
+
+def fresh(storage: str, name: str, objective: str = "both") -> None:
+    """Delete a study left by an earlier run (a developer's persistent PostgreSQL)."""
+    try:
+        optuna.delete_study(study_name=study_name(name, "smoke", objective), storage=make_storage(storage, SMOKE))
+    except KeyError:
+        pass
+
+
+def test_suggestions_depend_only_on_seed_and_trial_number():
+    first, again = planned_settings(SMOKE, 6), planned_settings(SMOKE, 6)
+    assert first == again
+    assert first != planned_settings(for_profile(SearchConfig, "smoke", seed=1), 6)
+    assert all(SMOKE.kl_scale_low <= s["kl_scale"] <= SMOKE.kl_scale_high for s in first)
+    assert all(SMOKE.free_nats_low <= s["free_nats"] <= SMOKE.free_nats_high for s in first)
+    # a study asked out of order (as by several workers) still gives trial n the same setting
+    study = optuna.create_study(sampler=TrialSeededSampler(SMOKE.seed))
+    trials = [study.ask() for _ in range(6)]
+    for trial in reversed(trials):
+        assert trial.suggest_float("free_nats", SMOKE.free_nats_low, SMOKE.free_nats_high) == \
+            first[trial.number]["free_nats"]
+    # the thesis's best values lie inside the ranges
+    assert SMOKE.kl_scale_low < 8e-3 < 3e-2 < SMOKE.kl_scale_high
+    assert SMOKE.free_nats_low < 3 < 12 < SMOKE.free_nats_high
+
+
+STORAGES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.skipif(
+    not POSTGRES, reason="WMTHESIS_TEST_POSTGRES_URL not set (.ci/run starts a PostgreSQL server and sets it)"))]
+
+
+@pytest.mark.parametrize("backend", STORAGES)
+def test_two_worker_processes_share_one_study(backend, tmp_path):
+    storage = f"sqlite:///{tmp_path / 'studies.db'}" if backend == "sqlite" else POSTGRES
+    fresh(storage, "planet-freeway")
+    study = run_search("planet-freeway", trials=3, workers=2, storage=storage, profile="smoke")
+    rows = trial_rows(study)
+    assert [row["state"] for row in rows] == ["COMPLETE"] * 3
+    assert len({row["worker"] for row in rows}) == 2, "both worker processes ran trials"
+    planned = planned_settings(SMOKE, 3)
+    for row in rows:
+        assert {k: row[k] for k in ("kl_scale", "free_nats")} == planned[row["number"]]
+        folder = Path(row["folder"])
+        metrics = json.loads((folder / "metrics.json").read_text())
+        assert metrics["error"] == row["error"] and metrics["score"] == row["score"]
+        assert (folder / "open_loop.png").stat().st_size > 1000
+    assert ranked(study)[0]["state"] == "COMPLETE"
+    search_figure(study, "planet-freeway", "error")
+    # the same command again: the study is finished, nothing runs
+    assert len(run_search("planet-freeway", trials=3, workers=2, storage=storage, profile="smoke").trials) == 3
+
+
+def test_a_killed_worker_leaves_the_study_consistent_and_it_resumes(tmp_path):
+    storage = f"sqlite:///{tmp_path / 'studies.db'}"
+    command = [sys.executable, "-m", "wmthesis", "search", "planet-boxing", "--trials", "2", "--workers", "1",
+               "--storage", storage, "--profile", "smoke"]
+    worker = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:   # kill it mid-way through its second trial
+            time.sleep(0.2)
+            try:
+                states = [t.state for t in load_study("planet-boxing", "smoke", storage=storage).trials]
+            except KeyError:
+                continue
+            if states == [optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.RUNNING]:
+                break
+        else:
+            pytest.fail(f"the worker never reached its second trial (states {states})")
+        worker.send_signal(signal.SIGKILL)
+        worker.wait(10)
+    finally:
+        worker.kill()
+    before = load_study("planet-boxing", "smoke", storage=storage).trials
+    assert [t.state.name for t in before] == ["COMPLETE", "RUNNING"]
+    study = run_search("planet-boxing", trials=2, storage=storage, profile="smoke")
+    after = study.trials
+    assert [t.state.name for t in after] == ["COMPLETE", "FAIL", "COMPLETE"]
+    assert after[0].values == before[0].values and after[0].datetime_complete == before[0].datetime_complete
+    assert after[2].params == planned_settings(SMOKE, 3)[2]
+
+
+def test_a_diverging_trial_is_pruned_and_counts(tmp_path, monkeypatch):
+    def diverge(*args, **kwargs):
+        raise FloatingPointError("non-finite loss at update 3")
+
+    monkeypatch.setattr(planet_module, "train_planet", diverge)
+    study = run_search("planet-boxing", trials=1, storage=f"sqlite:///{tmp_path / 's.db'}", profile="smoke",
+                       objective="score")
+    (row,) = trial_rows(study)
+    assert row["state"] == "PRUNED" and "update 3" in row["diverged"]
+
+
+def test_the_command_line_runs_a_search_and_refuses_changed_settings(tmp_path, capsys):
+    storage = f"sqlite:///{tmp_path / 's.db'}"
+    assert main(["search", "planet-freeway", "--trials", "1", "--storage", storage, "--profile", "smoke",
+                 "--objective", "error"]) == 0
+    out = capsys.readouterr().out
+    assert "1 complete" in out and "best: trial 0" in out and "thesis: KL scale 0.008, free nats 3" in out
+    with pytest.raises(ValueError, match="seed"):
+        open_study("planet-freeway", for_profile(SearchConfig, "smoke", objective="error", seed=5), "smoke", storage)
