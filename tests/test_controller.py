@@ -16,13 +16,7 @@ from wmthesis.models.memory import Memory
 from wmthesis.training import ConfigMismatch
 
 
-@pytest.fixture(autouse=True)
-def one_torch_thread():
-    """Tiny batches run faster on one thread, and the machine is shared."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
 
 def pooled(frames: torch.Tensor) -> torch.Tensor:

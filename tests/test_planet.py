@@ -26,13 +26,7 @@ from wmthesis.planning.cem import cem_belief, cem_plan  # noqa: E402
 SMOKE = for_profile(PlaNetConfig, "smoke")
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny ops on a busy 2-core machine run several times faster on one thread."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
 
 def tiny_rssm(n_actions=3, seed=0, **sizes) -> RSSM:
