@@ -26,7 +26,7 @@ from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 import numpy as np
 from tqdm import tqdm
 
-from wmthesis.utils import check_choice
+from wmthesis.utils import check_choice, derive_seeds
 
 
 @dataclass(frozen=True)
@@ -347,7 +347,7 @@ _POOL_JOB: dict = {}
 
 def _job_seed(seed: int, job: int) -> int:
     """A well-mixed 32-bit seed for job ``job`` of a pool seeded with ``seed``."""
-    return int(np.random.SeedSequence([seed, job]).generate_state(1)[0])
+    return int(derive_seeds(seed, job)[0])
 
 
 def _init_worker(spec: dict) -> None:

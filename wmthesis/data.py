@@ -51,7 +51,7 @@ import torch
 from tqdm import tqdm
 
 from wmthesis.core import Callback, RandomMind, loop
-from wmthesis.utils import atomic_path, check_choice
+from wmthesis.utils import atomic_path, check_choice, derive_seeds
 
 FORMAT = "wmthesis-episodes"
 FORMAT_VERSION = 1
@@ -609,7 +609,7 @@ def play_random_episode(env, seed: int, index: int) -> dict[str, np.ndarray]:
 
 def episode_seeds(seed: int, index: int) -> tuple[int, int]:
     """The (environment reset, random actions) seeds of episode `index` of a collection."""
-    env_seed, mind_seed = np.random.SeedSequence([seed, index]).generate_state(2)
+    env_seed, mind_seed = derive_seeds(seed, index, n=2)
     return int(env_seed), int(mind_seed)
 
 

@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
-from wmthesis.utils import atomic_path, check_choice, data_dir
+from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds
 
 EXPERIMENTS = ("boxing-wm", "planet-sokoban", "planet-boxing", "planet-freeway")
 
@@ -288,7 +288,7 @@ def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval
     returns = []
     try:
         for k in range(n_eval):
-            env_seed, mind_seed = np.random.SeedSequence([seed, 2, k]).generate_state(2)
+            env_seed, mind_seed = derive_seeds(seed, 2, k, n=2)
             mind = PlanetMind.from_config(model, config, int(mind_seed))
             history = loop(env, mind, planet_interpreter(config.bits), policy="deterministic",
                            callbacks=[mind], seed=int(env_seed), train_mode=False)

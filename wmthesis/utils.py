@@ -58,3 +58,9 @@ def data_dir(*parts: str) -> Path:
     path = Path(root, *parts)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def derive_seeds(*keys: int, n: int = 1) -> np.ndarray:
+    """``n`` well-mixed uint32 seeds derived from integer ``keys`` (e.g. a base seed and an
+    episode index) with NumPy's SeedSequence: the one way every module derives seeds."""
+    return np.random.SeedSequence(list(keys)).generate_state(n)

@@ -46,7 +46,7 @@ from wmthesis.models.controller import Controller, features, num_parameters, pop
 from wmthesis.models.memory import Mixture, sample_mixture
 from wmthesis.models.vae import frames_to_input
 from wmthesis.training import ConfigMismatch, check_same_config
-from wmthesis.utils import atomic_path, check_choice
+from wmthesis.utils import atomic_path, check_choice, derive_seeds
 
 FORMAT = "wmthesis-controller"
 FORMAT_VERSION = 1
@@ -313,7 +313,7 @@ def new_strategy(dimension: int, cfg):
 def episode_seeds(seed: int, generation: int, n: int, stream: int = 0) -> np.ndarray:
     """``n`` episode seeds (non-negative 31-bit ints) for ``generation``; ``stream`` 0 trains,
     1 evaluates."""
-    return (np.random.SeedSequence([seed, stream, generation]).generate_state(n) >> 1).astype(np.int64)
+    return (derive_seeds(seed, stream, generation, n=n) >> 1).astype(np.int64)
 
 
 @dataclasses.dataclass

@@ -40,7 +40,7 @@ from wmthesis.envs import ATARI_GAMES, make_env
 from wmthesis.envs.preprocessing import crop_resize, quantize, to_float
 from wmthesis.models.rssm import RSSM, frames_out, one_hot_previous, planet_loss
 from wmthesis.planning.cem import cem_belief
-from wmthesis.utils import atomic_path, check_choice, device, seed_everything
+from wmthesis.utils import atomic_path, check_choice, derive_seeds, device, seed_everything
 
 FRAME_SIZE = 64
 CHECKPOINT, CURVE, STORE = "checkpoint.pt", "curve.json", "episodes.h5"
@@ -308,7 +308,7 @@ def _test(env, model: RSSM, config: PlaNetConfig, seed: int, store: EpisodeStore
     returns = []
     model.eval()
     for k in range(config.test_episodes):
-        env_seed, mind_seed = np.random.SeedSequence([seed, 1, len(store), k]).generate_state(2)
+        env_seed, mind_seed = derive_seeds(seed, 1, len(store), k, n=2)
         mind = PlanetMind.from_config(model, config, int(mind_seed))
         history = loop(env, mind, planet_interpreter(config.bits), policy="deterministic",
                        callbacks=[mind], seed=int(env_seed), train_mode=False)
