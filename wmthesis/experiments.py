@@ -42,6 +42,37 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     raise AssertionError(f"experiment {name!r} is listed but not wired")
 
 
+def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int = 1) -> dict:
+    """Run several experiments, ``workers`` at a time, and return their metrics by run.
+
+    ``runs``: ``(name, variant)`` pairs (variant None: the default). With ``workers`` > 1 each
+    run goes to a spawned process with ``cpu_count // workers`` torch threads (runs are
+    independent; each resumes from its own artifacts). Returns ``{(name, variant): metrics}``
+    in the order of ``runs``.
+    """
+    import concurrent.futures
+    import multiprocessing
+
+    runs = [tuple(run) for run in runs]
+    for name, _ in runs:
+        check_choice("experiment", name, EXPERIMENTS)
+    profile = profile_name(profile)
+    if workers <= 1:
+        return {run: reproduce(run[0], profile, seed, variant=run[1], progress=False) for run in runs}
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                initializer=_set_threads, initargs=(threads,)) as executor:
+        futures = {run: executor.submit(reproduce, run[0], profile, seed, variant=run[1], progress=False)
+                   for run in runs}
+        return {run: future.result() for run, future in futures.items()}
+
+
+def _set_threads(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
 def boxing_world_models(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """Thesis 5.4.1: World Models on Boxing, random rollouts -> VAE -> MDN-RNN -> CMA-ES.
 
