@@ -125,3 +125,17 @@ def test_the_command_line_runs_a_search_and_refuses_changed_settings(tmp_path, c
     assert "1 complete" in out and "best: trial 0" in out and "thesis: KL scale 0.008, free nats 3" in out
     with pytest.raises(ValueError, match="seed"):
         open_study("planet-freeway", for_profile(SearchConfig, "smoke", objective="error", seed=5), "smoke", storage)
+
+
+def test_trials_take_the_search_budget_and_episode_cap(tmp_path, monkeypatch):
+    from wmthesis.data import EpisodeStore
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))        # trial folders of its own
+
+    study = run_search("planet-freeway", trials=1, storage=f"sqlite:///{tmp_path / 's.db'}", profile="smoke",
+                       objective="error", env_steps=40, max_episode_steps=12)
+    (row,) = trial_rows(study)
+    with EpisodeStore(Path(row["folder"]) / "run" / "episodes.h5") as store:
+        lengths = store.episode_lengths
+        assert lengths.max() == 12 and store.num_steps >= 40
+    assert json.loads((Path(row["folder"]) / "metrics.json").read_text())["env_steps"] >= 40

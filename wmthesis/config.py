@@ -151,8 +151,9 @@ class SearchConfig:
     Boxing 3e-2 / 12 and Freeway 8e-3 / 3). KL scale is log-uniform, free nats uniform.
     ``objective``: ``score`` (final greedy test score, maximised), ``error`` (open-loop MSE at the
     game's cut-off horizon, minimised) or ``both`` (a two-objective study). ``env_steps``
-    overrides the PlaNet budget of each trial (None: the profile's). Heartbeats: a trial whose
-    worker has not beaten for ``grace_period`` seconds is marked failed."""
+    and ``max_episode_steps`` override the PlaNet budget and episode cap of each trial (None:
+    the profile's). Heartbeats: a trial whose worker has not beaten for ``grace_period``
+    seconds is marked failed."""
 
     trials: int = 50
     workers: int = 2
@@ -163,10 +164,53 @@ class SearchConfig:
     free_nats_low: float = 0.0
     free_nats_high: float = 20.0
     env_steps: int | None = 100_000
+    max_episode_steps: int | None = None   # caps each trial's episodes (None: the profile's PlaNet value)
     open_loop_sequences: int = 6
     open_loop_length: int = 30           # 5 context frames + 25 predicted
     heartbeat_interval: int = 60
     grace_period: int = 300
+
+@dataclass(frozen=True)
+class AlphaZeroConfig:
+    """World Models + AlphaZero (thesis 4.3; the author's values): MCTS with c = 1.0, 50
+    simulations (or a ``timeout`` in seconds), Dirichlet noise 0.3 mixed in at 0.25 while
+    training, gamma 0.99, the subtree reused; self-play proportional to the visit counts for 12
+    warm-up steps, then greedy (tests greedy); the latest 1000 games kept; every 10 games, 5
+    epochs of value MSE + policy cross-entropy + L2 1e-4, SGD Nesterov lr 1e-2, momentum 0.9,
+    batch 256; value targets are the returns.
+
+    Not stated in the thesis: the number of ``games``, ``max_steps`` (None: full bouts, ~1,780
+    agent steps), the no-op starts (as the controller's evaluation), greedy tests every
+    ``test_every`` games, ``eval_episodes`` after training. Beyond the thesis (the ``improved``
+    variant): ``normalize_q`` (min-max Q, MuZero) and ``value_target="n-step"`` (``n_step``-step
+    bootstrapped targets instead of ``"monte-carlo"`` returns).
+    """
+
+    c: float = 1.0
+    simulations: int = 50
+    timeout: float | None = None
+    gamma: float = 0.99
+    dirichlet_alpha: float = 0.3
+    noise_ratio: float = 0.25
+    normalize_q: bool = False
+    reuse_tree: bool = True
+    warmup: int = 12
+    replay_games: int = 1000
+    train_every: int = 10
+    epochs: int = 5
+    batch_size: int = 256
+    lr: float = 1e-2
+    momentum: float = 0.9
+    l2: float = 1e-4
+    value_target: str = "monte-carlo"
+    n_step: int = 10
+    games: int = 1000                    # not stated in the thesis
+    max_steps: int | None = None         # None: full-length bouts
+    noop_max: int = 30
+    test_every: int = 10                 # 0: no greedy tests while training
+    test_episodes: int = 1
+    eval_episodes: int = 10
+
 
 # Per profile, per config class name: the fields that differ from the thesis defaults.
 OVERRIDES: dict[str, dict[str, dict]] = {
@@ -182,6 +226,8 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                              candidates=16, top_k=4, iterations=2, test_interval=1, test_episodes=1),
         "SearchConfig": dict(trials=2, workers=1, env_steps=48, open_loop_sequences=2, open_loop_length=10,
                              heartbeat_interval=1, grace_period=3),
+        "AlphaZeroConfig": dict(simulations=4, games=4, train_every=2, epochs=2, batch_size=16, max_steps=20,
+                                noop_max=3, test_every=2, test_episodes=1, eval_episodes=2),
     },
     "quick": {
         "CollectConfig": dict(episodes=20),
@@ -191,7 +237,11 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                                  dream_max_steps=400, eval_every=10, eval_episodes=3),
         "PlaNetConfig": dict(batch_size=12, chunk_length=24, update_steps=100, env_steps=20_000,
                              candidates=100, top_k=10, iterations=3, test_interval=3, test_episodes=1),
-        "SearchConfig": dict(trials=8, env_steps=2_500, heartbeat_interval=10, grace_period=60),
+        # Trials of 6 seed + 3 planner episodes capped at 400 agent steps: 300 updates, ~6 min each.
+        "SearchConfig": dict(trials=6, env_steps=3_600, max_episode_steps=400, heartbeat_interval=10,
+                             grace_period=60),
+        "AlphaZeroConfig": dict(simulations=25, games=60, max_steps=400, test_every=10, test_episodes=1,
+                                eval_episodes=5),
     },
     "thesis": {},
 }

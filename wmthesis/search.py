@@ -75,7 +75,7 @@ CONTEXT = 5                                          # open-loop context frames 
 METRICS, FIGURE = "metrics.json", "open_loop.png"
 # Study settings that must match when a study is continued (trials, workers, heartbeats may change).
 _SETTINGS = ("seed", "objective", "kl_scale_low", "kl_scale_high", "free_nats_low", "free_nats_high",
-             "env_steps", "open_loop_sequences", "open_loop_length")
+             "env_steps", "max_episode_steps", "open_loop_sequences", "open_loop_length")
 
 
 
@@ -181,7 +181,8 @@ def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str
 
     game = GAMES[name]
     params = suggest(trial, cfg)
-    changes = dict(params, **({"env_steps": cfg.env_steps} if cfg.env_steps else {}))
+    changes = dict(params, **{key: getattr(cfg, key) for key in ("env_steps", "max_episode_steps")
+                              if getattr(cfg, key)})
     config = for_profile(PlaNetConfig, profile, **changes)
     folder = trial_dir(trial.study, trial.number)
     metrics = {"study": trial.study.study_name, "trial": trial.number, "env": game.env, **params}
