@@ -34,3 +34,11 @@ def test_smoke_sokoban_writes_its_results_and_resumes(tmp_path, monkeypatch):
     again = reproduce("planet-sokoban", "smoke", seed=1, progress=False)
     assert checkpoint.stat().st_mtime_ns == before  # no retraining
     assert again == json.loads(json.dumps(metrics, default=float))
+
+
+def test_an_action_repeat_variant_gets_the_same_frames(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    metrics = reproduce("planet-boxing", "smoke", variant="action-repeat", progress=False)
+    config = metrics["config"]
+    assert config["action_repeat"] == 8 and config["env_steps"] == 80 * 4 // 8   # smoke: 80 steps at repeat 4
+    assert metrics["env_steps"] >= 40 and metrics["updates"] > 0                  # one planner episode at least
