@@ -246,6 +246,26 @@ def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, m
     return returns.reshape(P, E), steps.reshape(P, E)
 
 
+def random_play(game, seeds, *, seed: int = 0, max_steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Uniformly random actions on the E seeded episodes ``seeds`` of ``game`` (E envs, from
+    :func:`make_game`): the baseline a controller is scored against on the same starts (the
+    same Sokoban levels). Actions come from ``numpy.random.default_rng(seed)``. Returns returns
+    and steps, each (E,)."""
+    if game.num_envs != len(seeds):
+        raise ValueError(f"the game has {game.num_envs} envs for {len(seeds)} episodes")
+    rng = np.random.default_rng(seed)
+    game.reset(np.asarray(seeds))
+    returns, steps = np.zeros(game.num_envs), np.zeros(game.num_envs, np.int64)
+    for _ in range(max_steps or 2**62):
+        alive = ~game.done
+        _, rewards, done = game.step(rng.integers(game.n_actions, size=game.num_envs))
+        returns += rewards
+        steps += alive
+        if done.all():
+            break
+    return returns, steps
+
+
 def next_latent(prediction: Mixture | torch.Tensor, temperature: float, generator=None) -> torch.Tensor:
     """The dream's next latent: a sample of the mixture at temperature tau, or the deterministic
     memory's prediction as is. (B, K, L) mixture or (B, L) -> (B, L)."""

@@ -2,6 +2,7 @@
 
     store (frames) --train_vision--> VAE --encode_store--> latents (HDF5: mu, logvar)
     latents --train_memory--> MDN-RNN / deterministic memory --open_loop--> predictions
+    Sokoban grid states (5.3.2) --encode_grid_store--> latents of size 64 (no vision)
 
 Every step writes its artifact under a run folder and is skipped (resumed) when re-run.
 A checkpoint remembers the store it was trained on (env, preprocessing, latent size) and its
@@ -254,3 +255,145 @@ def open_loop(vae: VAE, memory: Memory, frames: np.ndarray, actions: np.ndarray,
     truth = frames[context:context + horizon]
     return {"truth": truth, "prediction": prediction, "pixel_error": horizon_errors(truth, prediction),
             "latent_error": horizon_errors(mu[context:].cpu().numpy(), predicted.cpu().numpy())}
+
+
+# ----------------------------------------------------------------------------- Sokoban (5.3)
+# Grid states as latents (thesis 5.3.2): a 10x10 level's inner 8x8 block types bypass vision.
+GRID_NOISE_STD = 0.1
+
+
+def encode_grid_store(store_path: str | Path, out_path: str | Path, *, noise_std: float = GRID_NOISE_STD) -> Path:
+    """Thesis 5.3.2: a store of Sokoban grid observations as a latents file of size 64, no vision.
+
+    The latent of a step is the 64 block codes of the inner 8x8 cells themselves, as floats
+    (``mu`` = codes in 0..6, see :data:`wmthesis.envs.sokoban.CELL_NAMES`). Why the integer codes
+    and not a one-hot (64 x 7 = 448 numbers): the thesis sets the latent size to 64 and calls
+    these 64 block types "the optimal encoding" of a frame; a one-hot would be another, larger
+    representation. Its weakness for a linear controller (5.3.2: a box on a target is not a
+    feature) is the point of the experiment, so it is kept as the thesis had it.
+
+    ``logvar`` is ``log(noise_std**2)`` everywhere: :func:`train_memory` samples
+    ``z ~ N(codes, noise_std**2)`` per batch, a Gaussian dequantisation. Without it the mixture
+    density of the MDN on exactly repeated values could grow without bound (its sigmas shrinking
+    to zero) and the loss diverge. :func:`decode_grid` rounds a latent back to codes.
+
+    Same layout as :func:`encode_store` (read with :class:`LatentStore`); an existing file made
+    from the same store and noise is kept. Returns ``out_path``.
+    """
+    out_path = Path(out_path)
+    with EpisodeStore(store_path) as store:
+        identity = {**store_identity(store), "episodes": len(store), "latent_size": int(np.prod(store.obs_shape)),
+                    "latent": "grid", "noise_std": float(noise_std)}
+        if len(store.obs_shape) != 1:
+            raise ValueError(f"{store_path}: grid latents need grid observations (N, cells), "
+                             f"the store has {store.obs_shape}")
+        if out_path.exists() and LatentStore(out_path).identity == identity:
+            return out_path
+        episodes = [store.episode(i) for i in range(len(store))]
+    with atomic_path(out_path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["identity"] = json.dumps(identity)
+        mu = np.concatenate([e["observations"] for e in episodes]).astype(np.float32)
+        f.create_dataset("mu", data=mu)
+        f.create_dataset("logvar", data=np.full_like(mu, 2 * np.log(noise_std)))
+        for name in ("actions", "rewards", "terminals"):
+            f.create_dataset(name, data=np.concatenate([e[name] for e in episodes]))
+        f.create_dataset("episode_ends", data=np.cumsum([len(e["actions"]) for e in episodes]))
+    return out_path
+
+
+def decode_grid(z: torch.Tensor | np.ndarray, n_codes: int = 7) -> np.ndarray:
+    """Grid latents (..., 64) -> block codes (..., 64) uint8: rounded and clipped to 0..n_codes-1."""
+    z = z.detach().cpu().numpy() if isinstance(z, torch.Tensor) else np.asarray(z)
+    return np.clip(np.rint(z), 0, n_codes - 1).astype(np.uint8)
+
+
+class GridVision:
+    """Vision for grid observations (5.3.2): uint8 codes (N, 64) -> the codes as float latents
+    (N, 64); no model (for :func:`~wmthesis.agents.controller_training.train_controller`)."""
+
+    def __init__(self, latent_size: int = 64):
+        self.latent_size = latent_size
+
+    def __call__(self, grids: torch.Tensor) -> torch.Tensor:
+        return grids.float()
+
+
+@torch.no_grad()
+def rollout_latents(memory: Memory, z: torch.Tensor, actions: torch.Tensor, context: int, horizon: int) -> torch.Tensor:
+    """The memory's open-loop latents (thesis 5.3), as in :func:`open_loop` but on latents:
+    read ``context`` real ``(z, a)`` steps, then predict ``horizon`` steps feeding back its own
+    point predictions (:func:`most_likely`). ``z`` (T, L), ``actions`` (T,) long with
+    T >= context + horizon; returns the predictions of ``z[context:context + horizon]``, (horizon, L).
+    """
+    out = memory(z[None, :context], actions[None, :context])
+    last = (out.next_latent[0, -1] if isinstance(out.next_latent, torch.Tensor)
+            else Mixture(*(p[0, -1] for p in out.next_latent)))
+    prediction, state, predicted = most_likely(last), out.state, []
+    for t in range(context, context + horizon):
+        predicted.append(prediction)
+        step = memory.step(prediction[None], actions[t][None], state)
+        prediction, state = most_likely(step.next_latent)[0], step.state
+    return torch.stack(predicted)
+
+
+@torch.no_grad()
+def open_loop_grid(memory: Memory, grids: np.ndarray, actions: np.ndarray, context: int = 60, horizon: int = 30,
+                   inner_shape=(8, 8)) -> dict:
+    """:func:`open_loop` for a memory over grid latents (5.3.2): the predicted latents are
+    rounded to block codes and drawn as World Models frames
+    (:func:`~wmthesis.envs.sokoban.grid_frames`), so their pixel error is comparable with the
+    VAE variants'. ``grids`` (T, 64) uint8 codes, ``actions`` (T,) of one episode.
+
+    Returns ``truth`` and ``prediction`` frames (horizon, 64, 64, 3), ``truth_grid`` and
+    ``prediction_grid`` codes (horizon, 64), ``pixel_error`` and ``latent_error`` (squared
+    error of the unrounded latents, in code units) curves (horizon,).
+    """
+    from wmthesis.envs.sokoban import grid_frames
+
+    if len(grids) < context + horizon:
+        raise ValueError(f"the episode has {len(grids)} steps; open loop needs context + horizon = {context + horizon}")
+    dev = next(memory.parameters()).device
+    z = torch.as_tensor(np.asarray(grids[:context + horizon]), dtype=torch.float32, device=dev)
+    acts = torch.as_tensor(actions[:context + horizon], dtype=torch.long, device=dev)
+    predicted = rollout_latents(memory, z, acts, context, horizon)
+    truth_grid = np.asarray(grids[context:context + horizon], np.uint8)
+    prediction_grid = decode_grid(predicted)
+    truth, prediction = grid_frames(truth_grid, inner_shape), grid_frames(prediction_grid, inner_shape)
+    return {"truth": truth, "prediction": prediction, "truth_grid": truth_grid, "prediction_grid": prediction_grid,
+            "pixel_error": horizon_errors(truth, prediction),
+            "latent_error": horizon_errors(z[context:].cpu().numpy(), predicted.cpu().numpy())}
+
+
+def grid_accuracy(predicted: np.ndarray, truth: np.ndarray, last_seen: np.ndarray, num_boxes: int = 4) -> dict:
+    """What the thesis saw by eye in Fig. 55, as numbers per horizon step (averaged over episodes).
+
+    ``predicted``, ``truth``: block codes (E, T, C) of E open-loop rollouts; ``last_seen``:
+    (E, C), the last real grid the memory read. Returns (T,) curves: ``cell_accuracy`` (cells of
+    the right type), ``changed_cell_accuracy`` (the same over the cells that changed since
+    ``last_seen``: the dynamics; NaN where none changed), ``one_player`` (rollouts showing exactly
+    one player: "the agent disappears") and ``boxes_kept`` (exactly ``num_boxes`` boxes).
+    """
+    from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, PLAYER, PLAYER_ON_TARGET
+
+    predicted, truth = np.asarray(predicted), np.asarray(truth)
+    right = predicted == truth
+    changed = truth != np.asarray(last_seen)[:, None]
+    n_changed = changed.sum((0, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        changed_accuracy = np.where(n_changed > 0, (right & changed).sum((0, 2)) / n_changed, np.nan)
+    players = np.isin(predicted, (PLAYER, PLAYER_ON_TARGET)).sum(-1)
+    boxes = np.isin(predicted, (BOX, BOX_ON_TARGET)).sum(-1)
+    return {"cell_accuracy": right.mean((0, 2)), "changed_cell_accuracy": changed_accuracy,
+            "one_player": (players == 1).mean(0), "boxes_kept": (boxes == num_boxes).mean(0)}
+
+
+@torch.no_grad()
+def head_predictions(memory: Memory, z: torch.Tensor | np.ndarray, actions) -> dict:
+    """The memory's reward (and value, with auxiliary heads) predictions along one real episode
+    (teacher forcing: it reads the true latents). ``z`` (T, L), ``actions`` (T,); returns
+    ``reward`` (T,) (the reward of each step's action) and ``value`` (T,) or None."""
+    dev = next(memory.parameters()).device
+    z = torch.as_tensor(np.asarray(z), dtype=torch.float32, device=dev)
+    out = memory(z[None], torch.as_tensor(np.asarray(actions), dtype=torch.long, device=dev)[None])
+    return {"reward": out.reward[0].cpu().numpy(),
+            "value": None if out.value is None else out.value[0].cpu().numpy()}

@@ -24,6 +24,7 @@ Board codes (``SokobanEnv.board``): 0 wall, 1 floor, 2 target, 3 box on target, 
 """
 from __future__ import annotations
 
+import functools
 import heapq
 import time
 from collections import deque
@@ -80,7 +81,9 @@ class SokobanEnv(gym.Env):
 
     Observations: ``rgb``: uint8 (h * tile_size, w * tile_size, 3) sprites, the same image as
     ``render()``; ``grid``: uint8 ((h - 2) * (w - 2),), the board codes of the inner cells
-    (``board[1:-1, 1:-1].ravel()``).
+    (``board[1:-1, 1:-1].ravel()``). ``frame_size=S`` (``rgb`` only) makes World Models frames
+    instead (thesis 4.2.4, :func:`world_models_frame`): the outer ring, always wall, cropped and
+    the rest resized to uint8 (S, S, 3); for 10x10 and S = 64, 8x8 pixels a cell.
 
     Rewards: -0.1 a step, +1 when a box goes onto a target, -1 when one goes off, +10 when all
     boxes are on targets (terminated). Truncated after ``max_steps`` steps.
@@ -93,7 +96,7 @@ class SokobanEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
 
     def __init__(self, dim_room=(10, 10), num_boxes=4, max_steps=120, observation="rgb",
-                 render_mode="rgb_array", tile_size=16):
+                 render_mode="rgb_array", tile_size=16, frame_size=None):
         check_choice("observation", observation, OBSERVATIONS)
         check_choice("render_mode", render_mode, RENDER_MODES)
         h, w = (int(n) for n in dim_room)
@@ -102,8 +105,14 @@ class SokobanEnv(gym.Env):
                              f"tile_size >= 1; got {dim_room}, {num_boxes}, {max_steps}, {tile_size}")
         self.dim_room, self.num_boxes, self.max_steps = (h, w), int(num_boxes), int(max_steps)
         self.observation, self.render_mode, self.tile_size = observation, render_mode, int(tile_size)
+        if frame_size is not None and (observation != "rgb" or int(frame_size) < 1):
+            raise ValueError(f"frame_size (World Models frames) needs rgb observations and a positive size; "
+                             f"got {frame_size} with {observation!r} observations")
+        self.frame_size = None if frame_size is None else int(frame_size)
         self.action_space = spaces.Discrete(len(ACTIONS))
-        if observation == "rgb":
+        if self.frame_size is not None:
+            self.observation_space = spaces.Box(0, 255, (self.frame_size, self.frame_size, 3), np.uint8)
+        elif observation == "rgb":
             shape = (h * self.tile_size, w * self.tile_size, 3)
             self.observation_space = spaces.Box(0, 255, shape, np.uint8)
         else:
@@ -146,6 +155,8 @@ class SokobanEnv(gym.Env):
         return int(np.count_nonzero(self.board == BOX_ON_TARGET))
 
     def _observe(self) -> np.ndarray:
+        if self.frame_size is not None:
+            return world_models_frame(self.board, self._tiles, self.frame_size)
         if self.observation == "rgb":
             return render_board(self.board, self._tiles)
         return self.board[1:-1, 1:-1].ravel().astype(np.uint8)
@@ -385,6 +396,65 @@ def render_board(board: np.ndarray, tiles: np.ndarray) -> np.ndarray:
     h, w = board.shape
     t = tiles.shape[1]
     return tiles[board].transpose(0, 2, 1, 3, 4).reshape(h * t, w * t, 3)
+
+
+def world_models_frame(board: np.ndarray, tiles: np.ndarray, size: int = 64) -> np.ndarray:
+    """The World Models frame of a wall-bordered ``board`` (h, w): its sprites without the outer
+    ring (always wall: the border that informs nothing, thesis 4.2.4), resized to (size, size, 3)
+    uint8 with :func:`~wmthesis.envs.preprocessing.crop_resize` (area interpolation)."""
+    return inner_frame(board[1:-1, 1:-1], tiles, size)
+
+
+def inner_frame(inner: np.ndarray, tiles: np.ndarray, size: int = 64) -> np.ndarray:
+    """The World Models frame of the inner cells (h - 2, w - 2) of a board (any codes, so
+    also a model's predicted grid): (size, size, 3) uint8."""
+    from wmthesis.envs.preprocessing import crop_resize
+
+    return crop_resize(render_board(np.asarray(inner), tiles), None, size)
+
+
+def grid_frames(grids: np.ndarray, inner_shape=(8, 8), size: int = 64, tile_size: int = 16) -> np.ndarray:
+    """Grid observations (N, h' * w') of codes (e.g. a model's predictions, clipped to the
+    seven codes) -> their World Models frames (N, size, size, 3) uint8, exactly what
+    ``SokobanEnv(frame_size=size, tile_size=tile_size)`` shows for those boards."""
+    grids = np.clip(np.asarray(grids), 0, len(CELL_NAMES) - 1).astype(np.intp)
+    tiles = make_tiles(tile_size)
+    return np.stack([inner_frame(g.reshape(inner_shape), tiles, size) for g in grids]).reshape(
+        *grids.shape[:-1], size, size, 3)
+
+
+def read_grid(frames: np.ndarray, inner_shape=(8, 8), tile_size: int = 16) -> np.ndarray:
+    """The inverse of :func:`grid_frames`: World Models frames (N, S, S, 3) -> the code of each
+    inner cell (N, h' * w') uint8, the block type whose frame is nearest (squared error) on
+    the pixels that fall in the cell. Exact on the env's frames; on a model's decoded
+    predictions, it reads which block type each cell looks most like."""
+    frames = np.asarray(frames)
+    size = frames.shape[-2]
+    weights, offsets = _grid_reader(tuple(inner_shape), int(size), int(tile_size))
+    flat = frames.reshape(-1, size * size * 3).astype(np.float32)
+    # Squared error of cell k against type c, less the frame's own energy (the same for every c):
+    # sum over the cell's pixels of r_c^2 - 2 x . r_c.
+    scores = offsets - 2 * (flat @ weights).reshape(len(flat), len(CELL_NAMES), -1)
+    return scores.argmin(1).astype(np.uint8).reshape(*frames.shape[:-3], -1)
+
+
+@functools.lru_cache(maxsize=4)
+def _grid_reader(inner_shape: tuple, size: int, tile_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """For :func:`read_grid`: ``weights`` (S * S * 3, C * cells), the reference frame of type c
+    (type c drawn in every cell) masked to cell k, and ``offsets`` (C, cells), its energy."""
+    tiles = make_tiles(tile_size)
+    cells = inner_shape[0] * inner_shape[1]
+    references = np.stack([inner_frame(np.full(inner_shape, code), tiles, size)
+                           for code in range(len(CELL_NAMES))]).astype(np.float32)  # (C, S, S, 3)
+    rows = np.minimum(np.arange(size) * inner_shape[0] // size, inner_shape[0] - 1)
+    cols = np.minimum(np.arange(size) * inner_shape[1] // size, inner_shape[1] - 1)
+    cell_of_pixel = np.repeat((rows[:, None] * inner_shape[1] + cols[None, :]).ravel(), 3)  # (S * S * 3,)
+    mask = np.zeros((size * size * 3, cells), np.float32)
+    mask[np.arange(size * size * 3), cell_of_pixel] = 1
+    flat = references.reshape(len(CELL_NAMES), -1)  # (C, S * S * 3)
+    weights = (flat.T[:, :, None] * mask[:, None, :]).reshape(size * size * 3, -1)
+    offsets = (flat ** 2) @ mask  # (C, cells)
+    return weights, offsets
 
 
 # ---------------------------------------------------------------------------- solver
