@@ -21,3 +21,8 @@ def test_bad_input_is_a_message_not_a_traceback(tmp_path, capsys):
     assert "missing.h5: no such episode store" in capsys.readouterr().err
     assert main(["reproduce", "planet-boxing", "--variant", "nope", "--profile", "smoke"]) == 2
     assert "valid: unchanged, action-repeat" in capsys.readouterr().err
+
+
+def test_alphazero_experiment_is_on_the_command_line(capsys):
+    assert main(["reproduce", "boxing-wm-alphazero", "--variant", "nope", "--profile", "smoke"]) == 2
+    assert "valid: unchanged, improved" in capsys.readouterr().err

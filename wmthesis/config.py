@@ -170,6 +170,7 @@ class SearchConfig:
     heartbeat_interval: int = 60
     grace_period: int = 300
 
+
 @dataclass(frozen=True)
 class AlphaZeroConfig:
     """World Models + AlphaZero (thesis 4.3; the author's values): MCTS with c = 1.0, 50
@@ -181,9 +182,11 @@ class AlphaZeroConfig:
 
     Not stated in the thesis: the number of ``games``, ``max_steps`` (None: full bouts, ~1,780
     agent steps), the no-op starts (as the controller's evaluation), greedy tests every
-    ``test_every`` games, ``eval_episodes`` after training. Beyond the thesis (the ``improved``
-    variant): ``normalize_q`` (min-max Q, MuZero) and ``value_target="n-step"`` (``n_step``-step
-    bootstrapped targets instead of ``"monte-carlo"`` returns).
+    ``test_every`` games, ``eval_episodes`` after training (of ``eval_max_steps``). Beyond the
+    thesis (the ``improved`` variant): ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
+    (equal visit counts go to the higher root Q, not to the first action),
+    ``value_target="n-step"`` (``n_step``-step bootstrapped targets instead of ``"monte-carlo"``
+    returns) and ``reuse_tree=False``.
     """
 
     c: float = 1.0
@@ -194,6 +197,7 @@ class AlphaZeroConfig:
     noise_ratio: float = 0.25
     normalize_q: bool = False
     reuse_tree: bool = True
+    tie_break: str = "first"             # equal visit counts: "first" action (argmax), or higher root "q"
     warmup: int = 12
     replay_games: int = 1000
     train_every: int = 10
@@ -210,6 +214,7 @@ class AlphaZeroConfig:
     test_every: int = 10                 # 0: no greedy tests while training
     test_episodes: int = 1
     eval_episodes: int = 10
+    eval_max_steps: int | None = None    # the final evaluation's games; None: full bouts
 
 
 # Per profile, per config class name: the fields that differ from the thesis defaults.
@@ -227,7 +232,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         "SearchConfig": dict(trials=2, workers=1, env_steps=48, open_loop_sequences=2, open_loop_length=10,
                              heartbeat_interval=1, grace_period=3),
         "AlphaZeroConfig": dict(simulations=4, games=4, train_every=2, epochs=2, batch_size=16, max_steps=20,
-                                noop_max=3, test_every=2, test_episodes=1, eval_episodes=2),
+                                noop_max=3, test_every=2, test_episodes=1, eval_episodes=2, eval_max_steps=20),
     },
     "quick": {
         "CollectConfig": dict(episodes=20),
@@ -237,11 +242,11 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                                  dream_max_steps=400, eval_every=10, eval_episodes=3),
         "PlaNetConfig": dict(batch_size=12, chunk_length=24, update_steps=100, env_steps=20_000,
                              candidates=100, top_k=10, iterations=3, test_interval=3, test_episodes=1),
-        # Trials of 6 seed + 3 planner episodes capped at 400 agent steps: 300 updates, ~6 min each.
-        "SearchConfig": dict(trials=6, env_steps=3_600, max_episode_steps=400, heartbeat_interval=10,
+        # Trials of 6 seed + 2 planner episodes capped at 400 agent steps: 200 updates, ~5 CPU-min each.
+        "SearchConfig": dict(trials=5, env_steps=3_200, max_episode_steps=400, heartbeat_interval=10,
                              grace_period=60),
-        "AlphaZeroConfig": dict(simulations=25, games=60, max_steps=400, test_every=10, test_episodes=1,
-                                eval_episodes=5),
+        # Self-play games of 400 agent steps (a bout is ~1,780), 100 per variant; full-bout evaluation.
+        "AlphaZeroConfig": dict(games=100, max_steps=400, test_every=10, test_episodes=1, eval_episodes=5),
     },
     "thesis": {},
 }

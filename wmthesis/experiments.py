@@ -193,11 +193,12 @@ PLANET_REFERENCE = {
 }
 
 # Atari (Boxing, Freeway) changes on top of the profile. Smoke: the profile's 80 steps (the
-# action-repeat variant's 40 still hold one planner episode after its two seed episodes). Quick: 2 seed bouts and
-# 3 planner bouts, ~9,000 agent steps and 300 updates, ~15 CPU-minutes per variant so that
-# notebook 05's six variants fit an hour on 2 cores. Budgets count agent steps at the thesis's
-# action repeat of 4 (frames / 4): a variant with another action repeat gets the same frames.
-ATARI_CHANGES = {"smoke": {}, "quick": dict(seed_episodes=2, env_steps=9_000), "thesis": {}}
+# action-repeat variant's 40 still hold one planner episode after its two seed episodes).
+# Quick: 2 seed and 3 planner bouts (the budget of 8,000 agent steps ends within the fifth
+# bout: ~8,900 steps) and 300 updates, ~15 CPU-minutes a variant, so that notebook 05's six
+# variants fit an hour on 2 cores. Budgets count agent steps at the thesis's action repeat of
+# 4 (frames / 4): a variant with another action repeat gets the same frames.
+ATARI_CHANGES = {"smoke": {}, "quick": dict(seed_episodes=2, env_steps=8_000), "thesis": {}}
 
 # Sokoban-small needs its own sizes: its episodes are at most 120 steps, where a Boxing bout is
 # ~1,780 agent steps, so the profiles' ``env_steps`` (sized for Boxing) would give Sokoban 10-15
@@ -385,7 +386,8 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     by side; one name: that one only), each resumable from its checkpoint. Every variant, the
     boxing-wm controller (when its run exists) and random play then play the same greedy
     evaluation games (same no-op starts). Diagnosis: the memory's reward error along the search
-    depth, the value scale, the spread of root Q.
+    depth, whether a linear value on ``[z h]`` predicts the random rollouts' returns at all, the
+    value scale, the spread of root Q, ties and the actions taken.
 
     Results under ``data/results/boxing-wm-alphazero/<profile>-seed<seed>/`` (one variant: in
     its subfolder): figures, a rerun recording of an evaluation game, ``metrics.json``. Returns
@@ -393,7 +395,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     """
     from wmthesis.agents import alphazero as az
     from wmthesis.agents.controller_training import VAEVision
-    from wmthesis.agents.world_models import encode_store, train_memory, train_vision
+    from wmthesis.agents.world_models import LatentStore, encode_store, train_memory, train_vision
     from wmthesis.config import AlphaZeroConfig
     from wmthesis.data import EpisodeStore, collect
     from wmthesis.metrics import score_summary
@@ -431,6 +433,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     all_games = [game for name in variants for game in games[name]]
     depth = ALPHAZERO_DIAGNOSIS_DEPTH[profile]
     reward_error = az.reward_error_by_depth(mdp, all_games, depth)
+    value_fit = az.value_predictability(mdp, LatentStore(latents), cfg.gamma, cfg.n_step)
     search = {name: az.search_statistics(games[name], cfg.gamma, cfg.c, cfg.simulations) for name in variants}
     figures = [
         _save(az.plot_self_play(runs, {f"random play, first {cfg.max_steps or 'all'} steps (store)":
@@ -458,7 +461,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         "random_play_in_store": {"max_steps": cfg.max_steps, **score_summary(random_in_store)},
         "reference": ALPHAZERO_REFERENCE,
         "runs": runs,
-        "diagnosis": {"reward_error": reward_error, "search": {name: {
+        "diagnosis": {"reward_error": reward_error, "value_fit_on_random_rollouts": value_fit, "search": {name: {
             "value_return_corr": s["value_return_corr"], "mean_abs_root_value": float(np.abs(s["root_value"]).mean()),
             "mean_abs_return": float(np.abs(s["returns"]).mean()), "median_q_spread": float(np.median(s["q_spread"])),
             "prior_bonus": s["prior_bonus"], "mean_visit_entropy": float(s["visit_entropy"].mean()),
@@ -475,9 +478,10 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     return metrics
 
 
-def _evaluation_seeds(seed: int, episodes: int) -> list[tuple[int, int]]:
-    """(env seed, agent seed) of each evaluation game, shared by every agent compared."""
-    return [tuple(int(s) >> 1 for s in derive_seeds(seed, 3, k, n=2)) for k in range(episodes)]
+def _evaluation_seeds(seed: int, episodes: int) -> list[int]:
+    """The seed of each evaluation game, shared by every agent compared (through
+    :func:`~wmthesis.agents.alphazero.game_seeds`: the same no-op starts)."""
+    return [int(derive_seeds(seed, 3, k)[0]) for k in range(episodes)]
 
 
 def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int) -> list:
@@ -498,9 +502,9 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int) -> list
     env = az.boxing_env(cfg.noop_max)
     games = []
     try:
-        for k, (env_seed, _) in enumerate(_evaluation_seeds(seed, cfg.eval_episodes)):
+        for k, game_seed in enumerate(_evaluation_seeds(seed, cfg.eval_episodes)):
             mind.keep_frames = k == 0
-            game = az.play(env, mind, env_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
+            game = az.play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
             if game.frames is not None:
                 game.frames = game.frames[:RECORDING_STEPS]
             games.append(game)
@@ -514,7 +518,7 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int) -> list
 def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int) -> dict:
     """Random play and the boxing-wm controller (when its run exists) on the evaluation games;
     cached in ``baselines.json``. Returns ``returns`` by agent and ``notes``."""
-    from wmthesis.agents.alphazero import boxing_env
+    from wmthesis.agents.alphazero import boxing_env, game_seeds
     from wmthesis.agents.controller_training import ControllerMind, _fingerprint, load_run
     from wmthesis.agents.world_models import make_memory
     from wmthesis.core import RandomMind, loop
@@ -546,7 +550,8 @@ def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int
     try:
         for name, make_mind in minds.items():
             returns[name] = []
-            for env_seed, agent_seed in _evaluation_seeds(seed, cfg.eval_episodes):
+            for game_seed in _evaluation_seeds(seed, cfg.eval_episodes):
+                env_seed, agent_seed = game_seeds(game_seed)
                 mind = make_mind(agent_seed)
                 history = loop(env, mind, policy="deterministic", callbacks=[mind] if name != "random" else None,
                                max_steps=cfg.eval_max_steps, seed=env_seed, train_mode=False)
@@ -631,12 +636,11 @@ def sokoban_wm_configs(profile: str | None = None, seed: int = 0) -> dict:
     on top. Returns ``collect``, ``vision``, ``memory`` (the variants change ``kind`` and
     ``auxiliary``) and ``controller`` (seeded with ``seed``)."""
     profile = profile_name(profile)
-    changes = SOKOBAN_WM_CHANGES[profile]
+    changes = dict(SOKOBAN_WM_CHANGES[profile])
+    changes["ControllerConfig"] = {**changes.get("ControllerConfig", {}), "seed": seed}
     classes = {"collect": CollectConfig, "vision": VisionConfig, "memory": MemoryConfig,
                "controller": ControllerConfig}
-    configs = {key: for_profile(cls, profile, **changes.get(cls.__name__, {})) for key, cls in classes.items()}
-    configs["controller"] = for_profile(ControllerConfig, profile, **{**changes.get("ControllerConfig", {}), "seed": seed})
-    return configs
+    return {key: for_profile(cls, profile, **changes.get(cls.__name__, {})) for key, cls in classes.items()}
 
 
 def sokoban_world_models(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
@@ -675,8 +679,9 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, progress: bo
     configs = sokoban_wm_configs(profile, seed)
     evaluation = SOKOBAN_WM_EVAL[profile]
     collect_cfg = configs["collect"]
-    stores = {source: collect("sokoban", collect_cfg.episodes, work / f"random-{source}.h5", workers=collect_cfg.workers,
-                              seed=seed, max_steps=collect_cfg.max_steps, progress=progress, **_sokoban_options(source))
+    stores = {source: collect("sokoban", collect_cfg.episodes, work / f"random-{source}.h5",
+                              workers=collect_cfg.workers, seed=seed, max_steps=collect_cfg.max_steps,
+                              progress=progress, **_sokoban_options(source))
               for source in ("rgb", "grid")}
     vae, vision_history = train_vision(stores["rgb"], work, configs["vision"], seed=seed, progress=progress)
     latents = {"rgb": encode_store(stores["rgb"], vae, work / "latents-rgb.h5", progress=progress),
@@ -886,7 +891,8 @@ def _sokoban_evaluate_memories(vae, memories: dict, stores: dict, latents: dict,
             "examples": examples}
 
 
-def _sokoban_heads(memories: dict, latent_stores: dict, discount: float, train_episodes, val_episodes) -> tuple[dict, dict]:
+def _sokoban_heads(memories: dict, latent_stores: dict, discount: float, train_episodes,
+                   val_episodes) -> tuple[dict, dict]:
     """The reward head of every memory and the value head of the auxiliary ones on validation
     episodes (teacher forcing), against the truth and naive predictors: the training mean, and
     for the value the return of a level where nothing but the step cost ever happens (known
@@ -930,8 +936,9 @@ def _head_numbers(predicted, true, constant: float, events=None, time_only=None)
     mse, constant_mse = float(np.mean((predicted - true) ** 2)), float(np.mean((constant - true) ** 2))
     correlation = (float(np.corrcoef(predicted, true)[0, 1])
                    if predicted.std() > 0 and true.std() > 0 else float("nan"))
-    out = {"mse": mse, "constant_mse": constant_mse, "skill": 1 - mse / constant_mse if constant_mse > 0 else float("nan"),
-           "correlation": correlation, "steps": int(true.size)}
+    skill = 1 - mse / constant_mse if constant_mse > 0 else float("nan")
+    out = {"mse": mse, "constant_mse": constant_mse, "skill": skill, "correlation": correlation,
+           "steps": int(true.size)}
     if events is not None:
         out["events"] = int(events.sum())
         out["event_mse"] = float(np.mean((predicted[events] - true[events]) ** 2)) if events.any() else float("nan")
@@ -1051,7 +1058,7 @@ def _sokoban_figures(out: Path, evaluated: dict, memory_histories: dict, control
     for variant, controller in controllers.items():
         fig, ax = plt.subplots(figsize=(5, 3))
         plot_learning_curve(controller["run"].curve, ax=ax, title=f"CMA-ES, controller on [z h] of {variant}")
-        ax.axhline(float(np.mean(random_returns)), color="r", ls="--", lw=1, label="random play")
+        ax.axhline(float(np.mean(random_returns)), color="r", ls="--", lw=1, label="random play, test levels")
         ax.legend(fontsize=7)
         paths.append(_save(fig, out / f"cmaes_curve_{variant}.png"))
     return paths

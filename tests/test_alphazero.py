@@ -1,0 +1,256 @@
+"""World Models + AlphaZero (thesis 4.3, 5.4.2): the latent MDP, the heads, self-play, resume.
+
+Self-play runs on a tiny corridor whose observations are their own latents (vision = identity)
+and a small untrained deterministic memory; the real search (wmthesis.planning.mcts) plans.
+"""
+import dataclasses
+import json
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from wmthesis.agents.alphazero import (AlphaZeroHeads, AlphaZeroMind, Evaluator, LatentMDP, NoopStart, State,
+                                       alphazero_loss, load_run, play, reward_error_by_depth, search_statistics,
+                                       train_alphazero, value_targets)
+from wmthesis.config import AlphaZeroConfig, for_profile
+from wmthesis.models.memory import Memory
+from wmthesis.training import ConfigMismatch
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+L, A, H = 5, 2, 8
+
+
+class Corridor(gym.Env):
+    """Cells 0..4, start in 0; action 1 steps right, 0 left; reaching cell 4 pays 1 and ends
+    the game. Observations are one-hot cells, float32 (5,)."""
+
+    observation_space = gym.spaces.Box(0, 1, (L,), np.float32)
+    action_space = gym.spaces.Discrete(A)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.cell, self.steps = 0, 0
+        return self._observation(), {}
+
+    def step(self, action):
+        self.cell = max(0, self.cell + (1 if action == 1 else -1))
+        self.steps += 1
+        done = self.cell == L - 1
+        return self._observation(), float(done), done, False, {}
+
+    def _observation(self):
+        return np.eye(L, dtype=np.float32)[self.cell]
+
+
+def vision(frames: torch.Tensor) -> torch.Tensor:
+    return frames.float()
+
+
+def small_memory(seed: int = 0) -> Memory:
+    torch.manual_seed(seed)
+    return Memory(L, A, kind="deterministic", hidden_size=H).eval()
+
+
+def tiny_config(**changes) -> AlphaZeroConfig:
+    values = dict(simulations=6, games=4, train_every=2, epochs=3, batch_size=8, max_steps=10, test_every=2,
+                  test_episodes=1, eval_episodes=2, lr=0.05)
+    return AlphaZeroConfig(**{**values, **changes})
+
+
+# ----------------------------------------------------------------------------- latent MDP
+def test_latent_mdp_matches_the_memory_step_by_step():
+    memory = small_memory()
+    mdp = LatentMDP(memory)
+    z = np.random.default_rng(0).standard_normal(L).astype(np.float32)
+    state, actions = mdp.initial_state(z), [1, 0, 1]
+    z_t, lstm_state = torch.from_numpy(z)[None], None
+    for action in actions:
+        state, reward = mdp.transition(state, action)
+        with torch.no_grad():
+            out = memory.step(z_t, torch.tensor([action]), lstm_state)
+        np.testing.assert_allclose(state.z, out.next_latent[0].numpy(), atol=1e-5)
+        np.testing.assert_allclose(state.h, out.state[0][0, 0].numpy(), atol=1e-5)
+        np.testing.assert_allclose(state.c, out.state[1][0, 0].numpy(), atol=1e-5)
+        assert reward == pytest.approx(float(out.reward), abs=1e-5)
+        assert state.terminal == bool(out.done_logit > 0)
+        z_t, lstm_state = out.next_latent, out.state
+    # a batch of states steps as each one alone
+    zs, hs = np.stack([z, state.z]), np.stack([np.zeros(H, np.float32), state.h])
+    cs = np.stack([np.zeros(H, np.float32), state.c])
+    batched = mdp.step(zs, hs, cs, np.array([0, 1]))
+    alone = mdp.step(state.z, state.h, state.c, 1)
+    for b, a in zip(batched, alone):
+        np.testing.assert_allclose(b[1], a, atol=1e-6)
+
+
+def test_done_head_decides_terminal_and_mdn_memory_is_refused():
+    memory = small_memory()
+    with torch.no_grad():
+        memory.done.weight.zero_()
+        memory.done.bias.fill_(3.0)  # sigmoid(3) > 0.5
+    mdp = LatentMDP(memory)
+    state, _ = mdp.transition(mdp.initial_state(np.zeros(L, np.float32)), 0)
+    assert state.terminal and mdp.is_terminal(state) and mdp.action_space.n == A
+    with pytest.raises(ValueError, match="deterministic"):
+        LatentMDP(Memory(L, A, kind="mdn", hidden_size=H))
+
+
+# ----------------------------------------------------------------------------- heads and loss
+def test_evaluator_gives_softmax_priors_and_follows_training():
+    heads = AlphaZeroHeads(L, H, A)
+    state = State(np.arange(L, dtype=np.float32), np.ones(H, np.float32), np.zeros(H, np.float32))
+    evaluator = Evaluator(heads)
+    priors, value = evaluator(state)
+    assert priors.sum() == pytest.approx(1.0, abs=1e-6) and value == 0.0  # the value head starts at zero
+    torch.manual_seed(1)
+    optimiser = torch.optim.SGD(heads.parameters(), lr=0.1)
+    x = torch.randn(4, L + H)
+    loss = alphazero_loss(heads, x, torch.tensor([[1.0, 0.0]] * 4), torch.ones(4), 1e-4)["loss"]
+    loss.backward()
+    optimiser.step()
+    priors, value = evaluator(state)  # the evaluator sees the updated weights
+    logits, expected_value = heads(torch.from_numpy(np.concatenate([state.z, state.h]))[None])
+    assert priors.sum() == pytest.approx(1.0, abs=1e-6)
+    np.testing.assert_allclose(priors, torch.softmax(logits[0], -1).detach().numpy(), atol=1e-6)
+    assert value == pytest.approx(float(expected_value.detach()), abs=1e-5) and value != 0.0
+
+
+def test_loss_is_value_mse_plus_policy_cross_entropy_plus_l2():
+    heads = AlphaZeroHeads(1, 1, 2)
+    with torch.no_grad():
+        heads.policy.weight.copy_(torch.tensor([[1.0, 0.0], [0.0, 2.0]]))
+        heads.policy.bias.copy_(torch.tensor([0.0, -1.0]))
+        heads.value.weight.copy_(torch.tensor([[0.5, 0.5]]))
+        heads.value.bias.fill_(0.0)
+    x = torch.tensor([[1.0, 1.0], [2.0, 0.0]])
+    pi = torch.tensor([[0.25, 0.75], [1.0, 0.0]])
+    targets = torch.tensor([0.0, 3.0])
+    terms = {k: float(v.detach()) for k, v in alphazero_loss(heads, x, pi, targets, l2=0.1).items()}
+    # logits: [1, 1] and [2, -1]; values: 1 and 1
+    log_p1, log_p2 = np.log([0.5, 0.5]), np.array([2, -1]) - np.log(np.exp(2) + np.exp(-1))
+    policy = -(0.25 * log_p1[0] + 0.75 * log_p1[1] + 1.0 * log_p2[0]) / 2
+    value = ((1 - 0) ** 2 + (1 - 3) ** 2) / 2
+    l2 = 0.1 * (1 + 4 + 1 + 0.25 + 0.25)
+    assert terms["policy"] == pytest.approx(policy, rel=1e-5)
+    assert terms["value"] == pytest.approx(value, rel=1e-6)
+    assert terms["l2"] == pytest.approx(l2, rel=1e-6)
+    assert terms["loss"] == pytest.approx(policy + value + l2, rel=1e-5)
+
+
+def test_value_targets_are_discounted_returns_and_n_step():
+    rewards = [1.0, 0.0, 2.0]
+    np.testing.assert_allclose(value_targets(rewards, 0.5), [1.5, 1.0, 2.0])
+    np.testing.assert_allclose(value_targets(rewards, 0.5, bootstrap=4.0), [2.0, 2.0, 4.0])
+    values = [10.0, 20.0, 30.0]
+    np.testing.assert_allclose(value_targets(rewards, 0.5, n=1, values=values, bootstrap=40.0), [11.0, 15.0, 22.0])
+    # n = 2: 1 + 0.5*0 + 0.25*30; 0 + 0.5*2 + 0.25*40; the last step has one reward left: 2 + 0.5*40
+    np.testing.assert_allclose(value_targets(rewards, 0.5, n=2, values=values, bootstrap=40.0), [8.5, 11.0, 22.0])
+    np.testing.assert_allclose(value_targets(rewards, 0.5, n=5, values=values), value_targets(rewards, 0.5))
+
+
+# ----------------------------------------------------------------------------- the mind in the real game
+def test_mind_steps_the_memory_on_the_real_actions():
+    memory, config = small_memory(), tiny_config()
+    mind = AlphaZeroMind(vision, LatentMDP(memory), Evaluator(AlphaZeroHeads(L, H, A)), config)
+    game = play(Corridor(), mind, seed=3, index=0, train_mode=True, max_steps=10)
+    T = len(game)
+    assert game.features.shape == (T, L + H) and game.policies.shape == (T, A)
+    np.testing.assert_allclose(game.policies.sum(1), 1.0, atol=1e-6)
+    # z is the vision of each real observation; h the memory after reading the real steps before it
+    env = Corridor()
+    observation, _ = env.reset()
+    z = [observation]
+    for action in game.actions[:-1]:
+        z.append(env.step(int(action))[0])
+    z = torch.from_numpy(np.stack(z))
+    with torch.no_grad():
+        hidden = memory(z[None, :-1], torch.from_numpy(game.actions[None, :-1])).hidden[0]
+    np.testing.assert_allclose(game.features[:, :L], z.numpy())
+    np.testing.assert_allclose(game.features[1:, L:], hidden.numpy(), atol=1e-5)
+    assert np.all(game.features[0, L:] == 0)
+    # the state after the last step: the last observation and the memory after every real step
+    last_observation = env.step(int(game.actions[-1]))[0]
+    with torch.no_grad():
+        last_hidden = memory(z[None], torch.from_numpy(game.actions[None])).hidden[0, -1]
+    np.testing.assert_allclose(game.last_features[:L], last_observation)
+    np.testing.assert_allclose(game.last_features[L:], last_hidden.numpy(), atol=1e-5)
+    assert game.terminated == (game.rewards[-1] == 1.0) and (T == 10 or game.terminated)
+    # the depth-1 reward error is the error of the rewards the mind predicted on the real steps
+    errors = reward_error_by_depth(LatentMDP(memory), [game], depth=1)
+    assert errors["reward_mse"][0] == pytest.approx(np.mean((game.predicted_rewards - game.rewards) ** 2), rel=1e-5)
+    assert errors["zero_mse"][0] == pytest.approx(np.mean(game.rewards ** 2))
+    stats = search_statistics([game], 0.99, 1.0, config.simulations)
+    assert stats["root_value"].shape == stats["returns"].shape == (T,)
+
+
+def test_noop_start_draws_its_noops_from_the_reset_seed():
+    env = NoopStart(Corridor(), noop_max=30)
+    counts = []
+    for seed in (0, 1, 2, 0):
+        env.reset(seed=seed)
+        counts.append(env.unwrapped.steps)
+    assert counts[0] == counts[3] and len(set(counts)) > 1 and max(counts) < 30
+
+
+# ----------------------------------------------------------------------------- self-play
+def test_self_play_trains_the_heads_and_keeps_the_latest_games(tmp_path):
+    config = tiny_config(games=5, replay_games=3)
+    run = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, seed=0, progress=False)
+    assert run.games == 5 and [g.index for g in run.replay] == [2, 3, 4]
+    assert [r["game"] for r in run.rounds] == [2, 4] and [t["game"] for t in run.tests] == [2, 4]
+    for r in run.rounds:
+        assert r["loss"] < r["loss_before"]
+    assert [e["game"] for e in run.curve] == [1, 2, 3, 4, 5]
+    assert any(p.abs().sum() > 0 for p in run.heads.parameters())
+
+
+@pytest.mark.parametrize("value_target", ["monte-carlo", "n-step"])
+def test_resumed_run_equals_an_uninterrupted_one(tmp_path, value_target):
+    config = tiny_config(value_target=value_target, normalize_q=value_target == "n-step")
+    whole = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path / "whole", progress=False)
+    train_alphazero(Corridor, vision, small_memory(), dataclasses.replace(config, games=2),
+                    out_dir=tmp_path / "parts", progress=False)
+    assert load_run(tmp_path / "parts").games == 2
+    resumed = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path / "parts", progress=False)
+    for a, b in zip(whole.heads.parameters(), resumed.heads.parameters()):
+        assert torch.equal(a, b)
+    assert [e["return"] for e in whole.curve] == [e["return"] for e in resumed.curve]
+    assert whole.rounds == resumed.rounds and whole.tests == resumed.tests
+    with pytest.raises(ConfigMismatch, match="lr"):
+        train_alphazero(Corridor, vision, small_memory(), dataclasses.replace(config, lr=0.5),
+                        out_dir=tmp_path / "parts", progress=False)
+    with pytest.raises(ConfigMismatch, match="memory"):
+        train_alphazero(Corridor, vision, small_memory(seed=1), config, out_dir=tmp_path / "parts", progress=False)
+
+
+def test_profiles_keep_the_thesis_values():
+    thesis = for_profile(AlphaZeroConfig, "thesis")
+    assert (thesis.c, thesis.simulations, thesis.dirichlet_alpha, thesis.noise_ratio, thesis.gamma) == (1.0, 50, 0.3,
+                                                                                                      0.25, 0.99)
+    assert (thesis.warmup, thesis.replay_games, thesis.train_every, thesis.epochs, thesis.batch_size) == (12, 1000, 10,
+                                                                                                       5, 256)
+    assert (thesis.lr, thesis.momentum, thesis.l2, thesis.value_target) == (1e-2, 0.9, 1e-4, "monte-carlo")
+    assert for_profile(AlphaZeroConfig, "quick").eval_episodes >= 5
+
+
+# ----------------------------------------------------------------------------- the experiment
+@pytest.mark.slow
+def test_smoke_experiment_writes_metrics_with_finite_scores():
+    from wmthesis.experiments import reproduce
+
+    metrics = reproduce("boxing-wm-alphazero", "smoke", progress=False)
+    assert set(metrics["variants"]) == {"unchanged", "improved"}
+    for name in ("AlphaZero unchanged", "AlphaZero improved", "random"):
+        score = metrics["scores"][name]
+        assert np.isfinite(score["mean"]) and score["episodes"] == 2
+    written = json.loads(Path(metrics["files"]["figures"][0]).with_name("metrics.json").read_text())
+    assert written["scores"] == json.loads(json.dumps(metrics["scores"]))
+    assert all(Path(f).stat().st_size > 1000 for f in metrics["files"]["figures"])
+    assert len(metrics["diagnosis"]["reward_error"]["reward_mse"]) == 5
+    for name in ("unchanged", "improved"):
+        assert metrics["runs"][name]["games"] == 4 and len(metrics["runs"][name]["rounds"]) == 2
+    again = reproduce("boxing-wm-alphazero", "smoke", progress=False)  # cached: evaluates nothing again
+    assert again["scores"] == metrics["scores"]
