@@ -186,6 +186,31 @@ def test_normalized_q_is_invariant_to_the_reward_scale():
     assert np.argmax(scaled_plain) == 0 and scaled_plain[0] > 900
 
 
+class WideMDP:
+    """18 actions, each edge a fixed pseudo-random reward N(0, 1), terminal at depth 30."""
+
+    action_space = gym.spaces.Discrete(18)
+
+    def transition(self, state, action):
+        next_state = state + (action,)
+        return next_state, float(np.random.default_rng(list(next_state)).normal())
+
+    def is_terminal(self, state):
+        return len(state) >= 30
+
+
+def test_normalized_q_scores_untried_actions_at_the_node_value():
+    """With 0 for unvisited edges, normalised Q makes untried actions look worst: a 50-simulation
+    search tried ~2 of 18 root actions and dived to depth ~29. Scored at the node's mean Q
+    (as mctx does), it tries nearly every root action and stays shallow."""
+    tried, depths = [], []
+    for seed in range(10):
+        counts, info = search(WideMDP(), uniform(18), (seed,), 50, normalize_q=True)
+        tried.append((counts > 0).sum())
+        depths.append(info["max_depth"])
+    assert np.mean(tried) > 15 and np.median(depths) <= 10
+
+
 # ----------------------------------------------------------------------------- priors and noise
 def test_all_zero_or_nan_priors_behave_as_uniform():
     reference, ref_info = search(TreeMDP(), uniform(3), (), 100)

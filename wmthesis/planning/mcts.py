@@ -29,7 +29,7 @@ root's visit counts N(root, .), so the ``proportional`` and ``deterministic`` po
 
 Options beyond the thesis: ``normalize_q`` (MuZero) scores ``(Q - min) / (max - min)`` with
 min and max over every Q backed up since the tree was started (0 while fewer than two
-distinct values were seen; unvisited edges score 0), so unbounded rewards such as Atari's do
+distinct values were seen; an unvisited edge scores the node's mean Q), so unbounded rewards such as Atari's do
 not drown the prior bonus. Tree reuse (the author's ``query_tree``): :meth:`MCTS.advance` keeps
 the subtree below the action taken, and the next :meth:`MCTS.plan` continues it with the
 root's model-predicted state replaced by the real one; its statistics are kept.
@@ -192,11 +192,15 @@ class MCTS(Mind, Callback):
 
     # ------------------------------------------------------------------ helpers
     def _normalized(self, q: np.ndarray, n: np.ndarray) -> np.ndarray:
-        """Min-max normalised Q in [0, 1] (MuZero); 0 for unvisited edges or a flat tree."""
+        """Min-max normalised Q in [0, 1] (MuZero); 0 on a flat tree. An unvisited edge gets
+        the node's value (the visit-weighted mean of its Q; as mctx does), not 0: with 0 an
+        untried action looks like the worst one and the search dives after two actions."""
         span = self._q_max - self._q_min
         if not span > 0:
             return np.zeros_like(q)
-        return np.where(n > 0, (q - self._q_min) / span, 0.0)
+        visits = n.sum()
+        value = n @ q / visits if visits > 0 else self._q_min
+        return (np.where(n > 0, q, value) - self._q_min) / span
 
     def _normalized_priors(self, priors) -> np.ndarray:
         """Priors (A,) summing to 1; uniform when they sum to 0 or a non-finite number."""
