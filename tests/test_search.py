@@ -4,6 +4,7 @@ killed worker, divergence, and the command line, all with smoke-sized trials."""
 import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -76,6 +77,14 @@ def test_two_worker_processes_share_one_study(backend, tmp_path):
     assert len(run_search("planet-freeway", trials=3, workers=2, storage=storage, profile="smoke").trials) == 3
 
 
+def _has_heartbeat(database: Path, trial_id: int) -> bool:
+    """Whether the trial's worker has beaten once (optuna's ``trial_heartbeats`` table). A
+    worker killed in the instant between creating its trial and its first beat leaves a
+    trial that no heartbeat check can tell from a live one, so the test kills after it."""
+    with sqlite3.connect(database) as db:
+        return db.execute("SELECT COUNT(*) FROM trial_heartbeats WHERE trial_id = ?", (trial_id,)).fetchone()[0] > 0
+
+
 def test_a_killed_worker_leaves_the_study_consistent_and_it_resumes(tmp_path):
     storage = f"sqlite:///{tmp_path / 'studies.db'}"
     command = [sys.executable, "-m", "wmthesis", "search", "planet-boxing", "--trials", "2", "--workers", "1",
@@ -86,10 +95,12 @@ def test_a_killed_worker_leaves_the_study_consistent_and_it_resumes(tmp_path):
         while time.monotonic() < deadline:   # kill it mid-way through its second trial
             time.sleep(0.2)
             try:
-                states = [t.state for t in load_study("planet-boxing", "smoke", storage=storage).trials]
+                trials = load_study("planet-boxing", "smoke", storage=storage).trials
             except KeyError:
                 continue
-            if states == [optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.RUNNING]:
+            states = [t.state for t in trials]
+            if (states == [optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.RUNNING]
+                    and _has_heartbeat(tmp_path / "studies.db", trials[1]._trial_id)):
                 break
         else:
             pytest.fail(f"the worker never reached its second trial (states {states})")

@@ -15,7 +15,8 @@ from wmthesis.agents.world_models import (GRID_NOISE_STD, GridVision, LatentStor
 from wmthesis.data import EpisodeStore, collect
 from wmthesis.envs import make_env
 from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, TARGET, grid_frames, read_grid, solve
-from wmthesis.experiments import EXPERIMENTS, _head_numbers, _solved, sokoban_wm_configs
+from wmthesis.experiments import EXPERIMENTS, sokoban_wm_configs
+from wmthesis.experiments.sokoban_world_models import _head_numbers, _solved
 from wmthesis.models.memory import Memory
 from wmthesis.models.vae import VAE
 

@@ -15,6 +15,9 @@ trials until the study holds ``trials`` finished (complete or pruned) trials.
 - Dead workers: workers beat a heartbeat into the storage; a RUNNING trial whose worker has
   not beaten for ``grace_period`` seconds is marked FAIL (by any live worker, or when the
   command runs again), and a new trial takes its place. Completed trials are never touched.
+  (A worker killed in the instant between creating its trial and its first heartbeat leaves a
+  RUNNING trial without heartbeats, which optuna cannot tell from a live one: mark it failed
+  by hand, e.g. ``study._storage.set_trial_state_values(trial._trial_id, TrialState.FAIL)``.)
 - A trial whose loss diverges (``FloatingPointError``) is PRUNED with the error in its
   ``diverged`` user attribute: it counts as a (bad) result, not as a crash.
 

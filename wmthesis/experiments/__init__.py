@@ -1,0 +1,91 @@
+"""The thesis's experiments end to end, as used by ``python -m wmthesis reproduce NAME``.
+
+One module per experiment: :mod:`~wmthesis.experiments.sokoban_world_models` (5.3),
+:mod:`~wmthesis.experiments.world_models` (Boxing, 5.4.1), :mod:`~wmthesis.experiments.alphazero`
+(5.4.2) and :mod:`~wmthesis.experiments.planet` (5.5, 5.6); :mod:`~wmthesis.experiments.results`
+holds what they share to write their results.
+
+Each experiment writes its artifacts (stores, checkpoints) under ``data/<profile>/<name>/``
+and its results (figures, ``metrics.json``, rerun recordings) under
+``data/results/<name>/<profile>-seed<seed>/`` (PlaNet's: one subfolder per variant).
+Every step skips work whose artifact exists, so re-running resumes.
+"""
+from __future__ import annotations
+
+import os
+
+from wmthesis.config import profile_name
+from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, ALPHAZERO_REFERENCE, RECORDING_STEPS,
+                                            boxing_wm_alphazero)
+from wmthesis.experiments.planet import (ATARI_CHANGES, PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP,
+                                         PLANET_REFERENCE, SOKOBAN_CHANGES, planet_experiment, planet_variants)
+from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
+                                                       SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,
+                                                       sokoban_wm_configs, sokoban_world_models)
+from wmthesis.experiments.world_models import BOXING_REFERENCE, boxing_world_models
+from wmthesis.utils import check_choice
+
+EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway")
+
+
+def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
+              progress: bool = True) -> dict:
+    """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics.
+
+    ``variant`` selects a variant of experiments that have them (PlaNet's, AlphaZero's); others
+    refuse one.
+    """
+    check_choice("experiment", name, EXPERIMENTS)
+    if name == "sokoban-wm":
+        if variant is not None:
+            raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
+        return sokoban_world_models(profile, seed, progress)
+    if name == "boxing-wm":
+        if variant is not None:
+            raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
+        return boxing_world_models(profile, seed, progress)
+    if name == "boxing-wm-alphazero":
+        return boxing_wm_alphazero(profile, seed, variant, progress)
+    if name in PLANET_GAMES:
+        return planet_experiment(name, profile, seed, variant, progress)
+    raise AssertionError(f"experiment {name!r} is listed but not wired")
+
+
+def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int = 1) -> dict:
+    """Run several experiments, ``workers`` at a time, and return their metrics by run.
+
+    ``runs``: ``(name, variant)`` pairs (variant None: the default). With ``workers`` > 1 each
+    run goes to a spawned process with ``cpu_count // workers`` torch threads (runs are
+    independent; each resumes from its own artifacts). Returns ``{(name, variant): metrics}``
+    in the order of ``runs``.
+    """
+    import concurrent.futures
+    import multiprocessing
+
+    runs = [tuple(run) for run in runs]
+    for name, _ in runs:
+        check_choice("experiment", name, EXPERIMENTS)
+    profile = profile_name(profile)
+    if workers <= 1:
+        return {run: reproduce(run[0], profile, seed, variant=run[1], progress=False) for run in runs}
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                initializer=_set_threads, initargs=(threads,)) as executor:
+        futures = {run: executor.submit(reproduce, run[0], profile, seed, variant=run[1], progress=False)
+                   for run in runs}
+        return {run: future.result() for run, future in futures.items()}
+
+
+def _set_threads(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+__all__ = ["EXPERIMENTS", "reproduce", "reproduce_all",
+           "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
+           "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE", "SOKOBAN_WM_REFERENCE",
+           "boxing_world_models", "BOXING_REFERENCE",
+           "boxing_wm_alphazero", "ALPHAZERO_REFERENCE", "ALPHAZERO_DIAGNOSIS_DEPTH", "RECORDING_STEPS",
+           "planet_experiment", "planet_variants", "PLANET_GAMES", "PLANET_REFERENCE", "ATARI_CHANGES",
+           "SOKOBAN_CHANGES", "PLANET_EVAL_EPISODES", "PLANET_OPEN_LOOP"]

@@ -1,0 +1,219 @@
+"""World Models + AlphaZero on Boxing (thesis 5.4.2), and why the thesis's version fails."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from wmthesis.config import CollectConfig, MemoryConfig, VisionConfig, for_profile, profile_name
+from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, _save
+from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds
+
+ALPHAZERO_REFERENCE = {"random": 0.1, "human": 12.1,
+                       "thesis World Models + AlphaZero": "no score: 'did not train to properly plan', abandoned"}
+ALPHAZERO_DIAGNOSIS_DEPTH = {"smoke": 5, "quick": 10, "thesis": 10}
+RECORDING_STEPS = 400  # the rerun recording shows the first steps of one evaluation game
+
+
+def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                        progress: bool = True) -> dict:
+    """Thesis 5.4.2: World Models + AlphaZero on Boxing, and why the thesis's version fails.
+
+    Reuses the boxing-wm pipeline's random rollouts, vision and latents (the same artifacts
+    under ``data/<profile>/boxing-wm/seed<seed>/``, cached), trains a deterministic memory in
+    its own folder ``data/<profile>/boxing-wm-alphazero/seed<seed>/``, then self-play for each
+    variant of :data:`~wmthesis.agents.alphazero.VARIANTS` (``variant=None``: all of them, side
+    by side; one name: that one only), each resumable from its checkpoint. Every variant, the
+    boxing-wm controller (when its run exists) and random play then play the same greedy
+    evaluation games (same no-op starts). Diagnosis: the memory's reward error along the search
+    depth, whether a linear value on ``[z h]`` predicts the random rollouts' returns at all, the
+    value scale, the spread of root Q, ties and the actions taken.
+
+    Results under ``data/results/boxing-wm-alphazero/<profile>-seed<seed>/`` (one variant: in
+    its subfolder): figures, a rerun recording of an evaluation game, ``metrics.json``. Returns
+    the metrics; ``score`` is the last variant's (``improved`` when all run).
+    """
+    from wmthesis.agents import alphazero as az
+    from wmthesis.agents.controller_training import VAEVision
+    from wmthesis.agents.world_models import LatentStore, encode_store, train_memory, train_vision
+    from wmthesis.config import AlphaZeroConfig
+    from wmthesis.data import EpisodeStore, collect
+    from wmthesis.metrics import score_summary
+    from wmthesis.viz import record_frames
+
+    variants = tuple(az.VARIANTS) if variant is None else (variant,)
+    check_choice("variant of boxing-wm-alphazero", variants[0], az.VARIANTS)
+    profile = profile_name(profile)
+    started = time.time()
+    wm = data_dir(profile, "boxing-wm", f"seed{seed}")
+    work = data_dir(profile, "boxing-wm-alphazero", f"seed{seed}")
+    out = data_dir("results", "boxing-wm-alphazero", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
+    collect_cfg = for_profile(CollectConfig, profile)
+    store = collect("boxing", collect_cfg.episodes, wm / "random.h5", workers=collect_cfg.workers, seed=seed,
+                    preprocessing="world_models", max_steps=collect_cfg.max_steps, progress=progress)
+    vae, _ = train_vision(store, wm, for_profile(VisionConfig, profile), seed=seed, progress=progress)
+    latents = encode_store(store, vae, wm / "latents.h5", progress=progress)
+    memory, memory_history = train_memory(latents, work, for_profile(MemoryConfig, profile, kind="deterministic"),
+                                          n_actions=18, seed=seed, progress=progress)
+    vision = VAEVision(vae)
+
+    configs, runs, games = {}, {}, {}
+    for name in variants:
+        configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **az.VARIANTS[name])
+        run = az.train_alphazero(lambda: az.boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
+                                 seed=seed, progress=progress)
+        runs[name] = run.summary()
+        games[name] = _alphazero_evaluate(run, vision, memory, cfg, work / name, seed)
+    cfg = configs[variants[-1]]
+    baselines = _boxing_baselines(profile, wm, work, vision, cfg, seed)
+    with EpisodeStore(store) as episodes:  # random play over the self-play games' length, for the curve
+        random_in_store = [float(episodes.episode(i)["rewards"][:cfg.max_steps].sum()) for i in range(len(episodes))]
+
+    mdp = az.LatentMDP(memory)
+    all_games = [game for name in variants for game in games[name]]
+    depth = ALPHAZERO_DIAGNOSIS_DEPTH[profile]
+    reward_error = az.reward_error_by_depth(mdp, all_games, depth)
+    value_fit = az.value_predictability(mdp, LatentStore(latents), cfg.gamma, cfg.n_step)
+    search = {name: az.search_statistics(games[name], cfg.gamma, cfg.c, cfg.simulations) for name in variants}
+    figures = [
+        _save(az.plot_self_play(runs, {f"random play, first {cfg.max_steps or 'all'} steps (store)":
+                                       float(np.mean(random_in_store))}), out / "self_play_curve.png"),
+        _save(az.plot_search(games, cfg.gamma, cfg.c, cfg.simulations), out / "search_statistics.png"),
+        _save(az.plot_reward_error(reward_error, np.concatenate([g.depths for g in all_games])),
+              out / "reward_error_by_depth.png"),
+        _save(az.plot_visits(games[variants[-1]][0]), out / "visit_distributions.png"),
+    ]
+    scores = {f"AlphaZero {name}": score_summary([g.score for g in games[name]]) for name in variants}
+    scores.update({name: score_summary(returns) for name, returns in baselines["returns"].items()})
+    figures.append(_save(_score_figure(scores), out / "scores.png"))
+    shown = games[variants[-1]][0]
+    recording = record_frames(out / "evaluation_game.rrd", {"observation": shown.frames},
+                              {name: values[:RECORDING_STEPS] for name, values in
+                               (("reward", shown.rewards), ("predicted_reward", shown.predicted_rewards),
+                                ("root_value", shown.root_values))})
+    metrics = {
+        **_run_header("boxing-wm-alphazero", profile, seed, time.time() - started, variants=list(variants)),
+        "score": scores[f"AlphaZero {variants[-1]}"], "scores": scores,
+        "evaluation": {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps, "notes": baselines["notes"]},
+        "random_play_in_store": {"max_steps": cfg.max_steps, **score_summary(random_in_store)},
+        "reference": ALPHAZERO_REFERENCE,
+        "runs": runs,
+        "diagnosis": {"reward_error": reward_error, "value_fit_on_random_rollouts": value_fit, "search": {name: {
+            "value_return_corr": s["value_return_corr"], "mean_abs_root_value": float(np.abs(s["root_value"]).mean()),
+            "mean_abs_return": float(np.abs(s["returns"]).mean()), "median_q_spread": float(np.median(s["q_spread"])),
+            "prior_bonus": s["prior_bonus"], "mean_visit_entropy": float(s["visit_entropy"].mean()),
+            "top_count_tied": s["tied"],
+            "noop_fraction": float(np.mean(np.concatenate([g.actions for g in games[name]]) == 0)),
+            "median_search_depth": float(np.median(np.concatenate([g.depths for g in games[name]])))}
+            for name, s in search.items()}},
+        "memory_history": memory_history,
+        "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
+    }
+    metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1, default=float))
+    return metrics
+
+
+def _evaluation_seeds(seed: int, episodes: int) -> list[int]:
+    """The seed of each evaluation game, shared by every agent compared (through
+    :func:`~wmthesis.agents.alphazero.game_seeds`: the same no-op starts)."""
+    return [int(derive_seeds(seed, 3, k)[0]) for k in range(episodes)]
+
+
+def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int) -> list:
+    """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
+    cached in ``evaluation.pkl`` for the run's number of games."""
+    import pickle
+
+    from wmthesis.agents import alphazero as az
+
+    path = work / "evaluation.pkl"
+    key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps}
+    if path.is_file():
+        with open(path, "rb") as f:
+            cached = pickle.load(f)
+        if cached["key"] == key:
+            return cached["games"]
+    mind = az.AlphaZeroMind(vision, az.LatentMDP(memory), az.Evaluator(run.heads), cfg)
+    env = az.boxing_env(cfg.noop_max)
+    games = []
+    try:
+        for k, game_seed in enumerate(_evaluation_seeds(seed, cfg.eval_episodes)):
+            mind.keep_frames = k == 0
+            game = az.play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
+            if game.frames is not None:
+                game.frames = game.frames[:RECORDING_STEPS]
+            games.append(game)
+    finally:
+        env.close()
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        pickle.dump({"key": key, "games": games}, f)
+    return games
+
+
+def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int) -> dict:
+    """Random play and the boxing-wm controller (when its run exists) on the evaluation games;
+    cached in ``baselines.json``. Returns ``returns`` by agent and ``notes``."""
+    from wmthesis.agents.alphazero import boxing_env, game_seeds
+    from wmthesis.agents.controller_training import ControllerMind, _fingerprint, load_run
+    from wmthesis.agents.world_models import make_memory
+    from wmthesis.core import RandomMind, loop
+    from wmthesis.training import load_weights
+
+    controller_path, memory_path = wm / "controller" / "controller.pkl", wm / "memory-mdn.best.pt"
+    have_controller = controller_path.is_file() and memory_path.is_file()
+    key = {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
+           "controller_mtime": controller_path.stat().st_mtime_ns if have_controller else None}
+    cached = _read_json(work / "baselines.json")
+    if cached is not None and cached["key"] == key:
+        return cached
+    minds, notes = {}, []
+    minds["random"] = lambda agent_seed: RandomMind(18, agent_seed)
+    if have_controller:
+        run = load_run(controller_path)
+        mdn = load_weights(memory_path, make_memory(16, 18, for_profile(MemoryConfig, profile))).eval()
+        if _fingerprint(mdn) == run.task["memory"]:
+            controller = run.controller("mean")
+            minds[f"World Models controller (notebook 02, generation {run.generation})"] = \
+                lambda agent_seed: ControllerMind(vision, mdn, controller)
+        else:
+            notes.append(f"the controller in {controller_path.parent} was trained on another memory: skipped")
+    else:
+        notes.append(f"no boxing-wm controller under {wm} (run notebook 02 / `reproduce boxing-wm` first): "
+                     "the comparison with it is skipped")
+    returns = {}
+    env = boxing_env(cfg.noop_max)
+    try:
+        for name, make_mind in minds.items():
+            returns[name] = []
+            for game_seed in _evaluation_seeds(seed, cfg.eval_episodes):
+                env_seed, agent_seed = game_seeds(game_seed)
+                mind = make_mind(agent_seed)
+                history = loop(env, mind, policy="deterministic", callbacks=[mind] if name != "random" else None,
+                               max_steps=cfg.eval_max_steps, seed=env_seed, train_mode=False)
+                returns[name].append(float(history[0]["return"]))
+    finally:
+        env.close()
+    result = {"key": key, "returns": returns, "notes": notes}
+    with atomic_path(work / "baselines.json") as tmp:
+        tmp.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def _score_figure(scores: dict):
+    """Evaluation scores (mean +- std) of every agent, beside random (0.1) and human (12.1)."""
+    fig, ax = plt.subplots(figsize=(6, 0.5 + 0.45 * len(scores)))
+    names = list(scores)
+    ax.barh(names, [scores[n]["mean"] for n in names], xerr=[scores[n]["std"] for n in names], capsize=3,
+            color=[f"C{i}" for i in range(len(names))])
+    for value, style, label in ((0.1, "--", "random (published)"), (12.1, ":", "human (published)")):
+        ax.axvline(value, color="0.4", ls=style, lw=1, label=label)
+    ax.invert_yaxis()
+    ax.set_xlabel("Boxing score (mean ± std)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,200 @@
+"""PlaNet (thesis 5.5.1 on Sokoban-small, 5.6.1-5.6.6 on Boxing and Freeway): the thesis's
+variants per game, the changes to the profiles, training, greedy evaluation and open-loop rollouts."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from wmthesis.config import for_profile, profile_name
+from wmthesis.experiments.results import _read_json, _run_header, _save
+from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds
+
+# Experiment -> (environment, the thesis's variants for that game, the default variant).
+PLANET_GAMES = {
+    "planet-sokoban": ("sokoban-small", ("unchanged",), "unchanged"),                       # 5.5.1
+    "planet-boxing": ("boxing", ("unchanged", "action-repeat", "decoder-variance", "free-nats"),
+                      "unchanged"),                                                          # 5.6.1-5.6.4
+    "planet-freeway": ("freeway", ("freeway-tuned", "long-horizon"), "freeway-tuned"),       # 5.6.5-5.6.6
+}
+
+PLANET_REFERENCE = {
+    "planet-boxing": {"random": 0.1, "human": 12.1, "thesis PlaNet 100k": "6.2±10.7",
+                      "thesis PlaNet 500k": "35.2±8.3", "thesis PlaNet 1M": "78.2±19.1",
+                      "SimPLe 100k": 7.8, "DreamerV3 100k": 78.0},
+    "planet-freeway": {"random": 0.0, "human": 29.6, "thesis PlaNet": 0.0, "DreamerV3 100k": 0.0,
+                       "SimPLe": 16.7, "STORM": 33.5},
+    # The thesis judged Sokoban-small's PlaNet by its open-loop rollouts (Fig. 58), no score.
+    "planet-sokoban": {},
+}
+
+# Atari (Boxing, Freeway) changes on top of the profile. Smoke: the profile's 80 steps (the
+# action-repeat variant's 40 still hold one planner episode after its two seed episodes).
+# Quick: 2 seed and 3 planner bouts (the budget of 8,000 agent steps ends within the fifth
+# bout: ~8,900 steps) and 300 updates, ~15 CPU-minutes a variant, so that notebook 05's six
+# variants fit an hour on 2 cores. Budgets count agent steps at the thesis's action repeat of
+# 4 (frames / 4): a variant with another action repeat gets the same frames.
+ATARI_CHANGES = {"smoke": {}, "quick": dict(seed_episodes=2, env_steps=8_000), "thesis": {}}
+
+# Sokoban-small needs its own sizes: its episodes are at most 120 steps, where a Boxing bout is
+# ~1,780 agent steps, so the profiles' ``env_steps`` (sized for Boxing) would give Sokoban 10-15
+# times as many planner episodes, each followed by ``update_steps`` updates. These changes keep
+# Sokoban's number of updates near a Boxing run's in the thesis profile (~2M: ~560 episodes x
+# 5000); quick: ~1,250 updates. The thesis does not state Sokoban's budget.
+SOKOBAN_CHANGES = {
+    "smoke": dict(env_steps=48),
+    "quick": dict(env_steps=3_000, update_steps=50, test_interval=5, test_episodes=2),
+    "thesis": dict(env_steps=50_000),
+}
+
+# Greedy evaluation episodes after training (not in the thesis, which reported 5 runs' tests).
+PLANET_EVAL_EPISODES = {"smoke": 2, "quick": 3, "thesis": 10}
+
+# Open-loop evaluation, (context, predicted steps, cut-off horizon) per profile and game kind:
+# the error at the cut-off horizon is the number reported in metrics.json.
+PLANET_OPEN_LOOP = {
+    "smoke": {"sokoban": (4, 8, 4), "atari": (4, 8, 4)},
+    "quick": {"sokoban": (5, 15, 10), "atari": (5, 30, 15)},
+    "thesis": {"sokoban": (5, 15, 10), "atari": (5, 30, 15)},
+}
+
+
+def planet_variants(name: str) -> tuple[str, ...]:
+    """The :data:`~wmthesis.agents.planet.VARIANTS` valid for PlaNet experiment ``name``."""
+    check_choice("PlaNet experiment", name, PLANET_GAMES)
+    return PLANET_GAMES[name][1]
+
+
+def planet_experiment(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
+                      progress: bool = True) -> dict:
+    """Thesis 5.5.1 (``planet-sokoban``) and 5.6.1-5.6.6 (``planet-boxing``, ``planet-freeway``):
+    train PlaNet with ``variant`` (see :data:`PLANET_GAMES`), evaluate it greedily, roll it out
+    open-loop, and write the figures, a rerun recording of truth vs prediction and ``metrics.json``.
+
+    Artifacts (episode store, checkpoint) go under ``data/<profile>/<name>/<variant>-seed<seed>/``,
+    results under ``data/results/<name>/<profile>-seed<seed>/<variant>/``. Re-running resumes:
+    training continues from its checkpoint (a finished run does no work), the evaluation is
+    cached, and when ``metrics.json`` matches the trained run and its files exist it is returned
+    as it is. Returns the metrics: ``score`` (greedy test episodes), ``open_loop`` (error per
+    horizon and at the cut-off), the learning ``curve``, ``reference`` (published numbers).
+    """
+    from wmthesis.agents.planet import (VARIANTS, horizon_error_figure, learning_curve_figure, load_planet,
+                                        open_loop_figure, train_planet, with_variant)
+    from wmthesis.data import EpisodeStore
+    from wmthesis.envs import ATARI_GAMES
+    from wmthesis.config import PlaNetConfig
+    from wmthesis.metrics import error_at, horizon_errors, score_summary
+    from wmthesis.viz import record_frames
+
+    env_name, valid, default = PLANET_GAMES[name]
+    variant = default if variant is None else variant
+    check_choice(f"variant of {name}", variant, valid)
+    assert variant in VARIANTS, variant
+    profile = profile_name(profile)
+    started = time.time()
+    work = data_dir(profile, name, f"{variant}-seed{seed}")
+    out = data_dir("results", name, f"{profile}-seed{seed}", variant)
+    config = for_profile(PlaNetConfig, profile,
+                         **(SOKOBAN_CHANGES if env_name == "sokoban-small" else ATARI_CHANGES)[profile])
+    repeat = with_variant(config, variant).action_repeat
+    if env_name in ATARI_GAMES and repeat != config.action_repeat:      # the same frames
+        config = dataclasses.replace(config, env_steps=config.env_steps * config.action_repeat // repeat)
+
+    run = train_planet(env_name, config, work, seed=seed, variant=variant, progress=progress)
+    n_eval = PLANET_EVAL_EPISODES[profile]
+    cached = _read_json(out / "metrics.json")
+    if (cached is not None and cached.get("updates") == run["updates"] and cached.get("env_steps") == run["env_steps"]
+            and cached["score"]["episodes"] == n_eval
+            and all(Path(f).is_file() and Path(f).stat().st_size > 0
+                    for f in [*cached["files"]["figures"], cached["files"]["recording"]])):
+        return cached
+
+    model, trained_config, meta = load_planet(work)
+    returns = _planet_evaluate(model, trained_config, env_name, work, seed, n_eval, run["updates"])
+    context, horizon, cutoff = PLANET_OPEN_LOOP[profile]["atari" if env_name in ATARI_GAMES else "sokoban"]
+    with EpisodeStore(work / "episodes.h5") as store:
+        random_returns = [float(store.episode(i)["rewards"].sum()) for i in range(trained_config.seed_episodes)]
+        rollout = _planet_open_loop(model, store, context + horizon, context, trained_config, seed)
+    title = {"planet-sokoban": "Fig. 58", "planet-boxing": "Fig. 59/510", "planet-freeway": "Fig. 511"}[name]
+    label = f"{env_name}, {variant}"
+    figures = [
+        _save(open_loop_figure(rollout, sequences=1 if profile == "smoke" else 3,
+                               columns=min(context + horizon, 20),
+                               title=f"{title}: {label}, open-loop after {context} context frames"),
+              out / "open_loop.png"),
+        _save(horizon_error_figure({label: rollout["mse"]}, title=f"open-loop error, {label}"),
+              out / "horizon_error.png"),
+    ]
+    references = {key: value for key, value in PLANET_REFERENCE[name].items()
+                  if key in ("random", "human") and isinstance(value, float)}
+    if not references:
+        references = {"random (seed episodes)": float(np.mean(random_returns))}
+    figures.append(_save(learning_curve_figure({label: meta["curve"]}, references=references,
+                                               title=f"PlaNet {label}: test score"), out / "learning_curve.png"))
+    recording = record_frames(out / "open_loop.rrd",
+                              {"truth": rollout["truth"][0], "prediction": rollout["prediction"][0]},
+                              {"pixel_error": horizon_errors(rollout["truth"][0], rollout["prediction"][0])})
+    metrics = {
+        **_run_header(name, profile, seed, run["seconds"] + time.time() - started, env=env_name, variant=variant),
+        "env_steps": run["env_steps"], "updates": run["updates"], "episodes": run["episodes"],
+        "score": score_summary(returns),
+        "final_test": run["final_test"],
+        "random_play_in_store": score_summary(random_returns),
+        "open_loop": {"context": context, "horizon": horizon, "cutoff": cutoff,
+                      "error_at_cutoff": error_at(rollout["mse"], cutoff),
+                      "mse": [float(v) for v in rollout["mse"]]},
+        "reference": PLANET_REFERENCE[name],
+        "config": run["config"], "curve": meta["curve"],
+        "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
+    }
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1, default=float))
+    return metrics
+
+
+def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval: int, updates: int) -> list[float]:
+    """``n_eval`` greedy planner episodes (seeds from (seed, 2, k), apart from training's
+    tests); cached in ``evaluation.json`` for the checkpoint's number of updates."""
+    from wmthesis.agents.planet import PlanetMind, make_planet_env, planet_interpreter
+    from wmthesis.core import loop
+
+    path = work / "evaluation.json"
+    cached = _read_json(path)
+    if cached is not None and cached["updates"] == updates and len(cached["returns"]) == n_eval:
+        return cached["returns"]
+    env = make_planet_env(env_name, config)
+    returns = []
+    try:
+        for k in range(n_eval):
+            env_seed, mind_seed = derive_seeds(seed, 2, k, n=2)
+            mind = PlanetMind.from_config(model, config, int(mind_seed))
+            history = loop(env, mind, planet_interpreter(config.bits), policy="deterministic",
+                           callbacks=[mind], seed=int(env_seed), train_mode=False)
+            returns.append(float(history[0]["return"]))
+    finally:
+        env.close()
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps({"updates": updates, "returns": returns}))
+    return returns
+
+
+def _planet_open_loop(model, store, length: int, context: int, config, seed: int, sequences: int = 6) -> dict:
+    """:func:`~wmthesis.agents.planet.open_loop` on chunks of the most recent planner episodes
+    long enough (the last one was collected after the final update: never trained on)."""
+    import torch
+
+    from wmthesis.agents.planet import open_loop
+
+    lengths = store.episode_lengths
+    long_enough = [i for i in range(config.seed_episodes, len(store)) if lengths[i] >= length]
+    if not long_enough:
+        long_enough = [i for i in range(len(store)) if lengths[i] >= length]
+    if not long_enough:
+        raise ValueError(f"{store.path}: no episode of {length} steps for the open-loop evaluation")
+    batch = store.sample_chunks(sequences, length, np.random.default_rng(seed), episodes=long_enough[-3:])
+    generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
+    return open_loop(model, batch["observations"], batch["actions"], context=context, bits=config.bits,
+                     generator=generator)

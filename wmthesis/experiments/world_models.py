@@ -1,0 +1,91 @@
+"""World Models on Boxing (thesis 5.4.1): random rollouts -> VAE -> MDN-RNN -> CMA-ES."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
+from wmthesis.experiments.results import _first_run_seconds, _run_header, _save
+from wmthesis.utils import atomic_path, data_dir
+
+# Published numbers (DESIGN.md) shown beside ours.
+BOXING_REFERENCE = {"random": 0.1, "human": 12.1, "thesis World Models": "above 18"}
+
+
+def boxing_world_models(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+    """Thesis 5.4.1: World Models on Boxing, random rollouts -> VAE -> MDN-RNN -> CMA-ES.
+
+    Returns the metrics dict (also written to ``metrics.json``): the controller's score over
+    10 full evaluation episodes with varied starts, the learning curves, the open-loop error.
+    """
+    from wmthesis.agents.controller_training import VAEVision, evaluate_population, make_game, train_controller
+    from wmthesis.agents.world_models import encode_store, open_loop, reconstruct, train_memory, train_vision
+    from wmthesis.data import EpisodeStore, collect
+    from wmthesis.metrics import score_summary
+    from wmthesis.viz import record_frames
+
+    profile = profile_name(profile)
+    started = time.time()
+    work = data_dir(profile, "boxing-wm", f"seed{seed}")
+    out = data_dir("results", "boxing-wm", f"{profile}-seed{seed}")
+    collect_cfg = for_profile(CollectConfig, profile)
+    store = collect("boxing", collect_cfg.episodes, work / "random.h5", workers=collect_cfg.workers, seed=seed,
+                    preprocessing="world_models", max_steps=collect_cfg.max_steps, progress=progress)
+    vae, vision_history = train_vision(store, work, for_profile(VisionConfig, profile), seed=seed, progress=progress)
+    latents = encode_store(store, vae, work / "latents.h5", progress=progress)
+    memory, memory_history = train_memory(latents, work, for_profile(MemoryConfig, profile), n_actions=18,
+                                          seed=seed, progress=progress)
+    vision = VAEVision(vae)
+    controller_cfg = for_profile(ControllerConfig, profile, seed=seed)
+    run = train_controller("boxing", vision, memory, controller_cfg, out_dir=work / "controller", progress=progress)
+
+    n_eval = 2 if profile == "smoke" else 10
+    game = make_game("boxing", n_eval, noop_max=controller_cfg.noop_max)
+    returns, _ = evaluate_population(run.mean_params[None], game, vision, memory,
+                                     seeds=np.arange(n_eval) + 1_000_000 + seed,
+                                     max_steps=controller_cfg.max_steps if profile == "smoke" else None)
+    game.close()
+
+    with EpisodeStore(store) as episodes:
+        episode = episodes.episode(len(episodes) - 1)  # a validation episode
+        random_returns = [float(episodes.episode(i)["rewards"].sum()) for i in range(len(episodes))]
+    context, horizon = (10, 10) if profile == "smoke" else (60, 30)
+    rollout = open_loop(vae, memory, episode["observations"], episode["actions"], context=context, horizon=horizon)
+    figures = _boxing_figures(out, episode["observations"], reconstruct(vae, episode["observations"][::25][:8]),
+                              rollout, run.curve)
+    recording = record_frames(out / "open_loop.rrd", {"truth": rollout["truth"], "prediction": rollout["prediction"]},
+                              {"pixel_error": rollout["pixel_error"]})
+    metrics = {
+        **_run_header("boxing-wm", profile, seed, time.time() - started),
+        "score": score_summary(returns[0]),
+        "random_play_in_store": score_summary(random_returns),
+        "reference": BOXING_REFERENCE,
+        "controller_curve": run.curve, "vision_history": vision_history, "memory_history": memory_history,
+        "open_loop_pixel_error": rollout["pixel_error"].tolist(),
+        "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
+    }
+    metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1, default=float))
+    return metrics
+
+
+def _boxing_figures(out: Path, frames, reconstructions, rollout, curve) -> list[Path]:
+    from wmthesis.agents.controller_training import plot_learning_curve
+    from wmthesis.viz import image_rows
+
+    paths = []
+    fig = image_rows({"original": list(frames[::25][:8]), "reconstruction": list(reconstructions)})
+    fig.suptitle("Fig. 56: vision reconstructions")
+    paths.append(_save(fig, out / "fig56_reconstructions.png"))
+    fig = image_rows({"truth": list(rollout["truth"][::3]), "memory": list(rollout["prediction"][::3])})
+    fig.suptitle("Fig. 57: open-loop memory rollout (every 3rd step)")
+    paths.append(_save(fig, out / "fig57_open_loop.png"))
+    fig, ax = plt.subplots(figsize=(5, 3))
+    plot_learning_curve(curve, ax=ax, title="CMA-ES fitness per generation")
+    paths.append(_save(fig, out / "cmaes_curve.png"))
+    return paths
