@@ -42,6 +42,21 @@ def check_same_config(path: Path, saved: dict, wanted: dict) -> None:
                              "use another run folder or delete the checkpoint to start over")
 
 
+def check_resumable(path: Path, saved: tuple[dict, dict], wanted: tuple[dict, dict],
+                    resumable: tuple[str, ...]) -> None:
+    """Raise :class:`ConfigMismatch` unless a run saved with ``(config, task)`` = ``saved`` may
+    resume as ``wanted``: only the config fields in ``resumable`` may differ (``task``: what the
+    run was trained on, e.g. the game and a fingerprint of the models' weights)."""
+    def comparable(config: dict, task: dict) -> dict:
+        kept = {k: v for k, v in config.items() if k not in resumable}
+        return {**kept, **{f"task.{k}": v for k, v in task.items()}}
+
+    try:
+        check_same_config(path, comparable(*saved), comparable(*wanted))
+    except ConfigMismatch as error:
+        raise ConfigMismatch(f"cannot resume: {error} (only {', '.join(resumable)} may change)") from None
+
+
 def train(model: torch.nn.Module, optimiser: torch.optim.Optimizer, loss_fn: Callable[[dict], dict],
           sample: Callable[[str, np.random.Generator], dict], *, steps: int, checkpoint: str | Path,
           config, seed: int = 0, eval_every: int = 100, eval_batches: int = 4, patience: int | None = None,

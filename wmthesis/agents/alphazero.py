@@ -55,7 +55,7 @@ from torch import nn
 from tqdm import tqdm
 
 from wmthesis.core import Callback, Mind, Proportional, loop
-from wmthesis.training import ConfigMismatch, check_same_config
+from wmthesis.training import check_resumable
 from wmthesis.utils import atomic_path, check_choice, derive_seeds
 
 VARIANTS = {
@@ -518,17 +518,9 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
     return run
 
 
-def _comparable(config: dict, task: dict) -> dict:
-    kept = {k: v for k, v in config.items() if k not in RESUMABLE_FIELDS}
-    return {**kept, **{f"task.{k}": v for k, v in task.items()}}
-
-
 def _resume(path: Path, config, task: dict) -> AlphaZeroRun:
     run = load_run(path)
-    try:
-        check_same_config(path, _comparable(run.config, run.task), _comparable(dataclasses.asdict(config), task))
-    except ConfigMismatch as error:
-        raise ConfigMismatch(f"cannot resume: {error} (only {', '.join(RESUMABLE_FIELDS)} may change)") from None
+    check_resumable(path, (run.config, run.task), (dataclasses.asdict(config), task), RESUMABLE_FIELDS)
     return run
 
 

@@ -45,7 +45,7 @@ from wmthesis.core import Callback, Mind
 from wmthesis.models.controller import Controller, features, num_parameters, population_scores, unflatten
 from wmthesis.models.memory import Mixture, sample_mixture
 from wmthesis.models.vae import frames_to_input
-from wmthesis.training import ConfigMismatch, check_same_config
+from wmthesis.training import check_resumable
 from wmthesis.utils import atomic_path, check_choice, derive_seeds
 
 FORMAT = "wmthesis-controller"
@@ -489,17 +489,9 @@ def _fingerprint(model) -> str | None:
     return digest.hexdigest()[:16]
 
 
-def _comparable(config: dict, task: dict) -> dict:
-    kept = {k: v for k, v in config.items() if k not in RESUMABLE_FIELDS}
-    return {**kept, **{f"task.{k}": v for k, v in task.items()}}
-
-
 def _resume(path: Path, cfg, task: dict) -> ControllerRun:
     run = load_run(path)
-    try:
-        check_same_config(path, _comparable(run.config, run.task), _comparable(dataclasses.asdict(cfg), task))
-    except ConfigMismatch as error:
-        raise ConfigMismatch(f"cannot resume: {error} (only {', '.join(RESUMABLE_FIELDS)} may change)") from None
+    check_resumable(path, (run.config, run.task), (dataclasses.asdict(cfg), task), RESUMABLE_FIELDS)
     return run
 
 
