@@ -1,12 +1,13 @@
 """Controller (thesis 4.2.2) and its CMA-ES training: batched evaluation, learning, resume, dream."""
 import json
+import pickle
 
 import numpy as np
 import pytest
 import torch
 
 from wmthesis.agents.controller_training import (
-    ControllerMind, dream_population, episode_seeds, evaluate_population, load_run, make_game,
+    ControllerMind, dream_population, episode_seeds, evaluate_population, load_run, make_game, new_strategy,
     plot_learning_curve, train_controller)
 from wmthesis.config import ControllerConfig, for_profile
 from wmthesis.core import loop
@@ -99,10 +100,11 @@ def test_batched_evaluation_matches_the_mind_in_loop():
         loop(env, mind, max_steps=3)
 
 
-def test_cma_es_beats_random_play_within_a_few_generations():
+@pytest.mark.parametrize("diagonal", [False, True])
+def test_cma_es_beats_random_play_within_a_few_generations(diagonal):
     """Freeway, 200 steps: random play scores 0; the evolved controller crosses the road."""
     cfg = for_profile(ControllerConfig, "smoke", generations=2, episodes=1, max_steps=200, eval_every=2,
-                      eval_episodes=4)
+                      eval_episodes=4, diagonal=diagonal)
     run = train_controller("freeway", pooled, tiny_memory(16, 3), cfg, progress=False)
     game = make_game("freeway", 4)
     game.reset(episode_seeds(cfg.seed, 0, 4, stream=1))
@@ -115,6 +117,27 @@ def test_cma_es_beats_random_play_within_a_few_generations():
     assert random_returns.mean() <= 0.25
     assert run.best_fitness >= 2.0
     assert run.curve[-1]["eval_return"] >= random_returns.mean() + 1.0
+
+
+def test_diagonal_cma_es_state_grows_linearly_with_the_dimension():
+    """A Boxing controller on [z h] has D = 4,914: the full strategy would pickle two D x D
+    matrices (~390 MB); the separable one stays small and samples with a diagonal covariance."""
+    strategy = new_strategy(4914, ControllerConfig(population=8, diagonal=True))
+    assert len(pickle.dumps(strategy)) < 5_000_000
+    candidates = np.array(strategy.ask())
+    strategy.tell(list(candidates), list(np.arange(8.0)))
+    assert strategy.sm.variances.shape == (4914,)
+
+
+def test_a_checkpoint_from_before_a_config_field_existed_resumes(tmp_path):
+    """Fields added to ControllerConfig later (e.g. ``diagonal``) take their defaults on resume."""
+    sokoban_run(tmp_path, 1)
+    saved = pickle.loads((tmp_path / "controller.pkl").read_bytes())
+    del saved["config"]["diagonal"]
+    (tmp_path / "controller.pkl").write_bytes(pickle.dumps(saved))
+    assert len(sokoban_run(tmp_path, 2).curve) == 2
+    with pytest.raises(ConfigMismatch, match="diagonal"):
+        sokoban_run(tmp_path, 3, diagonal=True)
 
 
 def sokoban_run(tmp_path, generations, **changes):

@@ -89,3 +89,10 @@ def test_memory_resume_with_changed_config_fails(trained, boxing_store, tmp_path
     train_memory(path, tmp_path, config, n_actions=18, progress=False)
     with pytest.raises(ConfigMismatch, match="hidden_size"):
         train_memory(path, tmp_path, dataclasses.replace(config, hidden_size=64), n_actions=18, progress=False)
+
+
+def test_boxing_dream_refuses_a_non_positive_temperature():
+    from wmthesis.experiments import boxing_dream
+
+    with pytest.raises(ValueError, match="temperature must be positive, got 0"):
+        boxing_dream("smoke", temperature=0)

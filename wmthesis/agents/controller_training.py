@@ -326,7 +326,7 @@ def new_strategy(dimension: int, cfg):
     import cma
 
     options = {"popsize": cfg.population, "seed": np.nan, "randn": SeededNormal(cfg.seed),
-               "verbose": -9, "verb_disp": 0, "verb_log": 0, "maxiter": np.inf}
+               "verbose": -9, "verb_disp": 0, "verb_log": 0, "maxiter": np.inf, "CMA_diagonal": cfg.diagonal}
     return cma.CMAEvolutionStrategy(np.zeros(dimension), cfg.sigma, options)
 
 
@@ -491,7 +491,8 @@ def _fingerprint(model) -> str | None:
 
 def _resume(path: Path, cfg, task: dict) -> ControllerRun:
     run = load_run(path)
-    check_resumable(path, (run.config, run.task), (dataclasses.asdict(cfg), task), RESUMABLE_FIELDS)
+    saved = {**dataclasses.asdict(type(cfg)()), **run.config}  # fields added since: their defaults
+    check_resumable(path, (saved, run.task), (dataclasses.asdict(cfg), task), RESUMABLE_FIELDS)
     return run
 
 

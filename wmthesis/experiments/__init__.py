@@ -22,7 +22,7 @@ from wmthesis.experiments.planet import (ATARI_CHANGES, PLANET_EVAL_EPISODES, PL
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,
                                                        sokoban_wm_configs, sokoban_world_models)
-from wmthesis.experiments.world_models import BOXING_REFERENCE, boxing_world_models
+from wmthesis.experiments.world_models import BOXING_REFERENCE, DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.utils import check_choice
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway")

@@ -23,8 +23,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     10 full evaluation episodes with varied starts, the learning curves, the open-loop error.
     """
     from wmthesis.agents.controller_training import VAEVision, evaluate_population, make_game, train_controller
-    from wmthesis.agents.world_models import encode_store, open_loop, reconstruct, train_memory, train_vision
-    from wmthesis.data import EpisodeStore, collect
+    from wmthesis.agents.world_models import open_loop, reconstruct
+    from wmthesis.data import EpisodeStore
     from wmthesis.metrics import score_summary
     from wmthesis.viz import record_frames
 
@@ -32,13 +32,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     started = time.time()
     work = data_dir(profile, "boxing-wm", f"seed{seed}")
     out = data_dir("results", "boxing-wm", f"{profile}-seed{seed}")
-    collect_cfg = for_profile(CollectConfig, profile)
-    store = collect("boxing", collect_cfg.episodes, work / "random.h5", workers=collect_cfg.workers, seed=seed,
-                    preprocessing="world_models", max_steps=collect_cfg.max_steps, progress=progress)
-    vae, vision_history = train_vision(store, work, for_profile(VisionConfig, profile), seed=seed, progress=progress)
-    latents = encode_store(store, vae, work / "latents.h5", progress=progress)
-    memory, memory_history = train_memory(latents, work, for_profile(MemoryConfig, profile), n_actions=18,
-                                          seed=seed, progress=progress)
+    store, vae, memory, vision_history, memory_history = _world_model(work, profile, seed, progress)
     vision = VAEVision(vae)
     controller_cfg = for_profile(ControllerConfig, profile, seed=seed)
     run = train_controller("boxing", vision, memory, controller_cfg, out_dir=work / "controller", progress=progress)
@@ -72,6 +66,87 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
+
+
+def _world_model(work: Path, profile: str, seed: int, progress: bool) -> tuple:
+    """Random rollouts -> VAE -> latents -> MDN-RNN in ``work``, each step cached: returns the
+    store's path, the VAE, the memory and the two training histories."""
+    from wmthesis.agents.world_models import encode_store, train_memory, train_vision
+    from wmthesis.data import collect
+
+    collect_cfg = for_profile(CollectConfig, profile)
+    store = collect("boxing", collect_cfg.episodes, work / "random.h5", workers=collect_cfg.workers, seed=seed,
+                    preprocessing="world_models", max_steps=collect_cfg.max_steps, progress=progress)
+    vae, vision_history = train_vision(store, work, for_profile(VisionConfig, profile), seed=seed, progress=progress)
+    latents = encode_store(store, vae, work / "latents.h5", progress=progress)
+    memory, memory_history = train_memory(latents, work, for_profile(MemoryConfig, profile), n_actions=18,
+                                          seed=seed, progress=progress)
+    return store, vae, memory, vision_history, memory_history
+
+
+# Dreams are cheap in real steps, so the dream controller keeps the thesis's population and episodes.
+DREAM_CHANGES = dict(dream=True, population=64, episodes=5)
+
+
+def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float = 1.0,
+                 progress: bool = True) -> dict:
+    """Beyond the thesis: evolve the Boxing controller inside the memory's dream, as Ha &
+    Schmidhuber did for VizDoom, on the world model of :func:`boxing_world_models` (same
+    ``profile`` and ``seed``; its cached steps are reused).
+
+    The memory is the environment: it samples the next latent at ``temperature`` and predicts
+    reward and done. Every ``eval_every`` generations the CMA-ES mean plays ``eval_episodes``
+    real episodes. Returns (and writes to ``dream-t<temperature>.json`` beside the Boxing
+    metrics) the learning curve, whose ``mean``/``best`` are dream returns and ``eval_return``
+    real ones, and the real score of the final mean over 10 full bouts.
+    """
+    from wmthesis.agents.controller_training import VAEVision, evaluate_population, make_game, train_controller
+    from wmthesis.metrics import score_summary
+
+    if not temperature > 0:
+        raise ValueError(f"the dream's temperature must be positive, got {temperature}")
+    profile = profile_name(profile)
+    started = time.time()
+    work = data_dir(profile, "boxing-wm", f"seed{seed}")
+    out = data_dir("results", "boxing-wm", f"{profile}-seed{seed}")
+    _, vae, memory, _, _ = _world_model(work, profile, seed, progress)
+    vision = VAEVision(vae)
+    cfg = for_profile(ControllerConfig, profile, seed=seed, temperature=temperature, **DREAM_CHANGES)
+    run = train_controller("boxing", vision, memory, cfg, out_dir=work / f"controller-dream-t{temperature:g}",
+                           progress=progress)
+    n_eval = 2 if profile == "smoke" else 10
+    game = make_game("boxing", n_eval, noop_max=cfg.noop_max)
+    returns, _ = evaluate_population(run.mean_params[None], game, vision, memory,
+                                     seeds=np.arange(n_eval) + 1_000_000 + seed,
+                                     max_steps=cfg.max_steps if profile == "smoke" else None)
+    game.close()
+    metrics = {**_run_header("boxing-wm-dream", profile, seed, time.time() - started, temperature=temperature),
+               "score": score_summary(returns[0]), "controller_curve": run.curve}
+    with atomic_path(out / f"dream-t{temperature:g}.json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1, default=float))
+    return metrics
+
+
+def plot_dream(curves: dict, ax=None):
+    """Dream fitness (CMA-ES mean of the population, line) and the real-game return of the
+    CMA-ES mean (points, mean +- std) per generation, one colour per temperature.
+    ``curves``: ``{temperature: controller curve}``. Returns the figure."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6, 3.5))
+    for temperature, curve in curves.items():
+        line, = ax.plot([e["generation"] for e in curve], [e["mean"] for e in curve], lw=1.5,
+                        label=f"dream return, tau={temperature:g}")
+        evals = [e for e in curve if "eval_return" in e]
+        ax.errorbar([e["generation"] for e in evals], [e["eval_return"] for e in evals],
+                    [e["eval_std"] for e in evals], fmt="o", ms=4, capsize=2, color=line.get_color(),
+                    label=f"real return, tau={temperature:g}")
+    ax.axhline(0, color="grey", lw=0.5)
+    ax.set_xlabel("generation")
+    ax.set_ylabel("return")
+    ax.set_title("Controller evolved in the dream, played in the real game")
+    ax.legend(fontsize=7)
+    ax.figure.tight_layout()
+    return ax.figure
 
 
 def _boxing_figures(out: Path, frames, reconstructions, rollout, curve) -> list[Path]:
