@@ -27,13 +27,10 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
 import os
-import platform
 import sys
 import time
 from collections import defaultdict
-from datetime import date
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch starts OpenMP (see the docstring)
@@ -41,13 +38,14 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch starts OpenM
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
 from wmthesis.agents.controller_training import (  # noqa: E402
     VAEVision, dream_population, episode_seeds, evaluate_population, make_game)
 from wmthesis.models.controller import num_parameters  # noqa: E402
 from wmthesis.models.memory import Memory  # noqa: E402
 from wmthesis.models.vae import VAE  # noqa: E402
+from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "controller.json"
 PARTS = ("env", "preprocess", "vision", "memory", "controller")
@@ -117,20 +115,12 @@ def main(argv=None):
 
     print(f"controller evaluation, {P} x {E} = {P * E} Boxing games, latent 16, LSTM 256 "
           f"(vector env start: {start_seconds:.1f} s)")
-    columns = PARTS + ("other",)
-    print(f"{'what':<36} {'steps/s':>8} {'2-core':>7} {'load':>5} " + " ".join(f"{p:>10}" for p in columns))
-    for row in rows:
-        shares = " ".join(f"{row[f'share_{p}']:>10.0%}" if f"share_{p}" in row else f"{'':>10}" for p in columns)
-        bound = (f"{row['two_core_bound']:>7.0f} {row['load_average_1min']:>5.1f}" if "two_core_bound" in row
-                 else " " * 13)
-        print(f"{row['what']:<36} {row['steps_per_s']:>8.0f} {bound} {shares}")
-    meta = dict(population=P, episodes=E, steps=args.steps, latent=16, lstm=256, vector_env_start_s=start_seconds,
-                cpus=os.cpu_count(), machine=platform.machine(), python=platform.python_version(),
-                torch=torch.__version__, date=str(date.today()), omp_wait_policy=os.environ["OMP_WAIT_POLICY"],
-                load_average=os.getloadavg() if hasattr(os, "getloadavg") else None)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"meta": meta, "results": rows}, indent=2, default=float))
-    print(f"wrote {args.out}")
+    print_table(rows, ["what", "steps_per_s", "two_core_bound", "load_average_1min",
+                       *(f"share_{part}" for part in PARTS + ("other",))])
+    meta = machine_meta(population=P, episodes=E, steps=args.steps, latent=16, lstm=256,
+                        vector_env_start_s=start_seconds, cpus=os.cpu_count(),
+                        omp_wait_policy=os.environ["OMP_WAIT_POLICY"])
+    write_results(args.out, meta, rows)
 
 
 if __name__ == "__main__":

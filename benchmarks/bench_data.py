@@ -27,9 +27,7 @@ Writes ``benchmarks/results/data.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import resource
 import sys
 import tempfile
@@ -38,14 +36,17 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
 from wmthesis.data import EpisodeStore, collect  # noqa: E402
+from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "data.json"
 VECTOR_ENVS, VECTOR_THREADS = 16, 2
 CHUNK_BATCH, CHUNK_LENGTH = 50, 50
 CORES = 2  # the machines this project targets
+COLUMNS = ("what", "steps_per_s", "vs_vector_env", "cpu_steps_per_s", "cpu_vs_vector_env", "median_ms", "p90_ms",
+           "cpu_median_ms", "mb_per_1000_frames")
 
 
 class Clock:
@@ -186,34 +187,15 @@ def main(argv=None):
     for row in rows[2:-1]:
         row["vs_vector_env"] = row["steps_per_s"] / reference["steps_per_s"]
         row["cpu_vs_vector_env"] = row["cpu_steps_per_s"] / reference["cpu_steps_per_s"]
-    print_table(rows)
+    print_table(rows, COLUMNS)
     others = others_share(busy_before, machine_busy(), clock.seconds()[1])
     if others is not None:
         print(f"other processes used {others:.0%} of the machine's CPU meanwhile "
               f"(wall rates are lowered by that much; CPU rates are not)")
 
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    meta = dict(episodes_per_worker=args.episodes, seconds=args.seconds, batches=args.batches,
-                others_cpu_share=others, cores=os.cpu_count(),
-                machine=platform.processor() or platform.machine(), python=platform.python_version(),
-                date=time.strftime("%Y-%m-%d"))
-    args.out.write_text(json.dumps(dict(meta=meta, results=rows), indent=2) + "\n")
-    print(f"wrote {args.out}")
-
-
-COLUMNS = (("steps/s", "steps_per_s", "8.0f"), ("vs vector", "vs_vector_env", "9.0%"),
-           ("CPU steps/s", "cpu_steps_per_s", "11.0f"), ("CPU vs vector", "cpu_vs_vector_env", "13.0%"),
-           ("median ms", "median_ms", "9.1f"), ("p90 ms", "p90_ms", "6.1f"),
-           ("CPU ms", "cpu_median_ms", "6.1f"), ("MB/1000 frames", "mb_per_1000_frames", "14.2f"))
-
-
-def print_table(rows: list[dict]) -> None:
-    """One line per measurement; empty cells where a column does not apply."""
-    print(" | ".join([f"{'measurement':50s}"] + [f"{title:>{len(title)}s}" for title, _, _ in COLUMNS]))
-    for row in rows:
-        cells = [format(row[key], spec) if key in row else "" for _, key, spec in COLUMNS]
-        print(" | ".join([f"{row['what']:50s}"] + [f"{cell:>{len(title)}s}" for cell, (title, _, _)
-                                                    in zip(cells, COLUMNS)]))
+    meta = machine_meta(episodes_per_worker=args.episodes, seconds=args.seconds, batches=args.batches,
+                        others_cpu_share=others)
+    write_results(args.out, meta, rows)
 
 
 if __name__ == "__main__":

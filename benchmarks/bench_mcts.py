@@ -31,14 +31,11 @@ uses against the same formula as a pure-Python loop. Writes ``benchmarks/results
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
-import platform
 import sys
 import time
 import timeit
-from datetime import date
 from pathlib import Path
 
 import gymnasium as gym
@@ -46,9 +43,10 @@ import numpy as np
 import torch
 from torch import nn
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
 from wmthesis.planning.mcts import MCTS  # noqa: E402
+from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "mcts.json"
 LATENT, HIDDEN, N_ACTIONS = 16, 256, 18
@@ -234,25 +232,12 @@ def main(argv=None) -> int:
 
     print(f"AlphaZero MCTS, {S} simulations a move, {M} moves x {args.rounds} rounds, "
           f"LSTMCell({LATENT}+{N_ACTIONS}, {HIDDEN}), 1 torch thread (load before: {load_before[0]:.2f})")
-    print(f"{'what':<42} {'sims/s':>8} {'us/sim':>7} {'cpu us':>7} {'ms/move':>8} {'model':>6} {'tree':>6} "
-          f"{'depth':>6}")
-    for row in rows:
-        if "us_per_select" in row:
-            print(f"{row['what']:<42} {'':>8} {row['us_per_select']:>7.2f}  (us per selection)")
-            continue
-        move = f"{row['ms_per_move']:>8.2f}" if "ms_per_move" in row else " " * 8
-        depth = f"{row['mean_max_depth']:>6.1f}" if "mean_max_depth" in row else " " * 6
-        print(f"{row['what']:<42} {row['simulations_per_s']:>8.0f} {row['us_per_simulation']:>7.1f} "
-              f"{row['cpu_us_per_simulation']:>7.1f} {move} "
-              f"{row['share_model']:>6.0%} {row['share_tree']:>6.0%} {depth}")
-    meta = dict(moves=M, simulations=S, rounds=args.rounds, latent=LATENT, lstm=HIDDEN, n_actions=N_ACTIONS,
-                seed=seed, threads=torch.get_num_threads(), torch=torch.__version__,
-                python=platform.python_version(),
-                machine=platform.machine(), cpus=os.cpu_count(), date=date.today().isoformat(),
-                load_average_before=load_before, load_average_after=os.getloadavg())
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(dict(meta=meta, results=rows), indent=2) + "\n")
-    print(f"wrote {args.out}")
+    print_table(rows, ["what", "simulations_per_s", "us_per_simulation", "cpu_us_per_simulation", "ms_per_move",
+                       "share_model", "share_tree", "mean_max_depth", "us_per_select"])
+    meta = machine_meta(moves=M, simulations=S, rounds=args.rounds, latent=LATENT, lstm=HIDDEN,
+                        n_actions=N_ACTIONS, seed=seed, threads=torch.get_num_threads(), cpus=os.cpu_count(),
+                        load_average_before=load_before, load_average_after=os.getloadavg())
+    write_results(args.out, meta, rows)
     return 0
 
 

@@ -1,6 +1,6 @@
 """PlaNet: CEM planning time per action and RSSM training updates per second.
 
-    python benchmarks/bench_planet.py [--repeats 5] [--updates 2] [--threads N] [--seed 0]
+    python benchmarks/bench_planet.py [--repeats 5] [--updates 2] [--threads N] [--seed 0] [--out PATH]
 
 Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
 
@@ -24,25 +24,23 @@ Writes ``benchmarks/results/planet.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import statistics
 import sys
 import time
-from datetime import date
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
 from wmthesis.agents.planet import (PlanetMind, batch_loss, build_model, make_optimizer,  # noqa: E402
                                     optimizer_step)
 from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
 from wmthesis.planning.cem import cem_plan  # noqa: E402
+from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "planet.json"
 N_ACTIONS = 18
@@ -140,20 +138,11 @@ def main() -> int:
                               args.updates, args.seed))
     results.append(update_row(quick, "quick", args.updates, args.seed))
 
-    columns = ("what", "sizes", "seconds", "ratio", "updates_per_s", "latent_steps_per_s")
-    print(" | ".join(columns))
-    for row in results:
-        print(" | ".join(f"{row[c]:.4g}" if isinstance(row.get(c), float) else str(row.get(c, ""))
-                         for c in columns))
-    meta = dict(seed=args.seed, repeats=args.repeats, updates=args.updates,
-                threads=torch.get_num_threads(),
-                device=str(next(model.parameters()).device), torch=torch.__version__,
-                machine=platform.processor() or platform.machine(),
-                cpus=os.cpu_count(), load_average_before=load_before, load_average_after=os.getloadavg()[0],
-                python=platform.python_version(), date=date.today().isoformat())
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(dict(meta=meta, results=results), indent=2) + "\n")
-    print(f"wrote {args.out}")
+    print_table(results, ["what", "sizes", "seconds", "ratio", "updates_per_s", "latent_steps_per_s"])
+    meta = machine_meta(seed=args.seed, repeats=args.repeats, updates=args.updates, threads=torch.get_num_threads(),
+                        device=str(next(model.parameters()).device), cpus=os.cpu_count(),
+                        load_average_before=load_before, load_average_after=os.getloadavg()[0])
+    write_results(args.out, meta, results)
     return 0
 
 

@@ -1,6 +1,6 @@
 """Random search: trials per hour with 1 and 2 worker processes on smoke-sized trials.
 
-    python benchmarks/bench_search.py [--trials 6] [--game planet-boxing] [--workers 1 2]
+    python benchmarks/bench_search.py [--trials 6] [--game planet-boxing] [--workers 1 2] [--out PATH]
 
 Each row runs a fresh study of ``--trials`` smoke-profile PlaNet trials (tiny RSSM, 48 agent
 steps, open-loop evaluation and figure) in a fresh SQLite file, with K worker processes
@@ -12,24 +12,27 @@ Workers get ``cores // K`` torch threads. Writes ``benchmarks/results/search.jso
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
 import tempfile
 import time
-from datetime import date
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
+
+from _results import machine_meta, print_table, write_json  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results" / "search.json"
 
 
-def main() -> None:
+def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=6)
     parser.add_argument("--game", default="planet-boxing")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    args = parser.parse_args()
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
     os.environ["WMTHESIS_DATA"] = tempfile.mkdtemp(prefix="bench-search-")
     os.environ.setdefault("MPLBACKEND", "Agg")
     import optuna
@@ -45,19 +48,13 @@ def main() -> None:
         seconds = time.perf_counter() - start
         done = sum(row["state"] == "COMPLETE" for row in trial_rows(study))
         rows.append({"workers": workers, "trials": done, "seconds": seconds, "trials_per_hour": 3600 * done / seconds})
-    base = rows[0]["trials_per_hour"]
-    print(f"{'workers':>7} {'trials':>6} {'wall s':>7} {'trials/hour':>11} {'speed-up':>8}")
     for row in rows:
-        row["speedup"] = row["trials_per_hour"] / base
-        print(f"{row['workers']:7d} {row['trials']:6d} {row['seconds']:7.1f} {row['trials_per_hour']:11.0f} "
-              f"{row['speedup']:8.2f}")
+        row["speedup"] = row["trials_per_hour"] / rows[0]["trials_per_hour"]
+    print_table(rows)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
-    result = {"date": str(date.today()), "machine": platform.node(), "cores": os.cpu_count(),
-              "load_average_1min": load, "game": args.game, "rows": rows}
-    out = Path(__file__).with_name("results") / "search.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(result, indent=1))
-    print(f"load average {load}; wrote {out}")
+    print(f"load average {load}")
+    meta = machine_meta(host=platform.node(), load_average_1min=load, game=args.game)
+    write_json(args.out, {**meta, "rows": rows})     # one flat object, as this file always was
 
 
 if __name__ == "__main__":

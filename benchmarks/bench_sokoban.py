@@ -1,6 +1,6 @@
 """Sokoban level generation: time and difficulty per level, ours against gym-sokoban's search.
 
-    python benchmarks/bench_sokoban.py [--levels 200] [--seed 0] [--reference 20] [--solve 50]
+    python benchmarks/bench_sokoban.py [--levels 200] [--seed 0] [--reference 40] [--solve 50] [--out PATH]
 
 Generates `--levels` levels per variant (10x10 with 4 boxes, 7x7 with 2) from one seed through
 ``SokobanEnv.reset``, then prints per variant: seconds per level (median, 95th percentile, max)
@@ -18,19 +18,18 @@ port's seconds are its own, not gym-sokoban's numpy original's (measured at a me
 from __future__ import annotations
 
 import argparse
-import json
-import platform
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
 from wmthesis.envs.sokoban import (SokobanEnv, box_displacement, count_box_swaps,  # noqa: E402
                                    make_board, place_player_and_targets, reverse_play,
                                    room_topology, solve)
+from _results import machine_meta, print_table, write_results  # noqa: E402
 
 VARIANTS = {"sokoban": ((10, 10), 4), "sokoban-small": ((7, 7), 2)}
 RESULTS = Path(__file__).resolve().parent / "results" / "sokoban.json"
@@ -164,17 +163,8 @@ def main(argv=None):
             results.append(summarise(f"{variant}, same rooms: ours", ours_rows, args.solve))
             results.append(summarise(f"{variant}, same rooms: gym-sokoban search", gym_rows, args.solve))
 
-    columns = ("variant", "levels", "median_s", "p95_s", "max_s", "mean_displacement",
-               "mean_pulls", "mean_box_swaps", "solved", "mean_optimal_pushes")
-    print(" | ".join(columns))
-    for row in results:
-        print(" | ".join(f"{row[c]:.4g}" if isinstance(row[c], float) else str(row[c]) for c in columns))
-
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    meta = dict(seed=args.seed, solver_nodes=SOLVER_NODES, machine=platform.processor() or platform.machine(),
-                python=platform.python_version(), date=time.strftime("%Y-%m-%d"))
-    args.out.write_text(json.dumps(dict(meta=meta, results=results), indent=2) + "\n")
-    print(f"wrote {args.out}")
+    print_table(results)
+    write_results(args.out, machine_meta(seed=args.seed, solver_nodes=SOLVER_NODES), results)
 
 
 if __name__ == "__main__":

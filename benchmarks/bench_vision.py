@@ -1,16 +1,14 @@
 """VAE training throughput: the real pipeline (frames sampled from a compressed HDF5 store)
 against a bare PyTorch loop on the same batch held in memory. Target: >= 90%.
 
-    python benchmarks/bench_vision.py [--batch 256] [--steps 20]
+    python benchmarks/bench_vision.py [--batch 256] [--steps 20] [--out PATH]
 
 Prints a table and writes benchmarks/results/vision.json.
 """
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -18,8 +16,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from wmthesis.data import EpisodeStore, collect
-from wmthesis.models.vae import VAE, elbo_loss, frames_to_input
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
+
+from wmthesis.data import EpisodeStore, collect  # noqa: E402
+from wmthesis.models.vae import VAE, elbo_loss, frames_to_input  # noqa: E402
+from _results import machine_meta, print_table, write_results  # noqa: E402
 
 
 def bare_loop(frames: torch.Tensor, steps: int) -> float:
@@ -74,13 +75,9 @@ def main() -> None:
     rows = [{"what": "bare PyTorch loop, batch in memory", "images_per_s": bare},
             {"what": "train_vision pipeline, batches from HDF5", "images_per_s": real, "vs_bare": real / bare,
              "sampling_share": sampling_share}]
-    print(f"{'what':45} {'images/s':>10} {'vs bare':>8} {'sampling':>9}")
-    for row in rows:
-        print(f"{row['what']:45} {row['images_per_s']:10.0f} {row.get('vs_bare', 1):8.2f} {row.get('sampling_share', 0):9.1%}")
-    meta = {"batch": args.batch, "steps": args.steps, "torch_threads": torch.get_num_threads(),
-            "load_average": os.getloadavg(), "machine": platform.machine(), "date": time.strftime("%Y-%m-%d")}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"meta": meta, "results": rows}, indent=1))
+    print_table(rows)
+    write_results(args.out, machine_meta(batch=args.batch, steps=args.steps, torch_threads=torch.get_num_threads()),
+                  rows)
 
 
 if __name__ == "__main__":

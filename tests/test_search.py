@@ -19,9 +19,10 @@ matplotlib.use("Agg")
 from wmthesis.__main__ import main  # noqa: E402
 from wmthesis.agents import planet as planet_module  # noqa: E402
 from wmthesis.config import SearchConfig, for_profile  # noqa: E402
-from wmthesis.search import (TrialSeededSampler, load_study, make_storage, open_study,  # noqa: E402
-                             planned_settings, ranked, run_search, search_figure, study_name,
-                             trial_rows)
+from wmthesis.search import (TrialSeededSampler, default_storage, load_study, make_storage,  # noqa: E402
+                             open_study, planned_settings, ranked, run_search, search_figure,
+                             storage_fingerprint, study_dir, study_name, trial_dir, trial_rows)
+from wmthesis.utils import data_dir  # noqa: E402
 
 POSTGRES = os.environ.get("WMTHESIS_TEST_POSTGRES_URL")
 SMOKE = for_profile(SearchConfig, "smoke")
@@ -52,6 +53,23 @@ def test_suggestions_depend_only_on_seed_and_trial_number():
     assert SMOKE.free_nats_low < 3 < 12 < SMOKE.free_nats_high
 
 
+def test_trial_folders_are_keyed_by_storage(tmp_path, monkeypatch):
+    """A study name in two storages gets two trial folders; one storage, however its password or
+    relative SQLite path is spelt, gets one; the default storage's folder is the study's name."""
+    monkeypatch.chdir(tmp_path)
+    one, other = f"sqlite:///{tmp_path / 'one.db'}", f"sqlite:///{tmp_path / 'other.db'}"
+    urls = (one, other, "sqlite:///one.db")
+    studies = [open_study("planet-boxing", SMOKE, "smoke", url) for url in urls]
+    first, second, again = (trial_dir(study, 3, url) for study, url in zip(studies, urls))
+    name = study_name("planet-boxing", "smoke", SMOKE.objective)
+    assert first != second and first == again
+    assert first == data_dir("search", f"{name}-{storage_fingerprint(one)}", "trial-0003")
+    postgres = "postgresql+psycopg2://user{}@host:5432/db"
+    fingerprints = {storage_fingerprint(postgres.format(password)) for password in ("", ":secret", ":other")}
+    assert len(fingerprints) == 1 and fingerprints.isdisjoint({storage_fingerprint(url) for url in urls})
+    assert study_dir(name) == study_dir(name, default_storage()) == data_dir("search", name)
+
+
 STORAGES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.skipif(
     not POSTGRES, reason="WMTHESIS_TEST_POSTGRES_URL not set (.ci/run starts a PostgreSQL server and sets it)"))]
 
@@ -68,6 +86,7 @@ def test_two_worker_processes_share_one_study(backend, tmp_path):
     for row in rows:
         assert {k: row[k] for k in ("kl_scale", "free_nats")} == planned[row["number"]]
         folder = Path(row["folder"])
+        assert folder.parent == study_dir(study.study_name, storage)
         metrics = json.loads((folder / "metrics.json").read_text())
         assert metrics["error"] == row["error"] and metrics["score"] == row["score"]
         assert (folder / "open_loop.png").stat().st_size > 1000

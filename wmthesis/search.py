@@ -21,14 +21,22 @@ trials until the study holds ``trials`` finished (complete or pruned) trials.
 - A trial whose loss diverges (``FloatingPointError``) is PRUNED with the error in its
   ``diverged`` user attribute: it counts as a (bad) result, not as a crash.
 
-Per trial, under ``data/search/STUDY/trial-NNNN/``: the PlaNet run folder, ``metrics.json``
-and ``open_loop.png``. :func:`run_search` is the entry point; :func:`trial_rows`,
-:func:`ranked` and :func:`search_figure` read a study back (notebook 06).
+Per trial, under ``data/search/FOLDER/trial-NNNN/``: the PlaNet run folder, ``metrics.json``
+and ``open_loop.png`` (the trial's ``folder`` user attribute). ``FOLDER`` (:func:`study_dir`) is
+the study's name for the default storage (``data/search/planet-boxing-quick-both/``) and the
+name plus the storage's fingerprint for any other (``planet-boxing-quick-both-1a2b3c4d/``): the
+first 8 hex digits of the SHA-256 of its URL without the password, SQLite paths made absolute
+(:func:`storage_fingerprint`). So two storages holding a study of the same name keep apart, and
+a study run again through the same URL finds its folder again. (Trials run before storages had
+fingerprints keep their folders, as their ``folder`` attributes say.)
+
+:func:`run_search` is the entry point; :func:`trial_rows`, :func:`ranked` and
+:func:`search_figure` read a study back (notebook 06).
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
+import hashlib
 import json
 import math
 import multiprocessing
@@ -46,6 +54,7 @@ import optuna
 from optuna.distributions import FloatDistribution
 from optuna.samplers import RandomSampler
 from optuna.trial import TrialState
+from sqlalchemy.engine import make_url
 
 from wmthesis.config import PlaNetConfig, SearchConfig, for_profile, profile_name
 from wmthesis.utils import atomic_path, check_choice, data_dir
@@ -124,6 +133,26 @@ def default_storage() -> str:
     return f"sqlite:///{data_dir('search') / 'studies.db'}"
 
 
+def storage_fingerprint(url: str) -> str:
+    """8 hex digits naming a storage: the SHA-256 of its URL without the password (so a changed
+    password keeps the name), a SQLite file's path made absolute (so the same file from
+    another working directory keeps it)."""
+    parsed = make_url(url)._replace(password=None)
+    if parsed.get_backend_name() == "sqlite" and parsed.database not in (None, "", ":memory:"):
+        parsed = parsed._replace(database=str(Path(parsed.database).absolute()))
+    text = parsed.render_as_string(hide_password=False)
+    return hashlib.sha256(text.encode()).hexdigest()[:8]
+
+
+def study_dir(study_name: str, storage: str | None = None) -> Path:
+    """The folder of a study's trials: ``data/search/STUDY`` for the default storage,
+    ``data/search/STUDY-FINGERPRINT`` (:func:`storage_fingerprint`) for any other."""
+    fingerprint = storage_fingerprint(storage or default_storage())
+    if fingerprint == storage_fingerprint(default_storage()):
+        return data_dir("search", study_name)
+    return data_dir("search", f"{study_name}-{fingerprint}")
+
+
 def make_storage(url: str, cfg: SearchConfig) -> optuna.storages.RDBStorage:
     """An optuna RDB storage with heartbeats (``cfg.heartbeat_interval``, ``cfg.grace_period``)."""
     if url.startswith("sqlite"):
@@ -171,13 +200,16 @@ def load_study(name: str, profile: str | None = None, objective: str | None = No
 
 
 # ---------------------------------------------------------------------------- one trial
-def trial_dir(study: optuna.Study, number: int) -> Path:
-    return data_dir("search", study.study_name, f"trial-{number:04d}")
+def trial_dir(study: optuna.Study, number: int, storage: str | None = None) -> Path:
+    """Trial ``number``'s folder, in the study's :func:`study_dir` for ``storage``."""
+    folder = study_dir(study.study_name, storage) / f"trial-{number:04d}"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
 
 
-def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str):
+def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str, storage: str | None = None):
     """Train PlaNet with the trial's setting, measure it, save ``metrics.json`` and the
-    open-loop figure; return the objective value(s)."""
+    open-loop figure in :func:`trial_dir`; return the objective value(s)."""
     from wmthesis.agents.planet import (STORE, evaluate_open_loop, load_planet, open_loop_figure,
                                         train_planet)
     from wmthesis.data import EpisodeStore
@@ -187,7 +219,7 @@ def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str
     changes = dict(params, **{key: getattr(cfg, key) for key in ("env_steps", "max_episode_steps")
                               if getattr(cfg, key)})
     config = for_profile(PlaNetConfig, profile, **changes)
-    folder = trial_dir(trial.study, trial.number)
+    folder = trial_dir(trial.study, trial.number, storage)
     metrics = {"study": trial.study.study_name, "trial": trial.number, "env": game.env, **params}
     try:
         result = train_planet(game.env, config, folder / "run", seed=cfg.seed, progress=False)
@@ -239,7 +271,7 @@ def work(name: str, cfg: SearchConfig, profile: str, storage: str, threads: int 
 
         torch.set_num_threads(threads)
     study = open_study(name, cfg, profile, storage)
-    objective = functools.partial(run_trial, name=name, cfg=cfg, profile=profile)
+    objective = functools.partial(run_trial, name=name, cfg=cfg, profile=profile, storage=storage)
     while True:
         trials = study.get_trials(deepcopy=False, states=FINISHED + (TrialState.RUNNING,))
         if sum(trial.state in FINISHED for trial in trials) >= cfg.trials:
@@ -341,5 +373,5 @@ def search_figure(study: optuna.Study, game: str, measure: str = "score"):
 
 
 __all__ = ["GAMES", "OBJECTIVES", "Game", "TrialSeededSampler", "suggest", "planned_settings",
-           "default_storage", "make_storage", "study_name", "open_study", "load_study", "run_trial",
-           "work", "run_search", "trial_rows", "ranked", "search_figure", "trial_dir"]
+           "default_storage", "storage_fingerprint", "study_dir", "make_storage", "study_name", "open_study",
+           "load_study", "run_trial", "work", "run_search", "trial_rows", "ranked", "search_figure", "trial_dir"]
