@@ -81,6 +81,17 @@ def test_latents_and_memory(trained, boxing_store, tmp_path):
     assert result["pixel_error"].shape == (10,) and np.isfinite(result["latent_error"]).all()
     assert result["pixel_error"].max() < 0.1  # decoded predictions look like Boxing frames
 
+    from wmthesis.experiments.world_models import open_loop_errors
+    errors = open_loop_errors(vae, memory, episode, context=20, horizon=10, starts=8)
+    assert errors["rollouts"] == 3  # 100 steps hold three spans of 30
+    first = open_loop(vae, memory, episode["observations"][60:], episode["actions"][60:], context=20, horizon=10)
+    assert errors["pixel_error"].shape == (10,) and errors["pixel_error"].max() < 0.1
+    assert not np.allclose(errors["pixel_error"], first["pixel_error"])  # an average, not one rollout
+    still = dict(episode, observations=np.repeat(episode["observations"][:1], 100, 0))
+    assert np.all(open_loop_errors(vae, memory, still, context=20, horizon=10)["still_pixel_error"] == 0)
+    with pytest.raises(ValueError, match="open loop needs context \\+ horizon = 30"):
+        open_loop_errors(vae, memory, {k: v[:29] for k, v in episode.items()}, context=20, horizon=10)
+
 
 def test_memory_resume_with_changed_config_fails(trained, boxing_store, tmp_path):
     run, vae, _ = trained

@@ -49,6 +49,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
         random_returns = [float(episodes.episode(i)["rewards"].sum()) for i in range(len(episodes))]
     context, horizon = (10, 10) if profile == "smoke" else (60, 30)
     rollout = open_loop(vae, memory, episode["observations"], episode["actions"], context=context, horizon=horizon)
+    errors = open_loop_errors(vae, memory, episode, context, horizon)
     figures = _boxing_figures(out, episode["observations"], reconstruct(vae, episode["observations"][::25][:8]),
                               rollout, run.curve)
     recording = record_frames(out / "open_loop.rrd", {"truth": rollout["truth"], "prediction": rollout["prediction"]},
@@ -59,13 +60,34 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
         "random_play_in_store": score_summary(random_returns),
         "reference": BOXING_REFERENCE,
         "controller_curve": run.curve, "vision_history": vision_history, "memory_history": memory_history,
-        "open_loop_pixel_error": rollout["pixel_error"].tolist(),
+        **{f"open_loop_{k}": v.tolist() if isinstance(v, np.ndarray) else v for k, v in errors.items()},
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
     metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
+
+
+def open_loop_errors(vae, memory, episode: dict, context: int, horizon: int, starts: int = 8) -> dict:
+    """The open-loop error by horizon averaged over up to ``starts`` rollouts of one episode
+    (starting every ``context + horizon`` steps), beside the "nothing moves" baseline that
+    repeats the last context frame. Returns ``pixel_error``, ``latent_error`` and
+    ``still_pixel_error`` (horizon,) and ``rollouts``."""
+    from wmthesis.agents.world_models import open_loop
+    from wmthesis.metrics import horizon_errors
+
+    frames, actions, span = episode["observations"], episode["actions"], context + horizon
+    pixel, latent, still = [], [], []
+    for t0 in range(0, len(frames) - span + 1, span)[:starts]:
+        rollout = open_loop(vae, memory, frames[t0:], actions[t0:], context=context, horizon=horizon)
+        pixel.append(rollout["pixel_error"])
+        latent.append(rollout["latent_error"])
+        still.append(horizon_errors(rollout["truth"], np.repeat(frames[t0 + context - 1][None], horizon, 0)))
+    if not pixel:
+        raise ValueError(f"the episode has {len(frames)} steps; open loop needs context + horizon = {span}")
+    return {"pixel_error": np.mean(pixel, 0), "latent_error": np.mean(latent, 0),
+            "still_pixel_error": np.mean(still, 0), "rollouts": len(pixel)}
 
 
 def _world_model(work: Path, profile: str, seed: int, progress: bool) -> tuple:
