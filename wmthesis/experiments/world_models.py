@@ -22,7 +22,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     Returns the metrics dict (also written to ``metrics.json``): the controller's score over
     10 full evaluation episodes with varied starts, the learning curves, the open-loop error.
     """
-    from wmthesis.agents.controller_training import VAEVision, evaluate_population, make_game, train_controller
+    from wmthesis.agents.controller_training import VAEVision, train_controller
     from wmthesis.agents.world_models import open_loop, reconstruct
     from wmthesis.data import EpisodeStore
     from wmthesis.metrics import score_summary
@@ -37,12 +37,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     controller_cfg = for_profile(ControllerConfig, profile, seed=seed)
     run = train_controller("boxing", vision, memory, controller_cfg, out_dir=work / "controller", progress=progress)
 
-    n_eval = 2 if profile == "smoke" else 10
-    game = make_game("boxing", n_eval, noop_max=controller_cfg.noop_max)
-    returns, _ = evaluate_population(run.mean_params[None], game, vision, memory,
-                                     seeds=np.arange(n_eval) + 1_000_000 + seed,
-                                     max_steps=controller_cfg.max_steps if profile == "smoke" else None)
-    game.close()
+    returns = _final_score(run, vision, memory, controller_cfg, profile)
 
     with EpisodeStore(store) as episodes:
         episode = episodes.episode(len(episodes) - 1)  # a validation episode
@@ -56,7 +51,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
                               {"pixel_error": rollout["pixel_error"]})
     metrics = {
         **_run_header("boxing-wm", profile, seed, time.time() - started),
-        "score": score_summary(returns[0]),
+        "score": score_summary(returns),
         "random_play_in_store": score_summary(random_returns),
         "reference": BOXING_REFERENCE,
         "controller_curve": run.curve, "vision_history": vision_history, "memory_history": memory_history,
@@ -67,6 +62,22 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
+
+
+def _final_score(run, vision, memory, cfg, profile: str) -> np.ndarray:
+    """The CMA-ES mean's returns (n,) over 10 full bouts (2 short ones in smoke), the same
+    seeded no-op starts for every controller and seed."""
+    from wmthesis.agents.controller_training import evaluate_population, make_game
+
+    n_eval = 2 if profile == "smoke" else 10
+    game = make_game("boxing", n_eval, noop_max=cfg.noop_max)
+    try:
+        returns, _ = evaluate_population(run.mean_params[None], game, vision, memory,
+                                         seeds=np.arange(n_eval) + 1_000_000,
+                                         max_steps=cfg.max_steps if profile == "smoke" else None)
+    finally:
+        game.close()
+    return returns[0]
 
 
 def open_loop_errors(vae, memory, episode: dict, context: int, horizon: int, starts: int = 8) -> dict:
@@ -122,7 +133,7 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
     metrics) the learning curve, whose ``mean``/``best`` are dream returns and ``eval_return``
     real ones, and the real score of the final mean over 10 full bouts.
     """
-    from wmthesis.agents.controller_training import VAEVision, evaluate_population, make_game, train_controller
+    from wmthesis.agents.controller_training import VAEVision, train_controller
     from wmthesis.metrics import score_summary
 
     if not temperature > 0:
@@ -136,14 +147,9 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
     cfg = for_profile(ControllerConfig, profile, seed=seed, temperature=temperature, **DREAM_CHANGES)
     run = train_controller("boxing", vision, memory, cfg, out_dir=work / f"controller-dream-t{temperature:g}",
                            progress=progress)
-    n_eval = 2 if profile == "smoke" else 10
-    game = make_game("boxing", n_eval, noop_max=cfg.noop_max)
-    returns, _ = evaluate_population(run.mean_params[None], game, vision, memory,
-                                     seeds=np.arange(n_eval) + 1_000_000 + seed,
-                                     max_steps=cfg.max_steps if profile == "smoke" else None)
-    game.close()
+    returns = _final_score(run, vision, memory, cfg, profile)
     metrics = {**_run_header("boxing-wm-dream", profile, seed, time.time() - started, temperature=temperature),
-               "score": score_summary(returns[0]), "controller_curve": run.curve}
+               "score": score_summary(returns), "controller_curve": run.curve}
     with atomic_path(out / f"dream-t{temperature:g}.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
