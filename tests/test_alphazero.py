@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.agents.alphazero import (AlphaZeroHeads, AlphaZeroMind, Evaluator, LatentMDP, NoopStart, State,
-                                       alphazero_loss, load_run, play, reward_error_by_depth, search_statistics,
-                                       train_alphazero, value_targets)
+from wmthesis.agents.alphazero import (VARIANTS, AlphaZeroHeads, AlphaZeroMind, Evaluator, LatentMDP, NoopStart,
+                                       RewardModel, RewardView, State, action_predictability, alphazero_loss,
+                                       game_targets, load_run, play, reward_error_by_depth, reward_fit, reward_rows,
+                                       search_statistics, train_alphazero, train_reward_model, value_targets)
 from wmthesis.config import AlphaZeroConfig, for_profile
 from wmthesis.models.memory import Memory
 from wmthesis.training import ConfigMismatch
@@ -207,23 +208,163 @@ def test_self_play_trains_the_heads_and_keeps_the_latest_games(tmp_path):
     assert any(p.abs().sum() > 0 for p in run.heads.parameters())
 
 
-@pytest.mark.parametrize("value_target", ["monte-carlo", "n-step"])
-def test_resumed_run_equals_an_uninterrupted_one(tmp_path, value_target):
-    config = tiny_config(value_target=value_target, normalize_q=value_target == "n-step")
-    whole = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path / "whole", progress=False)
+class Rollouts:
+    """A stand-in for a LatentStore: ``episodes`` random Corridor walks of 30 steps (the
+    latents are the one-hot cells)."""
+
+    def __init__(self, episodes: int = 4, seed: int = 0):
+        rng, env = np.random.default_rng(seed), Corridor()
+        mu, actions, rewards = [], [], []
+        for _ in range(episodes):
+            observation, _ = env.reset()
+            for _ in range(30):
+                action = int(rng.integers(A))
+                mu.append(observation)
+                actions.append(action)
+                observation, reward, done, _, _ = env.step(action)
+                rewards.append(reward)
+                if done:
+                    observation, _ = env.reset()
+        self.data = {"mu": torch.tensor(np.array(mu)), "actions": torch.tensor(actions),
+                     "rewards": torch.tensor(rewards, dtype=torch.float32)}
+        self.ends = np.arange(1, episodes + 1) * 30
+        self.starts = self.ends - 30
+
+    def __len__(self) -> int:
+        return len(self.ends)
+
+
+def test_a_run_does_not_depend_on_the_global_random_state():
+    config = tiny_config(games=2, test_every=0)
+    runs = []
+    for other in (1, 2):
+        memory = small_memory()
+        torch.manual_seed(other)  # e.g. another variant trained before in the same process
+        runs.append(train_alphazero(Corridor, vision, memory, config, seed=3, progress=False))
+    for a, b in zip(runs[0].heads.parameters(), runs[1].heads.parameters()):
+        assert torch.equal(a, b)
+    assert [e["return"] for e in runs[0].curve] == [e["return"] for e in runs[1].curve]
+
+
+@pytest.mark.parametrize("variant", ["monte-carlo", "n-step", "learned-reward"])
+def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
+    if variant == "learned-reward":
+        config = tiny_config(**VARIANTS["learned-reward"], reward_pretrain_epochs=2, reward_epochs=1)
+    else:
+        config = tiny_config(value_target=variant, normalize_q=variant == "n-step")
+    extra = {"rollouts": Rollouts()} if config.reward_model else {}
+    whole = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path / "whole", progress=False,
+                            **extra)
     train_alphazero(Corridor, vision, small_memory(), dataclasses.replace(config, games=2),
-                    out_dir=tmp_path / "parts", progress=False)
+                    out_dir=tmp_path / "parts", progress=False, **extra)
     assert load_run(tmp_path / "parts").games == 2
-    resumed = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path / "parts", progress=False)
+    resumed = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path / "parts", progress=False,
+                              **extra)
     for a, b in zip(whole.heads.parameters(), resumed.heads.parameters()):
         assert torch.equal(a, b)
     assert [e["return"] for e in whole.curve] == [e["return"] for e in resumed.curve]
     assert whole.rounds == resumed.rounds and whole.tests == resumed.tests
+    assert json.dumps(whole.reward_fits) == json.dumps(resumed.reward_fits)  # nan (no hit held out) == nan
+    if config.reward_model:  # pretrained, then trained after each of the 2 rounds; the weights round-trip
+        assert [f["game"] for f in whole.reward_fits] == [0, 2, 4]
+        assert load_run(tmp_path / "parts").config == dataclasses.asdict(config)
+        for a, b in zip(whole.reward_model.state_dict().values(), resumed.reward_model.state_dict().values()):
+            assert torch.equal(a, b)
     with pytest.raises(ConfigMismatch, match="lr"):
         train_alphazero(Corridor, vision, small_memory(), dataclasses.replace(config, lr=0.5),
-                        out_dir=tmp_path / "parts", progress=False)
+                        out_dir=tmp_path / "parts", progress=False, **extra)
     with pytest.raises(ConfigMismatch, match="memory"):
-        train_alphazero(Corridor, vision, small_memory(seed=1), config, out_dir=tmp_path / "parts", progress=False)
+        train_alphazero(Corridor, vision, small_memory(seed=1), config, out_dir=tmp_path / "parts", progress=False,
+                        **extra)
+
+
+# ----------------------------------------------------------------------------- the reward model
+def sparse_rows(n: int, seed: int) -> tuple:
+    """Rows whose reward is +1 on ~3% of them (feature 0 > 1.9 and action 1), -1 on ~3% (feature 1
+    > 1.9, any action), else 0: features (n, 6), actions (n,) in 0..2, rewards (n,)."""
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((n, 6)).astype(np.float32)
+    a = rng.integers(3, size=n)
+    r = np.where((x[:, 0] > 1.9) & (a == 1), 1.0, 0.0) - (x[:, 1] > 1.9)
+    return x, a, r.astype(np.float32)
+
+
+def test_reward_model_learns_a_sparse_action_dependent_reward():
+    torch.manual_seed(0)
+    model = RewardModel(6, 3, hidden=32, reward_range=2)
+    train = sparse_rows(20_000, 0)
+    assert 0.01 < (train[2] > 0).mean() < 0.05
+    optimiser = torch.optim.Adam(model.parameters(), lr=3e-3)
+    train_reward_model(model, optimiser, train, epochs=6, batch_size=256, rng=np.random.default_rng(0))
+    fit = reward_fit(model, sparse_rows(5_000, 1))
+    assert fit["auc_positive"] > 0.95 and fit["auc_negative"] > 0.95 and fit["corr"] > 0.5
+    hit = torch.tensor([[2.5, 0, 0, 0, 0, 0]] * 3)
+    with torch.no_grad():
+        expected = model.expected(hit, torch.arange(3))
+    assert expected[1] > 0.4 and expected[0] < 0.2 and expected[2] < 0.2  # only action 1 earns the +1
+    view = RewardView(model)
+    assert view(hit[0].numpy(), 1) == pytest.approx(float(expected[1]), abs=1e-5)
+
+
+def test_reward_rows_credit_the_delayed_reward_and_the_mdp_uses_the_model():
+    features, actions, rewards = np.arange(10.0).reshape(5, 2), np.arange(5), np.array([0, 0, 1, 0, -1], np.float32)
+    x, a, r = reward_rows(features, actions, rewards, delay=2)
+    assert np.array_equal(x, features[:3]) and np.array_equal(a, [0, 1, 2]) and np.array_equal(r, [1, 0, -1])
+    torch.manual_seed(0)
+    model = RewardModel(L + H, A)
+    mdp, plain = LatentMDP(small_memory(), model), LatentMDP(small_memory())
+    state = plain.initial_state(np.eye(L, dtype=np.float32)[1])
+    (next_state, reward), (plain_state, _) = mdp.transition(state, 1), plain.transition(state, 1)
+    features = torch.from_numpy(np.concatenate([state.z, state.h]))[None]
+    assert reward == pytest.approx(float(model.expected(features, torch.tensor([1])).detach()), abs=1e-5)
+    assert np.array_equal(next_state.h, plain_state.h)  # the memory still moves the state
+
+
+def test_value_targets_of_the_learned_reward_variant_use_the_delayed_rewards():
+    config = tiny_config(**{**VARIANTS["learned-reward"], "value_target": "monte-carlo"}, gamma=0.5)
+    rewards = np.array([0, 0, 1, 0], np.float32)
+    game = type("G", (), {"rewards": rewards})()
+    assert np.allclose(game_targets(game, None, config), value_targets([1, 0, 0, 0], 0.5))
+
+
+class Store:
+    """A LatentStore stand-in from arrays: ``episodes`` of ``length`` steps."""
+
+    def __init__(self, mu, actions, rewards, episodes: int):
+        self.data = {"mu": torch.tensor(mu), "actions": torch.tensor(actions), "rewards": torch.tensor(rewards)}
+        self.ends = np.arange(1, episodes + 1) * (len(actions) // episodes)
+        self.starts = self.ends - len(actions) // episodes
+
+    def __len__(self) -> int:
+        return len(self.ends)
+
+
+@pytest.mark.parametrize("action_matters", [True, False])
+def test_action_predictability_finds_an_advantage_only_where_there_is_one(action_matters):
+    rng = np.random.default_rng(0)
+    mu = rng.standard_normal((8000, L)).astype(np.float32)
+    actions = rng.integers(A, size=8000)
+    pays = (mu[:, 0] > 0) == (actions == 1) if action_matters else mu[:, 0] > 0  # the right action, or the state
+    rewards = np.where(pays & (rng.random(8000) < 0.5), 1.0, 0.0).astype(np.float32)
+    fit = action_predictability(LatentMDP(small_memory()), Store(mu, actions, rewards, 20), horizons=(1,),
+                                epochs=4)["1"]
+    if action_matters:
+        assert fit["advantage_corr"] > 0.3  # ~0.45 here (half the paying steps pay)
+    else:
+        assert abs(fit["advantage_corr"]) < 0.15 and fit["v_corr"] > 0.3
+
+
+def test_evaluation_games_start_with_different_noop_counts():
+    from wmthesis.agents.alphazero import game_seeds, noop_count
+    from wmthesis.experiments.alphazero import _evaluation_seeds
+
+    seeds = _evaluation_seeds(0, 10, noop_max=30)
+    assert len({noop_count(game_seeds(s)[0], 30) for s in seeds}) == 10  # a greedy agent would replay a repeat
+    assert len(_evaluation_seeds(0, 5, noop_max=3)) == 5  # more games than no-op counts: repeats allowed
+    env = NoopStart(Corridor(), noop_max=30)
+    for seed in (7, 8):
+        env.reset(seed=seed)
+        assert env.unwrapped.steps == noop_count(seed, 30)
 
 
 def test_profiles_keep_the_thesis_values():
@@ -234,6 +375,7 @@ def test_profiles_keep_the_thesis_values():
                                                                                                        5, 256)
     assert (thesis.lr, thesis.momentum, thesis.l2, thesis.value_target) == (1e-2, 0.9, 1e-4, "monte-carlo")
     assert for_profile(AlphaZeroConfig, "quick").eval_episodes >= 5
+    assert not thesis.reward_model and for_profile(AlphaZeroConfig, "quick", **VARIANTS["learned-reward"]).reward_model
 
 
 # ----------------------------------------------------------------------------- the experiment
@@ -242,15 +384,16 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     from wmthesis.experiments import reproduce
 
     metrics = reproduce("boxing-wm-alphazero", "smoke", progress=False)
-    assert set(metrics["variants"]) == {"unchanged", "improved"}
-    for name in ("AlphaZero unchanged", "AlphaZero improved", "random"):
+    assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward"}
+    for name in ("AlphaZero unchanged", "AlphaZero improved", "AlphaZero learned-reward", "random"):
         score = metrics["scores"][name]
         assert np.isfinite(score["mean"]) and score["episodes"] == 2
     written = json.loads(Path(metrics["files"]["figures"][0]).with_name("metrics.json").read_text())
     assert written["scores"] == json.loads(json.dumps(metrics["scores"]))
     assert all(Path(f).stat().st_size > 1000 for f in metrics["files"]["figures"])
     assert len(metrics["diagnosis"]["reward_error"]["reward_mse"]) == 5
-    for name in ("unchanged", "improved"):
+    assert len(metrics["runs"]["learned-reward"]["reward_fits"]) == 3
+    for name in ("unchanged", "improved", "learned-reward"):
         assert metrics["runs"][name]["games"] == 4 and len(metrics["runs"][name]["rounds"]) == 2
     again = reproduce("boxing-wm-alphazero", "smoke", progress=False)  # cached: evaluates nothing again
     assert again["scores"] == metrics["scores"]

@@ -190,7 +190,11 @@ class AlphaZeroConfig:
     thesis (the ``improved`` variant): ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
     (equal visit counts go to the higher root Q, not to the first action),
     ``value_target="n-step"`` (``n_step``-step bootstrapped targets instead of ``"monte-carlo"``
-    returns) and ``reuse_tree=False``.
+    returns) and ``reuse_tree=False``. The ``learned-reward`` variant adds ``reward_model``: the
+    search's rewards come from an MLP classifier (``reward_hidden`` units, rewards
+    ``-reward_range..reward_range``) of the reward ``reward_delay`` steps after each action,
+    pretrained for ``reward_pretrain_epochs`` on the random rollouts, then ``reward_epochs``
+    on them and the self-play replay after every training round (Adam ``reward_lr``).
     """
 
     c: float = 1.0
@@ -219,6 +223,13 @@ class AlphaZeroConfig:
     test_episodes: int = 1
     eval_episodes: int = 10
     eval_max_steps: int | None = None    # the final evaluation's games; None: full bouts
+    reward_model: bool = False           # learned-reward variant: the search's rewards from a RewardModel
+    reward_delay: int = 2                # Boxing: a punch lands two agent steps after FIRE
+    reward_hidden: int = 64
+    reward_range: int = 2
+    reward_lr: float = 1e-3
+    reward_pretrain_epochs: int = 6
+    reward_epochs: int = 2
 
 
 # Per profile, per config class name: the fields that differ from the thesis defaults.

@@ -28,11 +28,18 @@ by the higher Q (``np.argmax`` gives them to action 0, the no-op), n-step bootst
 targets (lower variance than whole-game returns, no bias at a game cut by ``max_steps``) and no
 tree reuse (with concentrated visits a reused tree grows into one ever deeper line, slower at
 every step). What it cannot change is the memory: trained on few random rollouts, its reward
-head barely predicts held-out rewards (:func:`value_predictability`).
+head barely predicts held-out rewards (:func:`value_predictability`). ``learned-reward`` is
+improved plus a :class:`RewardModel` for the search's rewards: a class-weighted MLP classifier
+on ``[z h a]`` that credits each action with the reward two steps later (when Boxing's punches
+land), pretrained on the random rollouts and trained again on them and the self-play games
+after every round. It detects the steps before hits far better than chance, but not whose hit
+they will be, nor which action makes the difference (:func:`action_predictability`).
 
 Diagnosis (5.4.2 asks "why"): :func:`reward_error_by_depth` (the memory's reward error k steps
 into the search along real action sequences), :func:`value_predictability` (whether a linear
-value on ``[z h]`` can predict returns at all), and :func:`search_statistics` (the value scale:
+value on ``[z h]`` can predict returns at all), :func:`action_predictability` (whether ``[z h]``
+says which action earns more over the next steps: what any planner needs), :func:`reward_fit`
+(the reward model on held-out episodes) and :func:`search_statistics` (the value scale:
 search values against the returns that followed; the spread of the root Q against the prior
 bonus; ties and visit entropy), plotted by the figure functions at the end of this module.
 """
@@ -61,6 +68,8 @@ from wmthesis.utils import atomic_path, check_choice, derive_seeds
 VARIANTS = {
     "unchanged": {},  # thesis 4.3 as written
     "improved": dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False),  # ours
+    "learned-reward": dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False,
+                           reward_model=True),  # ours: improved + a reward model trained on self-play data
 }
 VALUE_TARGETS = ("monte-carlo", "n-step")
 FORMAT, FORMAT_VERSION = "wmthesis-alphazero", 1
@@ -98,7 +107,7 @@ class LatentMDP:
     against ~400 us through ``nn.LSTM`` for a batch of one. :meth:`step` takes batches too.
     """
 
-    def __init__(self, memory):
+    def __init__(self, memory, reward_model: "RewardModel | None" = None):
         if memory.kind != "deterministic":
             raise ValueError(f"the search needs a deterministic memory (thesis 4.3.1), got kind {memory.kind!r}")
         L, H, A = memory.latent_size, memory.hidden_size, memory.n_actions
@@ -115,6 +124,7 @@ class LatentMDP:
         self.action_gates = np.ascontiguousarray(w_ih[:, L:].T + bias)                      # (A, 4H)
         self.w_out, self.b_out = np.ascontiguousarray(w_out.T), b_out                       # (H, L + 2), (L + 2,)
         self.action_space = gym.spaces.Discrete(A)
+        self.reward_model = None if reward_model is None else RewardView(reward_model)
 
     def initial_state(self, z: np.ndarray) -> State:
         """The state of a game's first frame: ``z`` (L,) with a zero LSTM state."""
@@ -133,11 +143,161 @@ class LatentMDP:
         return out[..., :L], h, c, out[..., L], out[..., L + 1]
 
     def transition(self, state: State, action: int) -> tuple[State, float]:
+        """With a ``reward_model``, the reward is its expected reward for ``(state, action)``
+        (the reward the action earns ``delay`` steps later), not the memory's reward head."""
         z, h, c, reward, done_logit = self.step(state.z, state.h, state.c, action)
+        if self.reward_model is not None:
+            reward = self.reward_model(np.concatenate([state.z, state.h]), action)
         return State(z, h, c, bool(done_logit > 0)), float(reward)
 
     def is_terminal(self, state: State) -> bool:
         return state.terminal
+
+
+# ----------------------------------------------------------------------------- reward model
+class RewardModel(nn.Module):
+    """A reward model for Boxing's rare hits (the ``learned-reward`` variant, beyond the thesis).
+
+    An MLP classifier over the integer rewards ``-R..R`` (``R = reward_range``) of the reward
+    that action ``a_t`` earns ``delay`` steps later, from the search state's features and the
+    action: ``[z_t h_{t-1}]`` (B, F) and actions (B,) -> logits (B, 2R + 1). In Boxing a punch
+    lands two agent steps after FIRE, so the memory's reward head, which sees ``(z_t, a_t)``
+    and predicts ``r_t``, cannot tell what an action earns; crediting ``r_{t+delay}`` to
+    ``a_t`` can. A classifier with class weights (:func:`train_reward_model`) does not
+    collapse to predicting 0 the way an MSE head does on a ~3% hit rate. ``mean``/``std``
+    (F,) standardise the features (set from the first training data).
+    """
+
+    def __init__(self, features: int, n_actions: int, hidden: int = 64, reward_range: int = 2):
+        super().__init__()
+        self.n_actions = n_actions
+        self.register_buffer("mean", torch.zeros(features))
+        self.register_buffer("std", torch.ones(features))
+        self.register_buffer("values", torch.arange(-reward_range, reward_range + 1, dtype=torch.float32))
+        self.net = nn.Sequential(nn.Linear(features + n_actions, hidden), nn.ReLU(), nn.Linear(hidden, hidden),
+                                 nn.ReLU(), nn.Linear(hidden, 2 * reward_range + 1))
+
+    def forward(self, features: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        x = (features - self.mean) / self.std
+        return self.net(torch.cat([x, F.one_hot(actions, self.n_actions).to(x.dtype)], dim=-1))
+
+    def expected(self, features: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """Expected reward (B,): softmax of the logits times the reward values."""
+        return F.softmax(self(features, actions), dim=-1) @ self.values
+
+    def classes(self, rewards) -> torch.Tensor:
+        """Rewards (N,) -> class indices (N,) long (rounded, clipped to -R..R)."""
+        R = (len(self.values) - 1) // 2
+        return torch.as_tensor(np.clip(np.round(np.asarray(rewards)), -R, R) + R, dtype=torch.long)
+
+
+class RewardView:
+    """``view(features (F,), action) -> expected reward`` of a :class:`RewardModel` in numpy,
+    for the search (~15 us a call); reads the weights through numpy views, so it follows
+    training in place (as :class:`Evaluator`)."""
+
+    def __init__(self, model: RewardModel):
+        layers = [m for m in model.net if isinstance(m, nn.Linear)]
+        self.weights = [(m.weight.detach().numpy(), m.bias.detach().numpy()) for m in layers]
+        self.mean, self.std, self.values = (b.detach().numpy() for b in (model.mean, model.std, model.values))
+        self.n_features = len(self.mean)
+
+    def __call__(self, features: np.ndarray, action: int) -> float:
+        (w0, b0), *rest = self.weights
+        x = w0[:, :self.n_features] @ ((features - self.mean) / self.std) + w0[:, self.n_features + action] + b0
+        for w, b in rest:
+            x = w @ np.maximum(x, 0) + b
+        p = np.exp(x - x.max())
+        return float(p @ self.values / p.sum())
+
+
+def reward_rows(features: np.ndarray, actions: np.ndarray, rewards: np.ndarray, delay: int) -> tuple:
+    """One game's training rows for :class:`RewardModel`: features (T, F), actions, rewards
+    (T,) -> ``(features[:T-d], actions[:T-d], rewards[d:])``, ``d = delay``."""
+    n = max(len(rewards) - delay, 0)
+    return features[:n], np.asarray(actions[:n], np.int64), np.asarray(rewards[delay:delay + n], np.float32)
+
+
+def rollout_rows(mdp: LatentMDP, latents, delay: int, val_fraction: float = 0.1) -> dict:
+    """The random rollouts (a :class:`~wmthesis.agents.world_models.LatentStore`) as reward
+    rows, ``{"train": (X, a, r), "val": (X, a, r)}``: features ``[z_t h_{t-1}]`` with h from
+    the memory reading each episode; the last ``val_fraction`` of episodes held out."""
+    games = [reward_rows(*episode, delay) for episode in rollout_episodes(mdp, latents)]
+    train, val = _split_episodes(games, val_fraction)
+    return {"train": _stack_rows(train), "val": _stack_rows(val)}
+
+
+def rollout_episodes(mdp: LatentMDP, latents) -> list[tuple]:
+    """Per episode of the random rollouts: features ``[z_t h_{t-1}]`` (T, F) float32 (h from
+    the memory reading the episode), actions (T,) and rewards (T,)."""
+    mu, actions, rewards = (latents.data[k].numpy() for k in ("mu", "actions", "rewards"))
+    episodes = []
+    for start, end in zip(latents.starts, latents.ends):
+        h = np.zeros(mdp.hidden_size, np.float32)
+        c = np.zeros_like(h)
+        features = np.zeros((end - start, mdp.latent_size + mdp.hidden_size), np.float32)
+        for t in range(start, end):
+            features[t - start] = np.concatenate([mu[t], h])
+            _, h, c, _, _ = mdp.step(mu[t], h, c, int(actions[t]))
+        episodes.append((features, actions[start:end], rewards[start:end]))
+    return episodes
+
+
+def _split_episodes(items: list, val_fraction: float) -> tuple[list, list]:
+    """The first and the last ``val_fraction`` of ``items`` (all of them twice if only one)."""
+    n_val = max(1, int(round(len(items) * val_fraction))) if len(items) > 1 else 0
+    return items[:len(items) - n_val], items[len(items) - n_val:] or items
+
+
+def _stack_rows(rows) -> tuple:
+    return tuple(np.concatenate(parts) for parts in zip(*rows))
+
+
+def train_reward_model(model: RewardModel, optimiser, rows: tuple, epochs: int, batch_size: int,
+                       rng: np.random.Generator) -> float:
+    """``epochs`` of class-weighted cross-entropy (weights ``sqrt(N / (K N_k))``: rare rewards
+    count more) on ``rows = (features (N, F), actions (N,), rewards (N,))``; the first call sets
+    the feature standardisation. Returns the last epoch's mean loss."""
+    features, actions = torch.as_tensor(rows[0], dtype=torch.float32), torch.as_tensor(rows[1], dtype=torch.long)
+    targets = model.classes(rows[2])
+    if bool((model.std == 1).all() and (model.mean == 0).all()):
+        model.mean.copy_(features.mean(0))
+        model.std.copy_(features.std(0) + 1e-3)
+    counts = torch.bincount(targets, minlength=len(model.values)).float()
+    weight = torch.where(counts > 0, (counts.sum() / (len(counts) * counts.clamp(min=1))).sqrt(), torch.ones(1))
+    for _ in range(epochs):
+        total = 0.0
+        for batch in torch.from_numpy(rng.permutation(len(targets))).split(batch_size):
+            loss = F.cross_entropy(model(features[batch], actions[batch]), targets[batch], weight=weight)
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+            total += float(loss.detach()) * len(batch)
+    return total / max(len(targets), 1)
+
+
+def reward_fit(model: RewardModel, rows: tuple) -> dict:
+    """How well ``model`` predicts held-out ``rows``: the correlation of its expected reward
+    with the reward, and the AUC of telling a positive (negative) reward from the rest by
+    P(reward > 0) (P(reward < 0)); nan where a class is missing."""
+    with torch.no_grad():
+        logits = model(torch.as_tensor(rows[0], dtype=torch.float32), torch.as_tensor(rows[1], dtype=torch.long))
+        p = F.softmax(logits, -1).numpy()
+    values, truth = model.values.numpy(), np.asarray(rows[2])
+    return {"corr": _corr(p @ values, truth), "auc_positive": _auc(truth > 0, p[:, values > 0].sum(1)),
+            "auc_negative": _auc(truth < 0, p[:, values < 0].sum(1)), "rows": int(len(truth))}
+
+
+def _auc(labels: np.ndarray, scores: np.ndarray) -> float:
+    """Area under the ROC curve (ties count half); nan without both classes."""
+    labels = np.asarray(labels, bool)
+    n1, n0 = int(labels.sum()), int((~labels).sum())
+    if n1 == 0 or n0 == 0:
+        return float("nan")
+    _, inverse, counts = np.unique(scores, return_inverse=True, return_counts=True)
+    rank_of = np.cumsum(counts) - (counts - 1) / 2  # the mean rank of each distinct score
+    ranks = rank_of[inverse]
+    return float((ranks[labels].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
 
 
 # ----------------------------------------------------------------------------- evaluator
@@ -343,11 +503,16 @@ class NoopStart(gym.Wrapper):
         observation, info = self.env.reset(seed=seed, options=options)
         if seed is not None:
             self.rng = np.random.default_rng(seed)
-        for _ in range(int(self.rng.integers(max(self.noop_max, 1)))):
+        for _ in range(int(self.rng.integers(max(self.noop_max, 1)))):  # noop_count(seed, noop_max) when seeded
             observation, _, terminated, truncated, info = self.env.step(0)
             if terminated or truncated:
                 observation, info = self.env.reset()
         return observation, info
+
+
+def noop_count(seed: int, noop_max: int = 30) -> int:
+    """The number of no-ops :class:`NoopStart` plays after a reset with ``seed``."""
+    return int(np.random.default_rng(seed).integers(max(noop_max, 1)))
 
 
 def boxing_env(noop_max: int = 30) -> gym.Env:
@@ -388,13 +553,16 @@ def game_targets(game: Game, heads: AlphaZeroHeads, config) -> np.ndarray:
     """:func:`value_targets` of ``game`` for ``config.value_target`` (n-step targets use the
     current value head, so they are recomputed before every training round)."""
     check_choice("value target", config.value_target, VALUE_TARGETS)
+    rewards = game.rewards
+    if config.reward_model and config.reward_delay:  # the search credits r_{t+d} to step t
+        rewards = np.append(rewards[config.reward_delay:], np.zeros(min(config.reward_delay, len(rewards)), np.float32))
     if config.value_target == "monte-carlo":
-        return value_targets(game.rewards, config.gamma)
+        return value_targets(rewards, config.gamma)
     with torch.no_grad():
         _, values = heads(torch.from_numpy(np.vstack([game.features, game.last_features[None]])))
     values = values.numpy()
     bootstrap = 0.0 if game.terminated else float(values[-1])
-    return value_targets(game.rewards, config.gamma, config.n_step, values[:-1], bootstrap)
+    return value_targets(rewards, config.gamma, config.n_step, values[:-1], bootstrap)
 
 
 def alphazero_loss(heads: AlphaZeroHeads, features: torch.Tensor, policies: torch.Tensor, targets: torch.Tensor,
@@ -446,6 +614,9 @@ class AlphaZeroRun:
     test point ``game``, ``mean``, ``std``, ``returns`` of greedy games; ``rounds``: per
     training round ``game`` and the losses of :func:`train_round`; ``replay``: the latest
     ``replay_games`` :class:`Game` records; ``task``: sizes and a fingerprint of the memory.
+    With ``config["reward_model"]``: the :class:`RewardModel`, its optimiser, and
+    ``reward_fits``, per training of it ``game`` (0: on the random rollouts only), ``loss`` and
+    its :func:`reward_fit` on the held-out random episodes.
     """
 
     config: dict
@@ -457,15 +628,22 @@ class AlphaZeroRun:
     curve: list = dataclasses.field(default_factory=list)
     tests: list = dataclasses.field(default_factory=list)
     rounds: list = dataclasses.field(default_factory=list)
+    reward_model: RewardModel | None = None
+    reward_optimiser: torch.optim.Optimizer | None = None
+    reward_fits: list = dataclasses.field(default_factory=list)
 
     def summary(self) -> dict:
         """Everything but the replay and the modules, for ``metrics.json``."""
         return {"config": self.config, "task": self.task, "games": self.games, "curve": self.curve,
-                "tests": self.tests, "rounds": self.rounds}
+                "tests": self.tests, "rounds": self.rounds, "reward_fits": self.reward_fits}
+
+    def mdp(self, memory) -> LatentMDP:
+        """The model this run searches: the memory, with the run's reward model if it has one."""
+        return LatentMDP(memory, self.reward_model)
 
 
 def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out_dir: str | os.PathLike | None = None,
-                    seed: int = 0, progress: bool = True) -> AlphaZeroRun:
+                    seed: int = 0, progress: bool = True, rollouts=None) -> AlphaZeroRun:
     """Self-play training of the heads for ``config.games`` games (the module docstring).
 
     ``make_env()``: the real game (observations the ``vision`` encodes); ``memory``: a trained
@@ -474,20 +652,36 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
     shuffles with ``(seed, 2, r)``. With ``out_dir``, a checkpoint is written after every
     training round and at the end, and an existing one is resumed (only ``games`` may differ
     from its config; anything else raises :class:`~wmthesis.training.ConfigMismatch`).
+    ``config.reward_model``: the search's rewards come from a :class:`RewardModel`, pretrained
+    on ``rollouts`` (the random rollouts' :class:`~wmthesis.agents.world_models.LatentStore`)
+    and trained again on them and the replay after every training round of the heads.
     """
     from wmthesis.agents.controller_training import _fingerprint
 
     check_choice("value target", config.value_target, VALUE_TARGETS)
+    if config.reward_model and rollouts is None:
+        raise ValueError("reward_model=True needs the random rollouts (rollouts=LatentStore) to pretrain it")
     mdp = LatentMDP(memory)
     task = {"latent_size": mdp.latent_size, "hidden_size": mdp.hidden_size, "n_actions": mdp.n_actions,
             "memory": _fingerprint(memory)}
     checkpoint = None if out_dir is None else Path(out_dir) / CHECKPOINT_NAME
     run = _resume(checkpoint, config, task) if checkpoint is not None and checkpoint.exists() else None
     if run is None:
-        heads = AlphaZeroHeads(mdp.latent_size, mdp.hidden_size, mdp.n_actions)
+        with torch.random.fork_rng():  # the same initial heads for the same seed, whatever ran before
+            torch.manual_seed(int(derive_seeds(seed, 5, 0)[0]))
+            heads = AlphaZeroHeads(mdp.latent_size, mdp.hidden_size, mdp.n_actions)
         run = AlphaZeroRun(dataclasses.asdict(config), task, heads, make_optimiser(heads, config))
     run.config = dataclasses.asdict(config)
     run.replay = deque(run.replay, maxlen=config.replay_games)
+    rows = rollout_rows(mdp, rollouts, config.reward_delay) if config.reward_model else None
+    if config.reward_model and run.reward_model is None:
+        with torch.random.fork_rng():
+            torch.manual_seed(int(derive_seeds(seed, 4, 0)[0]))
+            run.reward_model = RewardModel(mdp.latent_size + mdp.hidden_size, mdp.n_actions, config.reward_hidden,
+                                           config.reward_range)
+        run.reward_optimiser = make_reward_optimiser(run.reward_model, config)
+        _train_reward(run, rows, config, config.reward_pretrain_epochs, seed)
+    mdp = run.mdp(memory)
     mind = AlphaZeroMind(vision, mdp, Evaluator(run.heads), config)
     env = make_env()
     try:
@@ -504,6 +698,8 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
                     rng = np.random.default_rng(derive_seeds(seed, 2, run.games // config.train_every))
                     run.rounds.append({"game": run.games, **train_round(run.heads, run.optimiser, run.replay,
                                                                          config, rng)})
+                    if config.reward_model:
+                        _train_reward(run, rows, config, config.reward_epochs, seed)
                 if config.test_every and run.games % config.test_every == 0:
                     returns = [play(env, mind, int(derive_seeds(seed, 1, k)[0]), k, train_mode=False,
                                     max_steps=config.max_steps).score for k in range(config.test_episodes)]
@@ -518,6 +714,22 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
     return run
 
 
+def make_reward_optimiser(model: RewardModel, config) -> torch.optim.Optimizer:
+    """Adam for the reward model (weight decay 1e-4 against fitting 20 bouts' hits by heart)."""
+    return torch.optim.Adam(model.parameters(), lr=config.reward_lr, weight_decay=1e-4)
+
+
+def _train_reward(run: AlphaZeroRun, rows: dict, config, epochs: int, seed: int) -> None:
+    """Train the run's reward model on the random rollouts' training episodes and every step of
+    the replay (self-play data: the states and actions the search actually visits), then
+    record its fit on the held-out random episodes in ``run.reward_fits``."""
+    games = [reward_rows(g.features, g.actions, g.rewards, config.reward_delay) for g in run.replay]
+    data = _stack_rows([rows["train"], *games])
+    rng = np.random.default_rng(derive_seeds(seed, 4, len(run.reward_fits) + 1))
+    loss = train_reward_model(run.reward_model, run.reward_optimiser, data, epochs, config.batch_size, rng)
+    run.reward_fits.append({"game": run.games, "loss": loss, **reward_fit(run.reward_model, rows["val"])})
+
+
 def _resume(path: Path, config, task: dict) -> AlphaZeroRun:
     run = load_run(path)
     check_resumable(path, (run.config, run.task), (dataclasses.asdict(config), task), RESUMABLE_FIELDS)
@@ -528,6 +740,9 @@ def save_run(run: AlphaZeroRun, path: str | os.PathLike) -> None:
     """Write the whole run (heads, optimiser, replay, counters, curves) atomically."""
     saved = {"format": FORMAT, "version": FORMAT_VERSION, **run.summary(), "replay": list(run.replay),
              "heads": run.heads.state_dict(), "optimiser": run.optimiser.state_dict()}
+    if run.reward_model is not None:
+        saved["reward_model"] = run.reward_model.state_dict()
+        saved["reward_optimiser"] = run.reward_optimiser.state_dict()
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         pickle.dump(saved, f, protocol=pickle.HIGHEST_PROTOCOL)
 
@@ -542,13 +757,23 @@ def load_run(path: str | os.PathLike) -> AlphaZeroRun:
         saved = pickle.load(f)
     if saved.get("format") != FORMAT or saved.get("version") != FORMAT_VERSION:
         raise ValueError(f"{path} is not a {FORMAT} checkpoint of version {FORMAT_VERSION}")
+    # fields added to AlphaZeroConfig later take their defaults, which keep the older behaviour
+    saved["config"] = {**dataclasses.asdict(AlphaZeroConfig()), **saved["config"]}
     t = saved["task"]
     heads = AlphaZeroHeads(t["latent_size"], t["hidden_size"], t["n_actions"])
     heads.load_state_dict(saved["heads"])
-    optimiser = make_optimiser(heads, AlphaZeroConfig(**saved["config"]))
+    config = AlphaZeroConfig(**saved["config"])
+    optimiser = make_optimiser(heads, config)
     optimiser.load_state_dict(saved["optimiser"])
-    return AlphaZeroRun(saved["config"], t, heads, optimiser, saved["games"], deque(saved["replay"]),
-                        saved["curve"], saved["tests"], saved["rounds"])
+    run = AlphaZeroRun(saved["config"], t, heads, optimiser, saved["games"], deque(saved["replay"]),
+                       saved["curve"], saved["tests"], saved["rounds"], reward_fits=saved.get("reward_fits", []))
+    if "reward_model" in saved:
+        run.reward_model = RewardModel(t["latent_size"] + t["hidden_size"], t["n_actions"], config.reward_hidden,
+                                       config.reward_range)
+        run.reward_model.load_state_dict(saved["reward_model"])
+        run.reward_optimiser = make_reward_optimiser(run.reward_model, config)
+        run.reward_optimiser.load_state_dict(saved["reward_optimiser"])
+    return run
 
 
 # ----------------------------------------------------------------------------- diagnosis
@@ -629,6 +854,56 @@ def value_predictability(mdp: LatentMDP, latents, gamma: float, n_step: int, val
     result["reward"] = {"train_corr": _corr(predicted[train], rewards[train]),
                         "val_corr": _corr(predicted[val], rewards[val])}
     return result
+
+
+def action_predictability(mdp: LatentMDP, latents, horizons=(3, 8), val_fraction: float = 0.15, epochs: int = 6,
+                          hidden: int = 64, seed: int = 0) -> dict:
+    """Does ``[z h]`` say *which action* is better? (What any planner on this model needs.)
+
+    On the random rollouts (a :class:`~wmthesis.agents.world_models.LatentStore`; h from the
+    memory), fits an MLP ``Q(z, h, a)`` by MSE to the sum of the next k rewards
+    ``r_t + ... + r_{t+k-1}`` (for each k in ``horizons``; the actions after a_t are random, so
+    this is the random policy's Q) and reports on the last ``val_fraction`` of the episodes:
+    ``q_corr`` (Q of the action taken against the sum), ``v_corr`` (its mean over the actions,
+    V, against the sum) and ``advantage_corr``: ``Q(s, a_t) - V(s)`` against ``sum - V(s)``,
+    the part of the outcome that the action explains. Near 0, no search in this model can choose
+    better than at random. Also ``advantage_std``, the spread of Q over the actions.
+    """
+    episodes = rollout_episodes(mdp, latents)
+    result = {}
+    for k in horizons:
+        windows = [(x[:len(x) - k + 1], a[:len(x) - k + 1], np.convolve(r, np.ones(k))[k - 1:len(x)].astype(np.float32))
+                   for x, a, r in episodes if len(x) >= k]  # sums r_t + ... + r_{t+k-1}
+        train, val = (_stack_rows(part) for part in _split_episodes(windows, val_fraction))
+        result[str(k)] = _fit_q(train, val, mdp.n_actions, epochs, hidden, seed)
+    return result
+
+
+def _fit_q(train: tuple, val: tuple, n_actions: int, epochs: int, hidden: int, seed: int) -> dict:
+    torch.manual_seed(seed)
+    x, a, y = (torch.as_tensor(v) for v in train)
+    mean, std = x.mean(0), x.std(0) + 1e-3
+    net = nn.Sequential(nn.Linear(x.shape[1] + n_actions, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                        nn.Linear(hidden, 1))
+
+    def q(features, actions):
+        inputs = torch.cat([(features - mean) / std, F.one_hot(actions, n_actions).float()], -1)
+        return net(inputs).squeeze(-1)
+
+    optimiser = torch.optim.Adam(net.parameters(), lr=1e-3, weight_decay=1e-4)
+    rng = np.random.default_rng(seed)
+    for _ in range(epochs):
+        for batch in torch.from_numpy(rng.permutation(len(y))).split(256):
+            loss = F.mse_loss(q(x[batch], a[batch]), y[batch])
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+    xv, av, yv = (torch.as_tensor(v) for v in val)  # Q of every action on the held-out rows
+    with torch.no_grad():
+        every = torch.stack([q(xv, torch.full_like(av, j)) for j in range(n_actions)], 1).numpy()
+    taken, v, yv = every[np.arange(len(yv)), av.numpy()], every.mean(1), yv.numpy()
+    return {"q_corr": _corr(taken, yv), "v_corr": _corr(v, yv), "advantage_corr": _corr(taken - v, yv - v),
+            "advantage_std": float((every - v[:, None]).std()), "val_rows": int(len(yv))}
 
 
 def search_statistics(games, gamma: float, c: float, simulations: int) -> dict:

@@ -29,12 +29,15 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     by side; one name: that one only), each resumable from its checkpoint. Every variant, the
     boxing-wm controller (when its run exists) and random play then play the same greedy
     evaluation games (same no-op starts). Diagnosis: the memory's reward error along the search
-    depth, whether a linear value on ``[z h]`` predicts the random rollouts' returns at all, the
-    value scale, the spread of root Q, ties and the actions taken.
+    depth, whether a linear value on ``[z h]`` predicts the random rollouts' returns at all,
+    whether an MLP on ``[z h a]`` can tell which action earns more in the next steps
+    (:func:`~wmthesis.agents.alphazero.action_predictability`), the value scale, the spread of
+    root Q, ties and the actions taken. The ``learned-reward`` variant trains its reward model on
+    the same random rollouts (and its self-play games).
 
     Results under ``data/results/boxing-wm-alphazero/<profile>-seed<seed>/`` (one variant: in
     its subfolder): figures, a rerun recording of an evaluation game, ``metrics.json``. Returns
-    the metrics; ``score`` is the last variant's (``improved`` when all run).
+    the metrics; ``score`` is the last variant's (``learned-reward`` when all run).
     """
     from wmthesis.agents import alphazero as az
     from wmthesis.agents.controller_training import VAEVision
@@ -64,7 +67,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     for name in variants:
         configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **az.VARIANTS[name])
         run = az.train_alphazero(lambda: az.boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
-                                 seed=seed, progress=progress)
+                                 seed=seed, progress=progress, rollouts=LatentStore(latents))
         runs[name] = run.summary()
         games[name] = _alphazero_evaluate(run, vision, memory, cfg, work / name, seed)
     cfg = configs[variants[-1]]
@@ -77,6 +80,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     depth = ALPHAZERO_DIAGNOSIS_DEPTH[profile]
     reward_error = az.reward_error_by_depth(mdp, all_games, depth)
     value_fit = az.value_predictability(mdp, LatentStore(latents), cfg.gamma, cfg.n_step)
+    action_fit = az.action_predictability(mdp, LatentStore(latents), seed=seed)
     search = {name: az.search_statistics(games[name], cfg.gamma, cfg.c, cfg.simulations) for name in variants}
     figures = [
         _save(az.plot_self_play(runs, {f"random play, first {cfg.max_steps or 'all'} steps (store)":
@@ -101,7 +105,8 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         "random_play_in_store": {"max_steps": cfg.max_steps, **score_summary(random_in_store)},
         "reference": ALPHAZERO_REFERENCE,
         "runs": runs,
-        "diagnosis": {"reward_error": reward_error, "value_fit_on_random_rollouts": value_fit, "search": {name: {
+        "diagnosis": {"reward_error": reward_error, "value_fit_on_random_rollouts": value_fit,
+                      "action_fit_on_random_rollouts": action_fit, "search": {name: {
             "value_return_corr": s["value_return_corr"], "mean_abs_root_value": float(np.abs(s["root_value"]).mean()),
             "mean_abs_return": float(np.abs(s["returns"]).mean()), "median_q_spread": float(np.median(s["q_spread"])),
             "prior_bonus": s["prior_bonus"], "mean_visit_entropy": float(s["visit_entropy"].mean()),
@@ -118,10 +123,22 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     return metrics
 
 
-def _evaluation_seeds(seed: int, episodes: int) -> list[int]:
+def _evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]:
     """The seed of each evaluation game, shared by every agent compared (through
-    :func:`~wmthesis.agents.alphazero.game_seeds`: the same no-op starts)."""
-    return [int(derive_seeds(seed, 3, k)[0]) for k in range(episodes)]
+    :func:`~wmthesis.agents.alphazero.game_seeds`: the same no-op starts). Seeds whose no-op
+    count repeats an earlier game's are skipped: Boxing is deterministic, so a greedy agent
+    would replay the same game."""
+    from wmthesis.agents.alphazero import game_seeds, noop_count
+
+    seeds, counts, k = [], set(), 0
+    while len(seeds) < episodes:
+        game_seed = int(derive_seeds(seed, 3, k)[0])
+        count = noop_count(game_seeds(game_seed)[0], noop_max)
+        if count not in counts or len(counts) >= max(noop_max, 1):
+            seeds.append(game_seed)
+            counts.add(count)
+        k += 1
+    return seeds
 
 
 def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int) -> list:
@@ -132,17 +149,18 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int) -> list
     from wmthesis.agents import alphazero as az
 
     path = work / "evaluation.pkl"
-    key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps}
+    key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
+           "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
     if path.is_file():
         with open(path, "rb") as f:
             cached = pickle.load(f)
         if cached["key"] == key:
             return cached["games"]
-    mind = az.AlphaZeroMind(vision, az.LatentMDP(memory), az.Evaluator(run.heads), cfg)
+    mind = az.AlphaZeroMind(vision, run.mdp(memory), az.Evaluator(run.heads), cfg)
     env = az.boxing_env(cfg.noop_max)
     games = []
     try:
-        for k, game_seed in enumerate(_evaluation_seeds(seed, cfg.eval_episodes)):
+        for k, game_seed in enumerate(key["seeds"]):
             mind.keep_frames = k == 0
             game = az.play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
             if game.frames is not None:
@@ -167,6 +185,7 @@ def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int
     controller_path, memory_path = wm / "controller" / "controller.pkl", wm / "memory-mdn.best.pt"
     have_controller = controller_path.is_file() and memory_path.is_file()
     key = {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
+           "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
            "controller_mtime": controller_path.stat().st_mtime_ns if have_controller else None}
     cached = _read_json(work / "baselines.json")
     if cached is not None and cached["key"] == key:
@@ -190,7 +209,7 @@ def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int
     try:
         for name, make_mind in minds.items():
             returns[name] = []
-            for game_seed in _evaluation_seeds(seed, cfg.eval_episodes):
+            for game_seed in key["seeds"]:
                 env_seed, agent_seed = game_seeds(game_seed)
                 mind = make_mind(agent_seed)
                 history = loop(env, mind, policy="deterministic", callbacks=[mind] if name != "random" else None,
