@@ -253,8 +253,9 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         "CollectConfig": dict(episodes=20),
         "VisionConfig": dict(batch_size=64, steps=1500, eval_every=100),
         "MemoryConfig": dict(batch_size=16, sequence_length=100, steps=1500, eval_every=100),
-        "ControllerConfig": dict(population=16, episodes=3, generations=60, max_steps=400,
-                                 dream_max_steps=400, eval_every=10, eval_episodes=3),
+        # Fitness over full bouts: scores over the first 400 steps did not carry over to full bouts.
+        "ControllerConfig": dict(population=16, episodes=2, generations=45, dream_max_steps=400, eval_every=15,
+                                 eval_episodes=3),
         "PlaNetConfig": dict(batch_size=12, chunk_length=24, update_steps=100, env_steps=20_000,
                              candidates=100, top_k=10, iterations=3, test_interval=3, test_episodes=1),
         # Trials of 6 seed + 2 planner episodes capped at 400 agent steps: 200 updates, ~5 CPU-min each.
