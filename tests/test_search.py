@@ -1,6 +1,7 @@
 """Random search over KL scale x free nats: reproducible suggestions, two worker processes on
 one study (SQLite, and PostgreSQL when ``WMTHESIS_TEST_POSTGRES_URL`` is set, as in CI), a
 killed worker, divergence, and the command line, all with smoke-sized trials."""
+import dataclasses
 import json
 import os
 import signal
@@ -79,7 +80,7 @@ def test_two_worker_processes_share_one_study(backend, tmp_path):
     storage = f"sqlite:///{tmp_path / 'studies.db'}" if backend == "sqlite" else POSTGRES
     fresh(storage, "planet-freeway")
     study = run_search("planet-freeway", trials=3, workers=2, storage=storage, profile="smoke")
-    rows = trial_rows(study)
+    rows = [row for row in trial_rows(study) if not row["surplus"]]  # a worker that lost the race for the last place
     assert [row["state"] for row in rows] == ["COMPLETE"] * 3
     assert len({row["worker"] for row in rows}) == 2, "both worker processes ran trials"
     planned = planned_settings(SMOKE, 3)
@@ -169,3 +170,18 @@ def test_trials_take_the_search_budget_and_episode_cap(tmp_path, monkeypatch):
         lengths = store.episode_lengths
         assert lengths.max() == 12 and store.num_steps >= 40
     assert json.loads((Path(row["folder"]) / "metrics.json").read_text())["env_steps"] >= 40
+
+
+def test_a_trial_racing_for_the_last_place_is_surplus(tmp_path):
+    from optuna.trial import TrialState
+
+    from wmthesis.search import _surplus
+
+    study = optuna.create_study(storage=f"sqlite:///{tmp_path / 's.db'}", directions=["maximize"])
+    cfg = dataclasses.replace(SMOKE, trials=2)
+    study.tell(study.ask(), 1.0)
+    a, b = study.ask(), study.ask()  # two workers start a trial at once for the last place
+    assert not _surplus(a, cfg) and _surplus(b, cfg)
+    study.tell(b, state=TrialState.FAIL)
+    study.tell(a, state=TrialState.FAIL)  # a's worker dies: the place is free again
+    assert not _surplus(study.ask(), cfg)

@@ -207,6 +207,17 @@ def trial_dir(study: optuna.Study, number: int, storage: str | None = None) -> P
     return folder
 
 
+class SurplusTrial(Exception):
+    """A trial created by a worker that raced another for the last place: it fails at once,
+    before any work, and does not count towards ``trials``."""
+
+
+def _surplus(trial: optuna.Trial, cfg: SearchConfig) -> bool:
+    """Whether ``cfg.trials`` trials numbered below this one already finished or are running."""
+    earlier = trial.study.get_trials(deepcopy=False, states=FINISHED + (TrialState.RUNNING,))
+    return sum(other.number < trial.number for other in earlier) >= cfg.trials
+
+
 def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str, storage: str | None = None):
     """Train PlaNet with the trial's setting, measure it, save ``metrics.json`` and the
     open-loop figure in :func:`trial_dir`; return the objective value(s)."""
@@ -215,6 +226,9 @@ def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str
     from wmthesis.data import EpisodeStore
 
     game = GAMES[name]
+    if _surplus(trial, cfg):
+        trial.set_user_attr("surplus", True)
+        raise SurplusTrial(f"trial {trial.number}: {cfg.trials} earlier trials already finished or running")
     params = suggest(trial, cfg)
     changes = dict(params, **{key: getattr(cfg, key) for key in ("env_steps", "max_episode_steps")
                               if getattr(cfg, key)})
@@ -265,7 +279,8 @@ def work(name: str, cfg: SearchConfig, profile: str, storage: str, threads: int 
 
     Before each trial it counts finished plus running trials; when those already reach the
     target it does not start one but waits (a heartbeat) and fails stale trials, so a trial
-    lost with a dead worker is replaced and the target is not overshot by live workers."""
+    lost with a dead worker is replaced and the target is not overshot by live workers. Two workers may still both start a trial for the
+    last place: the later-numbered one finds itself surplus and fails at once (:class:`SurplusTrial`)."""
     if threads:
         import torch
 
@@ -282,7 +297,7 @@ def work(name: str, cfg: SearchConfig, profile: str, storage: str, threads: int 
                 optuna.storages.fail_stale_trials(study)
             time.sleep(cfg.heartbeat_interval)
             continue
-        study.optimize(objective, n_trials=1)
+        study.optimize(objective, n_trials=1, catch=(SurplusTrial,))
 
 
 def run_search(name: str, *, trials: int | None = None, workers: int | None = None,
@@ -325,7 +340,7 @@ def trial_rows(study: optuna.Study) -> list[dict]:
     for trial in study.get_trials(deepcopy=False):
         rows.append({"number": trial.number, "state": trial.state.name, **trial.params,
                      **{key: trial.user_attrs.get(key) for key in ("score", "error", "horizon", "folder",
-                                                                    "worker", "diverged")}})
+                                                                    "worker", "diverged", "surplus")}})
     return rows
 
 
