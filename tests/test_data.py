@@ -355,7 +355,8 @@ def run_python(code: str, **popen) -> subprocess.Popen:
 def wait_for_size(path: Path, size: int, timeout: float = 60) -> None:
     """Wait until the file at `path` is larger than `size` bytes (episodes are being written)."""
     deadline = time.time() + timeout
-    while not (path.exists() and path.stat().st_size > size) and time.time() < deadline:
+    while not (path.exists() and path.stat().st_size > size):
+        assert time.time() < deadline, f"{path} did not grow past {size} bytes in {timeout} s"
         time.sleep(0.02)
 
 
@@ -410,7 +411,7 @@ def test_a_store_held_by_a_live_writer_is_not_repaired(tmp_path):
 def test_ctrl_c_stops_the_workers_and_keeps_complete_episodes(reference, tmp_path):
     path = tmp_path / "interrupted.h5"
     child = run_python(f"from wmthesis.data import collect\n"
-                       f"collect('boxing', 400, {str(path)!r}, workers=2, max_steps=15, progress=False)",
+                       f"collect('boxing', 4000, {str(path)!r}, workers=2, max_steps=15, progress=False)",
                        stdout=None, stderr=subprocess.PIPE, start_new_session=True)
     wait_for_size(path, 100_000)
     os.killpg(child.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
@@ -418,7 +419,7 @@ def test_ctrl_c_stops_the_workers_and_keeps_complete_episodes(reference, tmp_pat
     assert child.returncode != 0 and "KeyboardInterrupt" in stderr
     assert "keeps" in stderr and "run again to resume" in stderr
     with EpisodeStore(path) as store:
-        assert 0 < len(store) < 400 and all(store.episode_lengths == 15)
+        assert 0 < len(store) < 4000 and all(store.episode_lengths == 15)
         with EpisodeStore(reference) as ref:
             for i in range(min(len(store), len(ref))):
                 assert np.array_equal(store.episode(i)["observations"], ref.episode(i)["observations"])

@@ -37,6 +37,7 @@ import signal
 import sys
 import threading
 from collections import deque
+from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from datetime import datetime, timezone
@@ -487,10 +488,13 @@ def collect(env_name: str, episodes: int, out: str | os.PathLike, *, workers: in
                   disable=not progress or not todo) as bar:
             rollouts = _rollouts(env_name, options, seed, todo, workers)
             try:
-                for rollout in rollouts:
-                    store.append_episode(**rollout)
-                    bar.update()
-                    bar.set_postfix(steps=store.num_steps, refresh=False)
+                with _interrupt_between_episodes() as interrupted:
+                    for rollout in rollouts:
+                        store.append_episode(**rollout)
+                        bar.update()
+                        bar.set_postfix(steps=store.num_steps, refresh=False)
+                        if interrupted():
+                            raise KeyboardInterrupt
             except KeyboardInterrupt:
                 print(f"\ninterrupted: {out} keeps {len(store)} complete episodes; "
                       "run again to resume", file=sys.stderr)
@@ -498,6 +502,28 @@ def collect(env_name: str, episodes: int, out: str | os.PathLike, *, workers: in
             finally:
                 rollouts.close()
     return out
+
+
+@contextmanager
+def _interrupt_between_episodes():
+    """Defer the first Ctrl-C to the end of the episode being written: yields a function that
+    says whether one came. A KeyboardInterrupt raised inside the process pool's locks and waits
+    can hang its shutdown; a second Ctrl-C still interrupts at once. Outside the main thread
+    (where signals cannot be handled) nothing is deferred."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    came = threading.Event()
+
+    def defer(signum, frame):
+        came.set()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    previous = signal.signal(signal.SIGINT, defer)
+    try:
+        yield came.is_set
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _collect_options(env_name: str, preprocessing: str | None, max_steps: int | None,
