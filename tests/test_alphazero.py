@@ -16,7 +16,9 @@ from wmthesis.agents.alphazero import (VARIANTS, AlphaZeroHeads, AlphaZeroMind, 
                                        RewardModel, RewardView, State, action_predictability, alphazero_loss,
                                        game_targets, load_run, play, reward_error_by_depth, reward_fit, reward_rows,
                                        search_statistics, train_alphazero, train_reward_model, value_targets)
+from wmthesis.agents.imitation import PolicyHeadMind, agreement, expert_games
 from wmthesis.config import AlphaZeroConfig, for_profile
+from wmthesis.core import Mind, loop
 from wmthesis.models.memory import Memory
 from wmthesis.training import ConfigMismatch
 
@@ -246,13 +248,16 @@ def test_a_run_does_not_depend_on_the_global_random_state():
     assert [e["return"] for e in runs[0].curve] == [e["return"] for e in runs[1].curve]
 
 
-@pytest.mark.parametrize("variant", ["monte-carlo", "n-step", "learned-reward"])
+@pytest.mark.parametrize("variant", ["monte-carlo", "n-step", "learned-reward", "imitation"])
 def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
-    if variant == "learned-reward":
-        config = tiny_config(**VARIANTS["learned-reward"], reward_pretrain_epochs=2, reward_epochs=1)
+    if variant in ("learned-reward", "imitation"):
+        config = tiny_config(**VARIANTS[variant], reward_pretrain_epochs=2, reward_epochs=1,
+                             eval_max_steps=8)
     else:
         config = tiny_config(value_target=variant, normalize_q=variant == "n-step")
     extra = {"rollouts": Rollouts()} if config.reward_model else {}
+    if config.expert_games:
+        extra["expert"] = lambda agent_seed: ZigZag()
     whole = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path / "whole", progress=False,
                             **extra)
     train_alphazero(Corridor, vision, small_memory(), dataclasses.replace(config, games=2),
@@ -265,6 +270,7 @@ def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
     assert [e["return"] for e in whole.curve] == [e["return"] for e in resumed.curve]
     assert whole.rounds == resumed.rounds and whole.tests == resumed.tests
     assert json.dumps(whole.reward_fits) == json.dumps(resumed.reward_fits)  # nan (no hit held out) == nan
+    assert whole.expert == resumed.expert and bool(whole.expert) == (variant == "imitation")
     if config.reward_model:  # pretrained, then trained after each of the 2 rounds; the weights round-trip
         assert [f["game"] for f in whole.reward_fits] == [0, 2, 4]
         assert load_run(tmp_path / "parts").config == dataclasses.asdict(config)
@@ -276,6 +282,55 @@ def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
     with pytest.raises(ConfigMismatch, match="memory"):
         train_alphazero(Corridor, vision, small_memory(seed=1), config, out_dir=tmp_path / "parts", progress=False,
                         **extra)
+
+
+# ----------------------------------------------------------------------------- imitation
+class ZigZag(Mind):
+    """An expert whose action depends on the state: right in every cell but cell `turn`, where
+    it steps left (so with turn 2 it walks 0 1 2 1 2 1 ... and never reaches the goal)."""
+
+    def __init__(self, turn: int = 2):
+        self.turn = turn
+
+    def plan(self, state, train_mode: bool = True, debug_mode: bool = False):
+        return np.eye(A)[0 if np.argmax(state) == self.turn else 1]
+
+
+def test_expert_games_record_the_experts_actions_with_the_searchs_features():
+    memory = small_memory()
+    games = expert_games(Corridor(), lambda agent_seed: ZigZag(), vision, LatentMDP(memory), seeds=[0, 1],
+                         max_steps=9, progress=False)
+    assert [len(g) for g in games] == [9, 9] and [g.index for g in games] == [0, 1]
+    game = games[0]
+    cells = [0, 1, 2, 1, 2, 1, 2, 1, 2]
+    np.testing.assert_array_equal(game.features[:, :L], np.eye(L)[cells])
+    np.testing.assert_array_equal(game.actions, [1, 1, 0, 1, 0, 1, 0, 1, 0])
+    np.testing.assert_array_equal(game.policies, np.eye(A)[game.actions])
+    assert game.score == 0 and not game.terminated
+    with torch.no_grad():  # h is the deterministic memory after the real steps, as AlphaZeroMind records it
+        hidden = memory(torch.from_numpy(game.features[None, :, :L]), torch.from_numpy(game.actions[None])).hidden[0]
+    np.testing.assert_allclose(game.features[1:, L:], hidden[:-1].numpy(), atol=1e-5)
+    np.testing.assert_allclose(game.last_features[L:], hidden[-1].numpy(), atol=1e-5)
+    np.testing.assert_allclose(game.last_features[:L], np.eye(L)[1])  # cell 2 --left--> cell 1
+
+
+def test_imitation_pretrains_the_heads_to_play_like_the_expert(tmp_path):
+    config = tiny_config(**{**VARIANTS["imitation"], "expert_games": 3}, games=0, eval_max_steps=12)
+    with pytest.raises(ValueError, match="expert"):
+        train_alphazero(Corridor, vision, small_memory(), config, progress=False)
+    run = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, progress=False,
+                          expert=lambda agent_seed: ZigZag(turn=3))
+    assert run.expert["games"] == 3 and run.expert["steps"] == 36 and run.expert["scores"] == [0.0] * 3
+    assert run.expert["agreement_before"] < 1 and run.expert["agreement"] == 1.0
+    assert run.expert["loss"] < run.expert["loss_before"] and len(run.replay) == 3
+    assert agreement(run.heads, list(run.replay)) == 1.0
+    # the policy head alone, with the memory's h, walks the expert's path in a new game
+    memory = small_memory()
+    mind = PolicyHeadMind(vision, LatentMDP(memory), run.heads)
+    history = loop(Corridor(), mind, policy="deterministic", callbacks=[mind], max_steps=7, train_mode=False)
+    assert history[0]["steps"] == 7
+    np.testing.assert_array_equal(mind.recorder.game.actions, [1, 1, 1, 0, 1, 0, 1])
+    assert load_run(tmp_path).expert == run.expert  # the checkpoint keeps it, and resuming does not imitate again
 
 
 # ----------------------------------------------------------------------------- the reward model
@@ -384,8 +439,9 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     from wmthesis.experiments import reproduce
 
     metrics = reproduce("boxing-wm-alphazero", "smoke", progress=False)
-    assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward"}
-    for name in ("AlphaZero unchanged", "AlphaZero improved", "AlphaZero learned-reward", "random"):
+    assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward", "imitation"}
+    for name in ("AlphaZero unchanged", "AlphaZero improved", "AlphaZero learned-reward", "AlphaZero imitation",
+                 "AlphaZero imitation: policy head alone, no search", "random"):
         score = metrics["scores"][name]
         assert np.isfinite(score["mean"]) and score["episodes"] == 2
     written = json.loads(Path(metrics["files"]["figures"][0]).with_name("metrics.json").read_text())
@@ -393,7 +449,9 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     assert all(Path(f).stat().st_size > 1000 for f in metrics["files"]["figures"])
     assert len(metrics["diagnosis"]["reward_error"]["reward_mse"]) == 5
     assert len(metrics["runs"]["learned-reward"]["reward_fits"]) == 3
-    for name in ("unchanged", "improved", "learned-reward"):
+    for name in ("unchanged", "improved", "learned-reward", "imitation"):
         assert metrics["runs"][name]["games"] == 4 and len(metrics["runs"][name]["rounds"]) == 2
+    expert = metrics["runs"]["imitation"]["expert"]
+    assert expert["games"] == 8 and expert["steps"] == 8 * 20 and 0 <= expert["agreement"] <= 1
     again = reproduce("boxing-wm-alphazero", "smoke", progress=False)  # cached: evaluates nothing again
     assert again["scores"] == metrics["scores"]

@@ -194,7 +194,10 @@ class AlphaZeroConfig:
     search's rewards come from an MLP classifier (``reward_hidden`` units, rewards
     ``-reward_range..reward_range``) of the reward ``reward_delay`` steps after each action,
     pretrained for ``reward_pretrain_epochs`` on the random rollouts, then ``reward_epochs``
-    on them and the self-play replay after every training round (Adam ``reward_lr``).
+    on them and the self-play replay after every training round (Adam ``reward_lr``). The
+    ``imitation`` variant sets ``expert_games``: before self-play, the heads train for
+    ``expert_epochs`` on that many greedy games (of ``eval_max_steps``) of an expert, notebook
+    02's controller, as AlphaGo's policy started from expert games; they stay in the replay.
     """
 
     c: float = 1.0
@@ -230,6 +233,8 @@ class AlphaZeroConfig:
     reward_lr: float = 1e-3
     reward_pretrain_epochs: int = 6
     reward_epochs: int = 2
+    expert_games: int = 0                # imitation variant: pretrain the heads on this many expert games
+    expert_epochs: int = 30
 
 
 # Per profile, per config class name: the fields that differ from the thesis defaults.

@@ -34,6 +34,9 @@ on ``[z h a]`` that credits each action with the reward two steps later (when Bo
 land), pretrained on the random rollouts and trained again on them and the self-play games
 after every round. It detects the steps before hits far better than chance, but not whose hit
 they will be, nor which action makes the difference (:func:`action_predictability`).
+``imitation`` is improved with the heads pretrained, before self-play, on greedy games of an
+expert (notebook 02's evolved controller), as AlphaGo's policy started from expert games
+(:mod:`wmthesis.agents.imitation`): the search then starts from priors that already box.
 
 Diagnosis (5.4.2 asks "why"): :func:`reward_error_by_depth` (the memory's reward error k steps
 into the search along real action sequences), :func:`value_predictability` (whether a linear
@@ -70,6 +73,8 @@ VARIANTS = {
     "improved": dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False),  # ours
     "learned-reward": dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False,
                            reward_model=True),  # ours: improved + a reward model trained on self-play data
+    "imitation": dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False,
+                      expert_games=8),  # ours: improved + heads pretrained on the World Models controller's games
 }
 VALUE_TARGETS = ("monte-carlo", "n-step")
 FORMAT, FORMAT_VERSION = "wmthesis-alphazero", 1
@@ -616,7 +621,9 @@ class AlphaZeroRun:
     ``replay_games`` :class:`Game` records; ``task``: sizes and a fingerprint of the memory.
     With ``config["reward_model"]``: the :class:`RewardModel`, its optimiser, and
     ``reward_fits``, per training of it ``game`` (0: on the random rollouts only), ``loss`` and
-    its :func:`reward_fit` on the held-out random episodes.
+    its :func:`reward_fit` on the held-out random episodes. With ``config["expert_games"]``:
+    ``expert``, the expert games' ``scores`` and ``steps``, and the policy head's ``agreement``
+    with the expert's actions before and after pretraining (with the pretraining's losses).
     """
 
     config: dict
@@ -631,11 +638,12 @@ class AlphaZeroRun:
     reward_model: RewardModel | None = None
     reward_optimiser: torch.optim.Optimizer | None = None
     reward_fits: list = dataclasses.field(default_factory=list)
+    expert: dict = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict:
         """Everything but the replay and the modules, for ``metrics.json``."""
         return {"config": self.config, "task": self.task, "games": self.games, "curve": self.curve,
-                "tests": self.tests, "rounds": self.rounds, "reward_fits": self.reward_fits}
+                "tests": self.tests, "rounds": self.rounds, "reward_fits": self.reward_fits, "expert": self.expert}
 
     def mdp(self, memory) -> LatentMDP:
         """The model this run searches: the memory, with the run's reward model if it has one."""
@@ -643,7 +651,8 @@ class AlphaZeroRun:
 
 
 def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out_dir: str | os.PathLike | None = None,
-                    seed: int = 0, progress: bool = True, rollouts=None) -> AlphaZeroRun:
+                    seed: int = 0, progress: bool = True, rollouts=None,
+                    expert: Callable[[int], Mind] | None = None) -> AlphaZeroRun:
     """Self-play training of the heads for ``config.games`` games (the module docstring).
 
     ``make_env()``: the real game (observations the ``vision`` encodes); ``memory``: a trained
@@ -655,12 +664,19 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
     ``config.reward_model``: the search's rewards come from a :class:`RewardModel`, pretrained
     on ``rollouts`` (the random rollouts' :class:`~wmthesis.agents.world_models.LatentStore`)
     and trained again on them and the replay after every training round of the heads.
+    ``config.expert_games``: before self-play, ``expert(agent_seed)`` (a fresh
+    :class:`~wmthesis.core.Mind` per game, e.g. the World Models controller) plays that many
+    greedy games of ``config.eval_max_steps`` steps, seeded from ``(seed, 6, k)``; they join
+    the replay and the heads train on them for ``config.expert_epochs`` epochs
+    (:mod:`wmthesis.agents.imitation`).
     """
     from wmthesis.agents.controller_training import _fingerprint
 
     check_choice("value target", config.value_target, VALUE_TARGETS)
     if config.reward_model and rollouts is None:
         raise ValueError("reward_model=True needs the random rollouts (rollouts=LatentStore) to pretrain it")
+    if config.expert_games and expert is None:
+        raise ValueError(f"expert_games={config.expert_games} needs an expert (expert=lambda seed: Mind) to imitate")
     mdp = LatentMDP(memory)
     task = {"latent_size": mdp.latent_size, "hidden_size": mdp.hidden_size, "n_actions": mdp.n_actions,
             "memory": _fingerprint(memory)}
@@ -685,6 +701,10 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
     mind = AlphaZeroMind(vision, mdp, Evaluator(run.heads), config)
     env = make_env()
     try:
+        if config.expert_games and not run.expert:
+            _imitate(run, env, expert, vision, mdp, config, seed, progress)
+            if checkpoint is not None:
+                save_run(run, checkpoint)
         with tqdm(total=config.games, initial=run.games, desc="self-play", disable=not progress) as bar:
             while run.games < config.games:
                 g = run.games
@@ -712,6 +732,22 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
     finally:
         env.close()
     return run
+
+
+def _imitate(run: AlphaZeroRun, env, expert: Callable, vision: Callable, mdp: LatentMDP, config, seed: int,
+             progress: bool) -> None:
+    """Play ``config.expert_games`` expert games into the replay and pretrain the heads on them;
+    ``run.expert`` keeps their scores and the heads' agreement with the expert's actions."""
+    from wmthesis.agents.imitation import agreement, expert_games
+
+    seeds = [int(derive_seeds(seed, 6, k)[0]) for k in range(config.expert_games)]
+    games = expert_games(env, expert, vision, mdp, seeds, max_steps=config.eval_max_steps, progress=progress)
+    run.replay.extend(games)
+    before = agreement(run.heads, games)
+    rng = np.random.default_rng(derive_seeds(seed, 2, 0))
+    losses = train_round(run.heads, run.optimiser, games, dataclasses.replace(config, epochs=config.expert_epochs), rng)
+    run.expert = {"games": len(games), "scores": [g.score for g in games], "steps": int(sum(map(len, games))),
+                  "agreement_before": before, "agreement": agreement(run.heads, games), **losses}
 
 
 def make_reward_optimiser(model: RewardModel, config) -> torch.optim.Optimizer:
@@ -766,7 +802,8 @@ def load_run(path: str | os.PathLike) -> AlphaZeroRun:
     optimiser = make_optimiser(heads, config)
     optimiser.load_state_dict(saved["optimiser"])
     run = AlphaZeroRun(saved["config"], t, heads, optimiser, saved["games"], deque(saved["replay"]),
-                       saved["curve"], saved["tests"], saved["rounds"], reward_fits=saved.get("reward_fits", []))
+                       saved["curve"], saved["tests"], saved["rounds"], reward_fits=saved.get("reward_fits", []),
+                       expert=saved.get("expert", {}))
     if "reward_model" in saved:
         run.reward_model = RewardModel(t["latent_size"] + t["hidden_size"], t["n_actions"], config.reward_hidden,
                                        config.reward_range)

@@ -63,13 +63,17 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
                                           n_actions=18, seed=seed, progress=progress)
     vision = VAEVision(vae)
 
-    configs, runs, games = {}, {}, {}
+    configs, runs, games, heads_alone = {}, {}, {}, {}
     for name in variants:
         configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **az.VARIANTS[name])
+        expert = _expert(profile, seed, wm, vision, progress) if cfg.expert_games else None
         run = az.train_alphazero(lambda: az.boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
-                                 seed=seed, progress=progress, rollouts=LatentStore(latents))
+                                 seed=seed, progress=progress, rollouts=LatentStore(latents), expert=expert)
         runs[name] = run.summary()
         games[name] = _alphazero_evaluate(run, vision, memory, cfg, work / name, seed)
+        if cfg.expert_games:
+            heads_alone[f"AlphaZero {name}: policy head alone, no search"] = \
+                _policy_head_returns(run, vision, memory, cfg, work / name, seed)
     cfg = configs[variants[-1]]
     baselines = _boxing_baselines(profile, wm, work, vision, cfg, seed)
     with EpisodeStore(store) as episodes:  # random play over the self-play games' length, for the curve
@@ -91,7 +95,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         _save(az.plot_visits(games[variants[-1]][0]), out / "visit_distributions.png"),
     ]
     scores = {f"AlphaZero {name}": score_summary([g.score for g in games[name]]) for name in variants}
-    scores.update({name: score_summary(returns) for name, returns in baselines["returns"].items()})
+    scores.update({name: score_summary(returns) for name, returns in {**heads_alone, **baselines["returns"]}.items()})
     figures.append(_save(_score_figure(scores), out / "scores.png"))
     shown = games[variants[-1]][0]
     recording = record_frames(out / "evaluation_game.rrd", {"observation": shown.frames},
@@ -173,37 +177,84 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int) -> list
     return games
 
 
+def _policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list[float]:
+    """The evaluation games' returns of the trained policy head played greedily without search
+    (how much the search adds to what the heads learned); cached in ``policy_head.json``."""
+    from wmthesis.agents import alphazero as az
+    from wmthesis.agents.imitation import PolicyHeadMind
+    from wmthesis.core import loop
+
+    key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
+           "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
+    cached = _read_json(work / "policy_head.json")
+    if cached is not None and cached["key"] == key:
+        return cached["returns"]
+    mind, env, returns = PolicyHeadMind(vision, run.mdp(memory), run.heads), az.boxing_env(cfg.noop_max), []
+    try:
+        for game_seed in key["seeds"]:
+            history = loop(env, mind, policy="deterministic", callbacks=[mind], max_steps=cfg.eval_max_steps,
+                           seed=az.game_seeds(game_seed)[0], train_mode=False)
+            returns.append(float(history[0]["return"]))
+    finally:
+        env.close()
+    with atomic_path(work / "policy_head.json") as tmp:
+        tmp.write_text(json.dumps({"key": key, "returns": returns}, indent=1))
+    return returns
+
+
+def _expert(profile: str, seed: int, wm: Path, vision, progress: bool):
+    """``agent_seed -> ControllerMind``: notebook 02's controller (the CMA-ES mean) as the
+    imitation variant's expert; trains it first (the cached boxing-wm pipeline) if it is missing."""
+    from wmthesis.experiments.world_models import boxing_world_models
+
+    make_mind, note = _controller_minds(profile, wm, vision)
+    if make_mind is None:
+        boxing_world_models(profile, seed, progress=progress)
+        make_mind, note = _controller_minds(profile, wm, vision)
+    if make_mind is None:
+        raise RuntimeError(f"the imitation variant needs notebook 02's controller: {note}")
+    return make_mind
+
+
+def _controller_minds(profile: str, wm: Path, vision) -> tuple:
+    """``(agent_seed -> ControllerMind, name)`` for the boxing-wm controller under `wm`, or
+    ``(None, why not)`` when it is missing or was trained on another memory."""
+    from wmthesis.agents.controller_training import ControllerMind, _fingerprint, load_run
+    from wmthesis.agents.world_models import make_memory
+    from wmthesis.training import load_weights
+
+    controller_path, memory_path = wm / "controller" / "controller.pkl", wm / "memory-mdn.best.pt"
+    if not (controller_path.is_file() and memory_path.is_file()):
+        return None, (f"no boxing-wm controller under {wm} (run notebook 02 / `reproduce boxing-wm` first): "
+                      "the comparison with it is skipped")
+    run = load_run(controller_path)
+    mdn = load_weights(memory_path, make_memory(16, 18, for_profile(MemoryConfig, profile))).eval()
+    if _fingerprint(mdn) != run.task["memory"]:
+        return None, f"the controller in {controller_path.parent} was trained on another memory: skipped"
+    controller = run.controller("mean")
+    return (lambda agent_seed: ControllerMind(vision, mdn, controller)), \
+        f"World Models controller (notebook 02, generation {run.generation})"
+
+
 def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int) -> dict:
     """Random play and the boxing-wm controller (when its run exists) on the evaluation games;
     cached in ``baselines.json``. Returns ``returns`` by agent and ``notes``."""
     from wmthesis.agents.alphazero import boxing_env, game_seeds
-    from wmthesis.agents.controller_training import ControllerMind, _fingerprint, load_run
-    from wmthesis.agents.world_models import make_memory
     from wmthesis.core import RandomMind, loop
-    from wmthesis.training import load_weights
 
-    controller_path, memory_path = wm / "controller" / "controller.pkl", wm / "memory-mdn.best.pt"
-    have_controller = controller_path.is_file() and memory_path.is_file()
+    controller_path = wm / "controller" / "controller.pkl"
     key = {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
-           "controller_mtime": controller_path.stat().st_mtime_ns if have_controller else None}
+           "controller_mtime": controller_path.stat().st_mtime_ns if controller_path.is_file() else None}
     cached = _read_json(work / "baselines.json")
     if cached is not None and cached["key"] == key:
         return cached
-    minds, notes = {}, []
-    minds["random"] = lambda agent_seed: RandomMind(18, agent_seed)
-    if have_controller:
-        run = load_run(controller_path)
-        mdn = load_weights(memory_path, make_memory(16, 18, for_profile(MemoryConfig, profile))).eval()
-        if _fingerprint(mdn) == run.task["memory"]:
-            controller = run.controller("mean")
-            minds[f"World Models controller (notebook 02, generation {run.generation})"] = \
-                lambda agent_seed: ControllerMind(vision, mdn, controller)
-        else:
-            notes.append(f"the controller in {controller_path.parent} was trained on another memory: skipped")
+    minds, notes = {"random": lambda agent_seed: RandomMind(18, agent_seed)}, []
+    make_controller, name = _controller_minds(profile, wm, vision)
+    if make_controller is None:
+        notes.append(name)
     else:
-        notes.append(f"no boxing-wm controller under {wm} (run notebook 02 / `reproduce boxing-wm` first): "
-                     "the comparison with it is skipped")
+        minds[name] = make_controller
     returns = {}
     env = boxing_env(cfg.noop_max)
     try:
