@@ -13,9 +13,9 @@ import pytest
 import torch
 
 from wmthesis.agents.alphazero import (VARIANTS, AlphaZeroHeads, AlphaZeroMind, Evaluator, LatentMDP, NoopStart,
-                                       RewardModel, RewardView, State, action_predictability, alphazero_loss,
-                                       game_targets, load_run, play, reward_error_by_depth, reward_fit, reward_rows,
-                                       search_statistics, train_alphazero, train_reward_model, value_targets)
+                                       RewardModel, RewardView, State, alphazero_loss, game_targets, load_run, play,
+                                       reward_fit, reward_rows, train_alphazero, train_reward_model, value_targets)
+from wmthesis.agents.alphazero_diagnosis import action_predictability, reward_error_by_depth, search_statistics
 from wmthesis.agents.imitation import PolicyHeadMind, agreement, expert_games
 from wmthesis.config import AlphaZeroConfig, for_profile
 from wmthesis.core import Mind, loop
@@ -331,6 +331,8 @@ def test_imitation_pretrains_the_heads_to_play_like_the_expert(tmp_path):
     assert history[0]["steps"] == 7
     np.testing.assert_array_equal(mind.recorder.game.actions, [1, 1, 1, 0, 1, 0, 1])
     assert load_run(tmp_path).expert == run.expert  # the checkpoint keeps it, and resuming does not imitate again
+    for a, b in zip(load_run(tmp_path).pretrained_heads().parameters(), run.heads.parameters()):
+        assert torch.equal(a, b)  # no self-play game: the heads are still the pretrained ones
 
 
 # ----------------------------------------------------------------------------- the reward model
@@ -441,7 +443,8 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     metrics = reproduce("boxing-wm-alphazero", "smoke", progress=False)
     assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward", "imitation"}
     for name in ("AlphaZero unchanged", "AlphaZero improved", "AlphaZero learned-reward", "AlphaZero imitation",
-                 "AlphaZero imitation: policy head alone, no search", "random"):
+                 "AlphaZero imitation: policy head alone, no search", "AlphaZero imitation: before self-play (search)",
+                 "random"):
         score = metrics["scores"][name]
         assert np.isfinite(score["mean"]) and score["episodes"] == 2
     written = json.loads(Path(metrics["files"]["figures"][0]).with_name("metrics.json").read_text())

@@ -36,3 +36,14 @@ def score_summary(returns) -> dict:
         raise ValueError("no returns to summarise")
     return {"mean": float(returns.mean()), "std": float(returns.std()), "min": float(returns.min()),
             "max": float(returns.max()), "episodes": int(returns.size)}
+
+
+def score_difference(returns, baseline) -> dict:
+    """How far ``returns`` lie above ``baseline`` (two agents' episode returns): the difference
+    of the means and its standard error, ``sqrt(s_a^2 / n_a + s_b^2 / n_b)`` with sample
+    variances (Welch); needs two episodes of each."""
+    a, b = np.asarray(returns, np.float64), np.asarray(baseline, np.float64)
+    if a.size < 2 or b.size < 2:
+        raise ValueError(f"need at least two returns of each, got {a.size} and {b.size}")
+    return {"difference": float(a.mean() - b.mean()),
+            "standard_error": float(np.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size))}

@@ -31,20 +31,26 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     evaluation games (same no-op starts). Diagnosis: the memory's reward error along the search
     depth, whether a linear value on ``[z h]`` predicts the random rollouts' returns at all,
     whether an MLP on ``[z h a]`` can tell which action earns more in the next steps
-    (:func:`~wmthesis.agents.alphazero.action_predictability`), the value scale, the spread of
+    (:func:`~wmthesis.agents.alphazero_diagnosis.action_predictability`), the value scale, the spread of
     root Q, ties and the actions taken. The ``learned-reward`` variant trains its reward model on
     the same random rollouts (and its self-play games).
 
+    The ``imitation`` variant imitates notebook 02's controller (trained first if missing); it
+    is also evaluated by its policy head alone, without search, and with its heads as they
+    were before self-play.
+
     Results under ``data/results/boxing-wm-alphazero/<profile>-seed<seed>/`` (one variant: in
     its subfolder): figures, a rerun recording of an evaluation game, ``metrics.json``. Returns
-    the metrics; ``score`` is the last variant's (``learned-reward`` when all run).
+    the metrics; ``score`` is the last variant's (``imitation`` when all run);
+    ``against_random``: each agent's mean minus random play's, with its standard error.
     """
     from wmthesis.agents import alphazero as az
+    from wmthesis.agents import alphazero_diagnosis as diagnosis
     from wmthesis.agents.controller_training import VAEVision
     from wmthesis.agents.world_models import LatentStore, encode_store, train_memory, train_vision
     from wmthesis.config import AlphaZeroConfig
     from wmthesis.data import EpisodeStore, collect
-    from wmthesis.metrics import score_summary
+    from wmthesis.metrics import score_difference, score_summary
     from wmthesis.viz import record_frames
 
     variants = tuple(az.VARIANTS) if variant is None else (variant,)
@@ -63,7 +69,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
                                           n_actions=18, seed=seed, progress=progress)
     vision = VAEVision(vae)
 
-    configs, runs, games, heads_alone = {}, {}, {}, {}
+    configs, runs, games, ablations = {}, {}, {}, {}
     for name in variants:
         configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **az.VARIANTS[name])
         expert = _expert(profile, seed, wm, vision, progress) if cfg.expert_games else None
@@ -72,8 +78,11 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         runs[name] = run.summary()
         games[name] = _alphazero_evaluate(run, vision, memory, cfg, work / name, seed)
         if cfg.expert_games:
-            heads_alone[f"AlphaZero {name}: policy head alone, no search"] = \
+            ablations[f"AlphaZero {name}: policy head alone, no search"] = \
                 _policy_head_returns(run, vision, memory, cfg, work / name, seed)
+            if run.pretrained is not None:  # (checkpoints written before it was kept have none)
+                pretrained = _alphazero_evaluate(run, vision, memory, cfg, work / name, seed, pretrained=True)
+                ablations[f"AlphaZero {name}: before self-play (search)"] = [g.score for g in pretrained]
     cfg = configs[variants[-1]]
     baselines = _boxing_baselines(profile, wm, work, vision, cfg, seed)
     with EpisodeStore(store) as episodes:  # random play over the self-play games' length, for the curve
@@ -82,20 +91,22 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     mdp = az.LatentMDP(memory)
     all_games = [game for name in variants for game in games[name]]
     depth = ALPHAZERO_DIAGNOSIS_DEPTH[profile]
-    reward_error = az.reward_error_by_depth(mdp, all_games, depth)
-    value_fit = az.value_predictability(mdp, LatentStore(latents), cfg.gamma, cfg.n_step)
-    action_fit = az.action_predictability(mdp, LatentStore(latents), seed=seed)
-    search = {name: az.search_statistics(games[name], cfg.gamma, cfg.c, cfg.simulations) for name in variants}
+    reward_error = diagnosis.reward_error_by_depth(mdp, all_games, depth)
+    value_fit = diagnosis.value_predictability(mdp, LatentStore(latents), cfg.gamma, cfg.n_step)
+    action_fit = diagnosis.action_predictability(mdp, LatentStore(latents), seed=seed)
+    search = {name: diagnosis.search_statistics(games[name], cfg.gamma, cfg.c, cfg.simulations) for name in variants}
     figures = [
-        _save(az.plot_self_play(runs, {f"random play, first {cfg.max_steps or 'all'} steps (store)":
+        _save(diagnosis.plot_self_play(runs, {f"random play, first {cfg.max_steps or 'all'} steps (store)":
                                        float(np.mean(random_in_store))}), out / "self_play_curve.png"),
-        _save(az.plot_search(games, cfg.gamma, cfg.c, cfg.simulations), out / "search_statistics.png"),
-        _save(az.plot_reward_error(reward_error, np.concatenate([g.depths for g in all_games])),
+        _save(diagnosis.plot_search(games, cfg.gamma, cfg.c, cfg.simulations), out / "search_statistics.png"),
+        _save(diagnosis.plot_reward_error(reward_error, np.concatenate([g.depths for g in all_games])),
               out / "reward_error_by_depth.png"),
-        _save(az.plot_visits(games[variants[-1]][0]), out / "visit_distributions.png"),
+        _save(diagnosis.plot_visits(games[variants[-1]][0]), out / "visit_distributions.png"),
     ]
-    scores = {f"AlphaZero {name}": score_summary([g.score for g in games[name]]) for name in variants}
-    scores.update({name: score_summary(returns) for name, returns in {**heads_alone, **baselines["returns"]}.items()})
+    returns = {**{f"AlphaZero {name}": [g.score for g in games[name]] for name in variants}, **ablations,
+               **baselines["returns"]}
+    scores = {name: score_summary(r) for name, r in returns.items()}
+    against_random = {name: score_difference(r, returns["random"]) for name, r in returns.items() if name != "random"}
     figures.append(_save(_score_figure(scores), out / "scores.png"))
     shown = games[variants[-1]][0]
     recording = record_frames(out / "evaluation_game.rrd", {"observation": shown.frames},
@@ -104,7 +115,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
                                 ("root_value", shown.root_values))})
     metrics = {
         **_run_header("boxing-wm-alphazero", profile, seed, time.time() - started, variants=list(variants)),
-        "score": scores[f"AlphaZero {variants[-1]}"], "scores": scores,
+        "score": scores[f"AlphaZero {variants[-1]}"], "scores": scores, "against_random": against_random,
         "evaluation": {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps, "notes": baselines["notes"]},
         "random_play_in_store": {"max_steps": cfg.max_steps, **score_summary(random_in_store)},
         "reference": ALPHAZERO_REFERENCE,
@@ -145,22 +156,24 @@ def _evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]
     return seeds
 
 
-def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int) -> list:
+def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False) -> list:
     """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
-    cached in ``evaluation.pkl`` for the run's number of games."""
+    cached in ``evaluation.pkl`` for the run's number of games. ``pretrained``: the heads
+    after imitation, before self-play (``evaluation-pretrained.pkl``)."""
     import pickle
 
     from wmthesis.agents import alphazero as az
 
-    path = work / "evaluation.pkl"
-    key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
+    path = work / ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl")
+    key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
     if path.is_file():
         with open(path, "rb") as f:
             cached = pickle.load(f)
         if cached["key"] == key:
             return cached["games"]
-    mind = az.AlphaZeroMind(vision, run.mdp(memory), az.Evaluator(run.heads), cfg)
+    heads = run.pretrained_heads() if pretrained else run.heads
+    mind = az.AlphaZeroMind(vision, run.mdp(memory), az.Evaluator(heads), cfg)
     env = az.boxing_env(cfg.noop_max)
     games = []
     try:
