@@ -318,6 +318,9 @@ def test_imitation_pretrains_the_heads_to_play_like_the_expert(tmp_path):
     config = tiny_config(**{**VARIANTS["imitation"], "expert_games": 3}, games=0, eval_max_steps=12)
     with pytest.raises(ValueError, match="expert"):
         train_alphazero(Corridor, vision, small_memory(), config, progress=False)
+    with pytest.raises(ValueError, match=">= 0"):
+        train_alphazero(Corridor, vision, small_memory(), dataclasses.replace(config, expert_games=-1), progress=False,
+                        expert=lambda agent_seed: ZigZag())
     run = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, progress=False,
                           expert=lambda agent_seed: ZigZag(turn=3))
     assert run.expert["games"] == 3 and run.expert["steps"] == 36 and run.expert["scores"] == [0.0] * 3

@@ -685,6 +685,8 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
     check_choice("value target", config.value_target, VALUE_TARGETS)
     if config.reward_model and rollouts is None:
         raise ValueError("reward_model=True needs the random rollouts (rollouts=LatentStore) to pretrain it")
+    if config.expert_games < 0 or config.expert_epochs < 0:
+        raise ValueError(f"need expert_games and expert_epochs >= 0, got {config.expert_games}, {config.expert_epochs}")
     if config.expert_games and expert is None:
         raise ValueError(f"expert_games={config.expert_games} needs an expert (expert=lambda seed: Mind) to imitate")
     mdp = LatentMDP(memory)
