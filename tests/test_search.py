@@ -93,8 +93,9 @@ def test_two_worker_processes_share_one_study(backend, tmp_path):
         assert (folder / "open_loop.png").stat().st_size > 1000
     assert ranked(study)[0]["state"] == "COMPLETE"
     search_figure(study, "planet-freeway", "error")
-    # the same command again: the study is finished, nothing runs
-    assert len(run_search("planet-freeway", trials=3, workers=2, storage=storage, profile="smoke").trials) == 3
+    # the same command again: the study is finished, nothing runs (the first run may have left a surplus trial)
+    before = len(study.trials)
+    assert len(run_search("planet-freeway", trials=3, workers=2, storage=storage, profile="smoke").trials) == before
 
 
 def _has_heartbeat(database: Path, trial_id: int) -> bool:
