@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -22,7 +23,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     Returns the metrics dict (also written to ``metrics.json``): the controller's score over
     10 full evaluation episodes with varied starts, the learning curves, the open-loop error.
     """
-    from wmthesis.agents.controller_training import VAEVision, train_controller
+    from wmthesis.agents.controller_training import train_controller
     from wmthesis.agents.world_models import open_loop, reconstruct
     from wmthesis.data import EpisodeStore
     from wmthesis.metrics import score_summary
@@ -30,10 +31,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
 
     profile = profile_name(profile)
     started = time.time()
-    work = data_dir(profile, "boxing-wm", f"seed{seed}")
-    out = data_dir("results", "boxing-wm", f"{profile}-seed{seed}")
-    store, vae, memory, vision_history, memory_history = _world_model(work, profile, seed, progress)
-    vision = VAEVision(vae)
+    wm = _world_model(profile, seed, progress)
+    work, out, store, vae, vision, memory = wm.work, wm.out, wm.store, wm.vae, wm.vision, wm.memory
     controller_cfg = for_profile(ControllerConfig, profile, seed=seed)
     run = train_controller("boxing", vision, memory, controller_cfg, out_dir=work / "controller", progress=progress)
 
@@ -54,7 +53,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
         "score": score_summary(returns),
         "random_play_in_store": score_summary(random_returns),
         "reference": BOXING_REFERENCE,
-        "controller_curve": run.curve, "vision_history": vision_history, "memory_history": memory_history,
+        "controller_curve": run.curve, "vision_history": wm.vision_history, "memory_history": wm.memory_history,
         **{f"open_loop_{k}": v.tolist() if isinstance(v, np.ndarray) else v for k, v in errors.items()},
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
@@ -101,11 +100,29 @@ def open_loop_errors(vae, memory, episode: dict, context: int, horizon: int, sta
             "still_pixel_error": np.mean(still, 0), "rollouts": len(pixel)}
 
 
-def _world_model(work: Path, profile: str, seed: int, progress: bool) -> tuple:
-    """Random rollouts -> VAE -> latents -> MDN-RNN in ``work``, each step cached: returns the
-    store's path, the VAE, the memory and the two training histories."""
+class BoxingWorldModel(NamedTuple):
+    """The Boxing world model of a profile and seed: its folders (``work``: artifacts,
+    ``out``: results), the random rollouts' store path, the VAE and its :class:`VAEVision`,
+    the MDN-RNN memory and the two training histories."""
+
+    work: Path
+    out: Path
+    store: Path
+    vae: object
+    vision: object
+    memory: object
+    vision_history: list
+    memory_history: list
+
+
+def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
+    """Random rollouts -> VAE -> latents -> MDN-RNN under ``data/<profile>/boxing-wm/seed<seed>/``,
+    each step cached."""
+    from wmthesis.agents.controller_training import VAEVision
     from wmthesis.agents.world_models import encode_store, train_memory, train_vision
     from wmthesis.data import collect
+
+    work = data_dir(profile, "boxing-wm", f"seed{seed}")
 
     collect_cfg = for_profile(CollectConfig, profile)
     store = collect("boxing", collect_cfg.episodes, work / "random.h5", workers=collect_cfg.workers, seed=seed,
@@ -114,7 +131,8 @@ def _world_model(work: Path, profile: str, seed: int, progress: bool) -> tuple:
     latents = encode_store(store, vae, work / "latents.h5", progress=progress)
     memory, memory_history = train_memory(latents, work, for_profile(MemoryConfig, profile), n_actions=18,
                                           seed=seed, progress=progress)
-    return store, vae, memory, vision_history, memory_history
+    return BoxingWorldModel(work, data_dir("results", "boxing-wm", f"{profile}-seed{seed}"), store, vae,
+                            VAEVision(vae), memory, vision_history, memory_history)
 
 
 # Dreams are cheap in real steps, so the dream controller keeps the thesis's population and episodes.
@@ -133,24 +151,22 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
     metrics) the learning curve, whose ``mean``/``best`` are dream returns and ``eval_return``
     real ones, and the real score of the final mean over 10 full bouts.
     """
-    from wmthesis.agents.controller_training import VAEVision, train_controller
+    from wmthesis.agents.controller_training import train_controller
     from wmthesis.metrics import score_summary
 
     if not temperature > 0:
         raise ValueError(f"the dream's temperature must be positive, got {temperature}")
     profile = profile_name(profile)
     started = time.time()
-    work = data_dir(profile, "boxing-wm", f"seed{seed}")
-    out = data_dir("results", "boxing-wm", f"{profile}-seed{seed}")
-    _, vae, memory, _, _ = _world_model(work, profile, seed, progress)
-    vision = VAEVision(vae)
+    wm = _world_model(profile, seed, progress)
+    vision, memory = wm.vision, wm.memory
     cfg = for_profile(ControllerConfig, profile, seed=seed, temperature=temperature, **DREAM_CHANGES)
-    run = train_controller("boxing", vision, memory, cfg, out_dir=work / f"controller-dream-t{temperature:g}",
+    run = train_controller("boxing", vision, memory, cfg, out_dir=wm.work / f"controller-dream-t{temperature:g}",
                            progress=progress)
     returns = _final_score(run, vision, memory, cfg, profile)
     metrics = {**_run_header("boxing-wm-dream", profile, seed, time.time() - started, temperature=temperature),
                "score": score_summary(returns), "controller_curve": run.curve}
-    with atomic_path(out / f"dream-t{temperature:g}.json") as tmp:
+    with atomic_path(wm.out / f"dream-t{temperature:g}.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
 
