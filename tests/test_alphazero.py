@@ -284,6 +284,20 @@ def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
                         **extra)
 
 
+def test_a_corrupt_checkpoint_is_named_in_a_clear_error(tmp_path):
+    config = tiny_config(games=2, test_every=0)
+    train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, progress=False)
+    checkpoint = tmp_path / "alphazero.pkl"
+    checkpoint.write_bytes(checkpoint.read_bytes()[:1000])  # truncated, e.g. by a copy that stopped
+    with pytest.raises(ValueError, match="alphazero.pkl is truncated or corrupt"):
+        load_run(tmp_path)
+    with pytest.raises(ValueError, match="truncated or corrupt"):
+        train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, progress=False)
+    checkpoint.write_bytes(b"")
+    with pytest.raises(ValueError, match="truncated or corrupt"):
+        load_run(checkpoint)
+
+
 # ----------------------------------------------------------------------------- imitation
 class ZigZag(Mind):
     """An expert whose action depends on the state: right in every cell but cell `turn`, where
@@ -461,3 +475,14 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     assert expert["games"] == 8 and expert["steps"] == 8 * 20 and 0 <= expert["agreement"] <= 1
     again = reproduce("boxing-wm-alphazero", "smoke", progress=False)  # cached: evaluates nothing again
     assert again["scores"] == metrics["scores"]
+
+
+def test_a_corrupt_cached_result_is_computed_again(tmp_path):
+    from wmthesis.experiments.results import _read_json
+
+    path = tmp_path / "baselines.json"
+    assert _read_json(path) is None
+    path.write_text('{"key": 1, "returns"')  # cut off mid-write by hand
+    assert _read_json(path) is None
+    path.write_text('{"key": 1}')
+    assert _read_json(path) == {"key": 1}

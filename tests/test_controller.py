@@ -188,3 +188,13 @@ def test_dream_stops_when_the_memory_predicts_done():
     returns, steps = dream_population(params, memory, torch.zeros(3, 4), max_steps=10,
                                       generator=torch.Generator().manual_seed(0))
     assert returns.shape == (2, 3) and np.allclose(returns, 1.5) and np.all(steps == 1)
+
+
+def test_a_corrupt_controller_checkpoint_is_named_in_a_clear_error(tmp_path):
+    path = tmp_path / "controller.pkl"
+    path.write_bytes(pickle.dumps({"format": "something else"})[:-3])
+    with pytest.raises(ValueError, match="controller.pkl is truncated or corrupt"):
+        load_run(path)
+    path.write_bytes(pickle.dumps([1, 2]))  # whole, but not a checkpoint
+    with pytest.raises(ValueError, match="is not a"):
+        load_run(path)

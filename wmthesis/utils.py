@@ -40,6 +40,19 @@ def atomic_path(path: str | os.PathLike):
             tmp.unlink()
 
 
+def read_pickle(path: str | os.PathLike):
+    """The object pickled at `path`; a truncated or corrupt file raises a ValueError that names
+    it (files written through :func:`atomic_path` are whole unless copied or edited by hand)."""
+    import pickle
+
+    with open(path, "rb") as f:
+        try:
+            return pickle.load(f)
+        except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError) as error:
+            raise ValueError(f"{path} is truncated or corrupt ({type(error).__name__}: {error}); "
+                             "delete it to start that step again") from error
+
+
 def check_choice(kind: str, value, valid) -> None:
     """Fail at once, listing the valid choices, when `value` is not one of them."""
     if value not in valid:

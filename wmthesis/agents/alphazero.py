@@ -60,7 +60,7 @@ from tqdm import tqdm
 
 from wmthesis.core import Callback, Mind, Proportional, loop
 from wmthesis.training import check_resumable
-from wmthesis.utils import atomic_path, check_choice, derive_seeds
+from wmthesis.utils import atomic_path, check_choice, derive_seeds, read_pickle
 
 VARIANTS = {
     "unchanged": {},  # thesis 4.3 as written
@@ -804,9 +804,8 @@ def load_run(path: str | os.PathLike) -> AlphaZeroRun:
 
     path = Path(path)
     path = path / CHECKPOINT_NAME if path.is_dir() else path
-    with open(path, "rb") as f:
-        saved = pickle.load(f)
-    if saved.get("format") != FORMAT or saved.get("version") != FORMAT_VERSION:
+    saved = read_pickle(path)
+    if not isinstance(saved, dict) or saved.get("format") != FORMAT or saved.get("version") != FORMAT_VERSION:
         raise ValueError(f"{path} is not a {FORMAT} checkpoint of version {FORMAT_VERSION}")
     # fields added to AlphaZeroConfig later take their defaults, which keep the older behaviour
     saved["config"] = {**dataclasses.asdict(AlphaZeroConfig()), **saved["config"]}

@@ -46,7 +46,7 @@ from wmthesis.models.controller import Controller, features, num_parameters, pop
 from wmthesis.models.memory import Mixture, sample_mixture
 from wmthesis.models.vae import frames_to_input
 from wmthesis.training import check_resumable
-from wmthesis.utils import atomic_path, check_choice, derive_seeds
+from wmthesis.utils import atomic_path, check_choice, derive_seeds, read_pickle
 
 FORMAT = "wmthesis-controller"
 FORMAT_VERSION = 1
@@ -510,9 +510,8 @@ def load_run(path: str | os.PathLike) -> ControllerRun:
     """A :class:`ControllerRun` from ``controller.pkl`` (or the folder holding it)."""
     path = Path(path)
     path = path / CHECKPOINT_NAME if path.is_dir() else path
-    with open(path, "rb") as f:
-        saved = pickle.load(f)
-    if saved.pop("format", None) != FORMAT or saved.pop("version", None) != FORMAT_VERSION:
+    saved = read_pickle(path)
+    if not isinstance(saved, dict) or saved.pop("format", None) != FORMAT or saved.pop("version", None) != FORMAT_VERSION:
         raise ValueError(f"{path} is not a {FORMAT} checkpoint of version {FORMAT_VERSION}")
     return ControllerRun(**saved)
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from wmthesis.config import CollectConfig, MemoryConfig, VisionConfig, for_profile, profile_name
 from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, _save
-from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds
+from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds, read_pickle
 
 ALPHAZERO_REFERENCE = {"random": 0.1, "human": 12.1,
                        "thesis World Models + AlphaZero": "no score: 'did not train to properly plan', abandoned"}
@@ -167,11 +167,12 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrai
     path = work / ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl")
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
-    if path.is_file():
-        with open(path, "rb") as f:
-            cached = pickle.load(f)
+    try:  # a missing or corrupt cache is played again
+        cached = read_pickle(path)
         if cached["key"] == key:
             return cached["games"]
+    except (OSError, ValueError):
+        pass
     heads = run.pretrained_heads() if pretrained else run.heads
     mind = az.AlphaZeroMind(vision, run.mdp(memory), az.Evaluator(heads), cfg)
     env = az.boxing_env(cfg.noop_max)

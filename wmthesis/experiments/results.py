@@ -36,7 +36,11 @@ def _save(fig, path: Path) -> Path:
 
 
 def _read_json(path: Path) -> dict | None:
-    return json.loads(path.read_text()) if path.is_file() else None
+    """A cached JSON file, or None when it is missing or corrupt (the step runs again)."""
+    try:
+        return json.loads(path.read_text()) if path.is_file() else None
+    except ValueError:
+        return None
 
 
 def _jsonable(value):
