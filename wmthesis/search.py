@@ -279,8 +279,9 @@ def work(name: str, cfg: SearchConfig, profile: str, storage: str, threads: int 
 
     Before each trial it counts finished plus running trials; when those already reach the
     target it does not start one but waits (a heartbeat) and fails stale trials, so a trial
-    lost with a dead worker is replaced and the target is not overshot by live workers. Two workers may still both start a trial for the
-    last place: the later-numbered one finds itself surplus and fails at once (:class:`SurplusTrial`)."""
+    lost with a dead worker is replaced and the target is not overshot by live workers. Two
+    workers may still both start a trial for the last place: the later-numbered one finds
+    itself surplus and fails at once (:class:`SurplusTrial`)."""
     if threads:
         import torch
 
