@@ -511,8 +511,8 @@ def load_run(path: str | os.PathLike) -> ControllerRun:
     path = Path(path)
     path = path / CHECKPOINT_NAME if path.is_dir() else path
     saved = read_pickle(path)
-    if not isinstance(saved, dict) or (saved.pop("format", None), saved.pop("version", None)) != (FORMAT,
-                                                                                                  FORMAT_VERSION):
+    stamp = (saved.pop("format", None), saved.pop("version", None)) if isinstance(saved, dict) else None
+    if stamp != (FORMAT, FORMAT_VERSION):
         raise ValueError(f"{path} is not a {FORMAT} checkpoint of version {FORMAT_VERSION}")
     return ControllerRun(**saved)
 
