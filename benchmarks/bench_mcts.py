@@ -45,7 +45,7 @@ from torch import nn
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.planning.mcts import MCTS  # noqa: E402
+from wmthesis.alphazero.mcts import MCTS  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "mcts.json"

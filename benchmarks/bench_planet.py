@@ -9,7 +9,7 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
   the floor any CEM at these sizes must pay.
 - ``cem_plan``: one plan at the thesis sizes (H 12, J 1000, K 100, I 10); ``ratio`` is its time
   over the bare forward pass (target <= 1.2).
-- ``agent step``: :class:`~wmthesis.agents.planet.PlanetMind` ``plan``: encode one frame,
+- ``agent step``: :class:`~wmthesis.planet.train.PlanetMind` ``plan``: encode one frame,
   update the belief, then the CEM.
 - The same two at the ``quick`` profile's planner sizes.
 - ``update``: one training step (loss, backward, clipping, Adam) on 50 chunks of 50 steps of
@@ -36,10 +36,10 @@ import torch.nn.functional as F
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.agents.planet import (PlanetMind, batch_loss, build_model, make_optimizer,  # noqa: E402
-                                    optimizer_step)
+from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer
+from wmthesis.training import gradient_step
 from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
-from wmthesis.planning.cem import cem_plan  # noqa: E402
+from wmthesis.planet.cem import cem_plan  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "planet.json"
@@ -108,7 +108,8 @@ def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
     batch = dict(observations=observations, actions=actions, rewards=rewards)
 
     def update():
-        optimizer_step(model, optimizer, batch_loss(model, batch, cfg, g)["loss"], cfg)
+        gradient_step("PlaNet RSSM", 1, batch_loss(model, batch, cfg, g), optimizer, model.parameters(),
+                      clip_norm=cfg.grad_clip)
 
     seconds = median_seconds({"update": update}, updates)["update"]
     sizes = f"batch {shape[0]}x{shape[1]}, overshooting {cfg.overshooting_distance}"

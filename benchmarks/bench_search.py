@@ -38,7 +38,7 @@ def main(argv=None) -> None:
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    from wmthesis.search import run_search, trial_rows
+    from wmthesis.planet.tuning import run_search, trial_rows
 
     rows = []
     for workers in args.workers:

@@ -1,26 +1,31 @@
 """World Models + AlphaZero (thesis 4.3, 5.4.2): the latent MDP, the heads, self-play, resume.
 
 Self-play runs on a tiny corridor whose observations are their own latents (vision = identity)
-and a small untrained deterministic memory; the real search (wmthesis.planning.mcts) plans.
+and a small untrained deterministic memory; the real search (wmthesis.alphazero.mcts) plans.
 """
 import dataclasses
 import json
+import pickle
 from pathlib import Path
 
 import gymnasium as gym
+import h5py
 import numpy as np
 import pytest
 import torch
 
-from wmthesis.agents.alphazero import (VARIANTS, AlphaZeroHeads, AlphaZeroMind, Evaluator, LatentMDP, NoopStart,
-                                       RewardModel, RewardView, State, alphazero_loss, game_targets, load_run, play,
-                                       reward_fit, reward_rows, train_alphazero, train_reward_model, value_targets)
-from wmthesis.agents.alphazero_diagnosis import action_predictability, reward_error_by_depth, search_statistics
-from wmthesis.agents.imitation import PolicyHeadMind, agreement, expert_games
+from wmthesis.alphazero.selfplay import AlphaZeroMind, VARIANTS, load_run, play, train_alphazero
+from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator, alphazero_loss, game_targets, value_targets
+from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, RewardView, State, reward_fit, reward_rows,
+                                           train_reward_model)
+from wmthesis.envs.atari import NoopStart
+from wmthesis.alphazero.diagnosis import action_predictability, reward_error_by_depth, search_statistics
+from wmthesis.alphazero.imitation import PolicyHeadMind, agreement, expert_games
 from wmthesis.config import AlphaZeroConfig, for_profile
 from wmthesis.core import Mind, loop
-from wmthesis.models.memory import Memory
+from wmthesis.world_models.memory import Memory
 from wmthesis.training import ConfigMismatch
+from wmthesis.utils import read_pickle
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 L, A, H = 5, 2, 8
@@ -284,6 +289,69 @@ def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
                         **extra)
 
 
+def test_the_replay_lives_in_hdf5_and_the_checkpoint_names_its_games(tmp_path):
+    config = tiny_config(games=5, replay_games=3)
+    run = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, seed=0, progress=False)
+    saved = read_pickle(tmp_path / "alphazero.pkl")
+    assert saved["replay"] == {"serials": [2, 3, 4], "next_serial": 5}  # names, never the games
+    with h5py.File(tmp_path / "replay.h5", "r") as f:
+        assert sorted(f["games"], key=int) == ["2", "3", "4"]  # evicted games are gone from the file
+    for a, b in zip(run.replay, load_run(tmp_path).replay):
+        assert a.index == b.index and a.terminated == b.terminated and a.seconds == b.seconds
+        for key in ("features", "policies", "actions", "rewards", "q", "last_features"):
+            np.testing.assert_array_equal(getattr(a, key), getattr(b, key))
+
+
+def test_games_played_after_the_last_checkpoint_are_dropped_on_resume(tmp_path):
+    config = tiny_config(games=4, replay_games=10)
+    train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, progress=False)
+    replay = load_run(tmp_path).replay
+    replay.attach(tmp_path / "replay.h5")
+    replay.append(replay.games[0])  # a game written before a crash, never named by a checkpoint
+    replay.close()
+    with h5py.File(tmp_path / "replay.h5", "r") as f:
+        assert len(f["games"]) == 5
+    assert [g.index for g in load_run(tmp_path).replay] == [0, 1, 2, 3]
+    resumed = train_alphazero(Corridor, vision, small_memory(), dataclasses.replace(config, games=6),
+                              out_dir=tmp_path, progress=False)
+    assert [g.index for g in resumed.replay] == [0, 1, 2, 3, 4, 5]
+
+
+def test_a_checkpoint_of_the_earlier_layout_is_read_and_moves_its_replay_to_hdf5(tmp_path, monkeypatch):
+    """Version 1 pickled the replay's games (class ``wmthesis.agents.alphazero.Game``) inside."""
+    import sys
+    import types
+
+    from wmthesis.alphazero import replay as replay_module
+
+    config = tiny_config(games=2, test_every=0)
+    run = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, progress=False)
+    saved = read_pickle(tmp_path / "alphazero.pkl")
+    saved.update(version=1, replay=list(run.replay))
+    old = types.ModuleType("wmthesis.agents.alphazero")
+    old.Game = replay_module.Game
+    monkeypatch.setitem(sys.modules, "wmthesis.agents.alphazero", old)
+    monkeypatch.setattr(replay_module.Game, "__module__", "wmthesis.agents.alphazero")
+    (tmp_path / "alphazero.pkl").write_bytes(pickle.dumps(saved))
+    (tmp_path / "replay.h5").unlink()
+    monkeypatch.undo()
+    assert b"wmthesis.agents.alphazero" in (tmp_path / "alphazero.pkl").read_bytes()
+    assert [g.index for g in load_run(tmp_path).replay] == [0, 1]
+    resumed = train_alphazero(Corridor, vision, small_memory(), dataclasses.replace(config, games=4),
+                              out_dir=tmp_path, progress=False)
+    assert [g.index for g in resumed.replay] == [0, 1, 2, 3]
+    assert read_pickle(tmp_path / "alphazero.pkl")["version"] == 2
+    assert [g.index for g in load_run(tmp_path).replay] == [0, 1, 2, 3]
+
+
+def test_a_missing_replay_file_is_named_in_a_clear_error(tmp_path):
+    train_alphazero(Corridor, vision, small_memory(), tiny_config(games=2, test_every=0), out_dir=tmp_path,
+                    progress=False)
+    (tmp_path / "replay.h5").unlink()
+    with pytest.raises(ValueError, match="replay.h5: cannot read the self-play replay.*delete it and the checkpoint"):
+        load_run(tmp_path)
+
+
 def test_a_corrupt_checkpoint_is_named_in_a_clear_error(tmp_path):
     config = tiny_config(games=2, test_every=0)
     train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, progress=False)
@@ -429,7 +497,8 @@ def test_action_predictability_finds_an_advantage_only_where_there_is_one(action
 
 
 def test_evaluation_games_start_with_different_noop_counts():
-    from wmthesis.agents.alphazero import game_seeds, noop_count
+    from wmthesis.alphazero.replay import game_seeds
+    from wmthesis.envs.atari import noop_count
     from wmthesis.experiments.alphazero import _evaluation_seeds
 
     seeds = _evaluation_seeds(0, 10, noop_max=30)

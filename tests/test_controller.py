@@ -6,14 +6,16 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.agents.controller_training import (
-    ControllerMind, dream_population, episode_seeds, evaluate_population, load_run, make_game, new_strategy,
-    plot_learning_curve, train_controller)
+from wmthesis.world_models.controller import ControllerMind
+from wmthesis.world_models.evolution import (dream_population, episode_seeds, evaluate_population, load_run,
+                                             new_strategy, train_controller)
+from wmthesis.envs.vector import make_game
+from wmthesis.world_models.figures import plot_learning_curve
 from wmthesis.config import ControllerConfig, for_profile
 from wmthesis.core import loop
 from wmthesis.envs import make_env
-from wmthesis.models.controller import Controller, population_scores, unflatten
-from wmthesis.models.memory import Memory
+from wmthesis.world_models.controller import Controller, population_scores, unflatten
+from wmthesis.world_models.memory import Memory
 from wmthesis.training import ConfigMismatch
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from wmthesis.core import Callback, loop
-from wmthesis.planning.mcts import MCTS
+from wmthesis.alphazero.mcts import MCTS
 
 LEFT, RIGHT = 0, 1
 

@@ -18,11 +18,11 @@ import pytest
 matplotlib.use("Agg")
 
 from wmthesis.__main__ import main  # noqa: E402
-from wmthesis.agents import planet as planet_module  # noqa: E402
+from wmthesis.planet import tuning as tuning_module  # noqa: E402
 from wmthesis.config import SearchConfig, for_profile  # noqa: E402
-from wmthesis.search import (TrialSeededSampler, default_storage, load_study, make_storage,  # noqa: E402
-                             open_study, planned_settings, ranked, run_search, search_figure,
-                             storage_fingerprint, study_dir, study_name, trial_dir, trial_rows)
+from wmthesis.planet.tuning import (TrialSeededSampler, default_storage, load_study, make_storage, open_study,
+                                    planned_settings, ranked, run_search, search_figure, storage_fingerprint,
+                                    study_dir, study_name, trial_dir, trial_rows)
 from wmthesis.utils import data_dir  # noqa: E402
 
 POSTGRES = os.environ.get("WMTHESIS_TEST_POSTGRES_URL")
@@ -142,7 +142,7 @@ def test_a_diverging_trial_is_pruned_and_counts(tmp_path, monkeypatch):
     def diverge(*args, **kwargs):
         raise FloatingPointError("non-finite loss at update 3")
 
-    monkeypatch.setattr(planet_module, "train_planet", diverge)
+    monkeypatch.setattr(tuning_module, "train_planet", diverge)
     study = run_search("planet-boxing", trials=1, storage=f"sqlite:///{tmp_path / 's.db'}", profile="smoke",
                        objective="score")
     (row,) = trial_rows(study)
@@ -176,7 +176,7 @@ def test_trials_take_the_search_budget_and_episode_cap(tmp_path, monkeypatch):
 def test_a_trial_racing_for_the_last_place_is_surplus(tmp_path):
     from optuna.trial import TrialState
 
-    from wmthesis.search import _surplus
+    from wmthesis.planet.tuning import _surplus
 
     study = optuna.create_study(storage=f"sqlite:///{tmp_path / 's.db'}", directions=["maximize"])
     cfg = dataclasses.replace(SMOKE, trials=2)

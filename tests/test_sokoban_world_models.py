@@ -9,16 +9,18 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.agents.controller_training import ListGame, make_game, random_play
-from wmthesis.agents.world_models import (GRID_NOISE_STD, GridVision, LatentStore, decode_grid, encode_grid_store,
-                                          grid_accuracy, head_predictions, open_loop, open_loop_grid, rollout_latents)
+from wmthesis.envs.vector import ListGame, make_game
+from wmthesis.world_models.evolution import random_play
+from wmthesis.world_models.grid import GRID_NOISE_STD, GridVision, decode_grid, encode_grid_store, grid_accuracy
+from wmthesis.world_models.train import LatentStore
+from wmthesis.world_models.prediction import head_predictions, open_loop, open_loop_grid, rollout_latents
 from wmthesis.data import EpisodeStore, collect
 from wmthesis.envs import make_env
 from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, TARGET, grid_frames, read_grid, solve
 from wmthesis.experiments import EXPERIMENTS, sokoban_wm_configs
-from wmthesis.experiments.sokoban_world_models import _head_numbers, _solved
-from wmthesis.models.memory import Memory
-from wmthesis.models.vae import VAE
+from wmthesis.world_models.sokoban import head_numbers, levels_solved
+from wmthesis.world_models.memory import Memory
+from wmthesis.world_models.vision import VAE
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
@@ -172,17 +174,17 @@ def test_solved_counts_the_levels_whose_return_holds_the_bonus():
     for action in actions:
         _, reward, done, _, _ = env.step(action)
         total += reward
-    assert done and _solved([total], [len(actions)]) == 1
-    assert _solved([-12.0, -10.0 + 3.0], [120, 100]) == 0  # step costs, three boxes on targets
-    assert _solved([total, -12.0], [len(actions), 120]) == 1
+    assert done and levels_solved([total], [len(actions)]) == 1
+    assert levels_solved([-12.0, -10.0 + 3.0], [120, 100]) == 0  # step costs, three boxes on targets
+    assert levels_solved([total, -12.0], [len(actions), 120]) == 1
 
 
 def test_head_numbers_against_a_constant():
     true = np.array([-0.1, -0.1, 0.9, -0.1, -1.1])
-    perfect = _head_numbers(true, true, constant=-0.1, events=np.abs(true + 0.1) > 1e-3)
+    perfect = head_numbers(true, true, constant=-0.1, events=np.abs(true + 0.1) > 1e-3)
     assert perfect["mse"] == 0 and perfect["skill"] == 1 and perfect["events"] == 2
     assert np.isclose(perfect["event_constant_mse"], 1.0)
-    constant = _head_numbers(np.full(5, true.mean()), true, constant=true.mean())
+    constant = head_numbers(np.full(5, true.mean()), true, constant=true.mean())
     assert constant["skill"] == 0 and np.isnan(constant["correlation"])
     memory = Memory(4, 8, hidden_size=8, auxiliary=True)
     heads = head_predictions(memory, np.zeros((6, 4)), np.zeros(6, np.int64))

@@ -85,7 +85,7 @@ def test_nan_loss_names_the_step_and_keeps_the_last_checkpoint(tmp_path):
     train(model, optimiser, loss_fn, sample, steps=10, checkpoint=path, config=Cfg(), eval_every=10, progress=False)
     saved = torch.load(path, weights_only=False)["model"]["weight"].clone()
     model, optimiser, sample, loss_fn = problem(nan_at=8)  # 8th loss call: step 8 of the resumed run's steps
-    with pytest.raises(NonFiniteLoss, match=r"step 18.*kept at"):
+    with pytest.raises(NonFiniteLoss, match=r"update 18 .*kept at"):
         train(model, optimiser, loss_fn, sample, steps=30, checkpoint=path, config=Cfg(), eval_every=10,
               progress=False)
     assert torch.equal(torch.load(path, weights_only=False)["model"]["weight"], saved)

@@ -4,8 +4,8 @@ import math
 import torch
 import torch.distributions as D
 
-from wmthesis.models.memory import Memory, Mixture, memory_loss, mixture_nll, sample_mixture
-from wmthesis.models.vae import VAE, elbo_loss, frames_to_input, input_to_frames, kl_to_standard_normal
+from wmthesis.world_models.memory import Memory, Mixture, memory_loss, mixture_nll, sample_mixture
+from wmthesis.world_models.vision import VAE, elbo_loss, frames_to_input, input_to_frames, kl_to_standard_normal
 
 
 def test_kl_matches_torch_distributions():

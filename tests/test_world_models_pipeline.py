@@ -5,11 +5,12 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.agents.world_models import (LatentStore, encode_store, open_loop, reconstruct, split_episodes,
-                                          train_memory, train_vision)
+from wmthesis.world_models.train import (LatentStore, encode_store, reconstruct, split_episodes, train_memory,
+                                         train_vision)
+from wmthesis.world_models.prediction import open_loop
 from wmthesis.config import MemoryConfig, VisionConfig, for_profile
 from wmthesis.data import EpisodeStore, collect
-from wmthesis.models.vae import VAE
+from wmthesis.world_models.vision import VAE
 from wmthesis.training import ConfigMismatch
 
 

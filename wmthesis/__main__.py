@@ -18,9 +18,22 @@ from pathlib import Path
 
 from wmthesis.config import PROFILES, CollectConfig, for_profile
 from wmthesis.envs import ATARI_GAMES, ENV_NAMES
-from wmthesis.utils import data_dir
+from wmthesis.utils import FolderHeld, data_dir
 
 
+def at_least(minimum: int):
+    """An argparse type: an integer >= ``minimum``, refused with the valid range otherwise."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer (valid: {minimum} or more)") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} is out of range (valid: {minimum} or more)")
+        return value
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
 
 
 def default_store_path(env: str, preprocessing: str | None) -> Path:
@@ -31,11 +44,14 @@ def cmd_collect(args) -> int:
     from wmthesis.data import collect
 
     cfg = for_profile(CollectConfig, args.profile)
-    episodes = args.episodes or cfg.episodes
+    episodes = cfg.episodes if args.episodes is None else args.episodes
+    if episodes == 0:
+        print("--episodes 0: nothing to collect")
+        return 0
     max_steps = args.max_steps if args.max_steps is not None else cfg.max_steps
     preprocessing = args.preprocessing or ("world_models" if args.env in ATARI_GAMES else None)
     out = Path(args.out) if args.out else default_store_path(args.env, preprocessing)
-    path = collect(args.env, episodes, out, workers=args.workers or cfg.workers, seed=args.seed,
+    path = collect(args.env, episodes, out, workers=cfg.workers if args.workers is None else args.workers, seed=args.seed,
                    preprocessing=preprocessing, max_steps=max_steps)
     print(f"{path}: {episodes} episodes")
     return 0
@@ -90,7 +106,7 @@ def cmd_search(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from wmthesis.search import GAMES, ranked, run_search, trial_rows
+    from wmthesis.planet.tuning import GAMES, ranked, run_search, trial_rows
 
     study = run_search(args.name, trials=args.trials, workers=args.workers, storage=args.storage,
                        profile=args.profile, objective=args.objective, seed=args.seed)
@@ -113,18 +129,18 @@ def parser() -> argparse.ArgumentParser:
 
     collect = commands.add_parser("collect", help="random rollouts into an HDF5 store")
     collect.add_argument("env", choices=ENV_NAMES)
-    collect.add_argument("--episodes", type=int, help="episodes wanted in the store (default: profile's)")
-    collect.add_argument("--workers", type=int)
+    collect.add_argument("--episodes", type=at_least(0), help="episodes wanted in the store (default: profile's)")
+    collect.add_argument("--workers", type=at_least(1))
     collect.add_argument("--out", help="store path (default: data/ENV-PREPROCESSING.h5)")
-    collect.add_argument("--seed", type=int, default=0)
-    collect.add_argument("--max-steps", type=int, help="cut episodes after this many steps")
+    collect.add_argument("--seed", type=at_least(0), default=0)
+    collect.add_argument("--max-steps", type=at_least(1), help="cut episodes after this many steps")
     collect.add_argument("--preprocessing", choices=("none", "world_models", "planet"))
     collect.add_argument("--profile", choices=PROFILES)
     collect.set_defaults(run=cmd_collect)
 
     view = commands.add_parser("view", help="summarise a store, write a frame strip and a rerun recording")
     view.add_argument("path")
-    view.add_argument("--episode", type=int, default=0)
+    view.add_argument("--episode", type=at_least(0), default=0)
     view.add_argument("--out", help="folder for the PNG and .rrd (default: next to the store)")
     view.set_defaults(run=cmd_view)
 
@@ -133,18 +149,18 @@ def parser() -> argparse.ArgumentParser:
     reproduce = commands.add_parser("reproduce", help="run a thesis experiment end to end (resumable)")
     reproduce.add_argument("experiment", choices=EXPERIMENTS)
     reproduce.add_argument("--profile", choices=PROFILES)
-    reproduce.add_argument("--seed", type=int, default=0)
+    reproduce.add_argument("--seed", type=at_least(0), default=0)
     reproduce.add_argument("--variant", help="a variant of the experiment (PlaNet's: see its --help)")
     reproduce.set_defaults(run=cmd_reproduce)
 
     search = commands.add_parser("search", help="random search over KL scale x free nats (optuna)")
     search.add_argument("name", choices=("planet-boxing", "planet-freeway"))
-    search.add_argument("--trials", type=int, help="finished trials wanted in the study (default: profile's)")
-    search.add_argument("--workers", type=int, help="worker processes on this machine")
+    search.add_argument("--trials", type=at_least(1), help="finished trials wanted in the study (default: profile's)")
+    search.add_argument("--workers", type=at_least(1), help="worker processes on this machine")
     search.add_argument("--storage", help="optuna storage URL (default: sqlite file under data/search/)")
     search.add_argument("--profile", choices=PROFILES)
     search.add_argument("--objective", choices=("score", "error", "both"))
-    search.add_argument("--seed", type=int, help="study seed (the sampler's and every trial's)")
+    search.add_argument("--seed", type=at_least(0), help="study seed (the sampler's and every trial's)")
     search.set_defaults(run=cmd_search)
     return top
 
@@ -153,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         return args.run(args)
-    except (ValueError, TypeError, OSError) as error:  # bad input: a clear message, no traceback
+    except (ValueError, TypeError, OSError, FolderHeld) as error:  # bad input: a clear message, no traceback
         print(f"error: {error}", file=sys.stderr)
         return 2
 

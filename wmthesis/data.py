@@ -127,6 +127,9 @@ class EpisodeStore:
             return h5py.File(self.path, mode, libver=LIBVER, rdcc_nbytes=self._cache_bytes,
                              rdcc_nslots=100_003)
         except OSError as error:
+            if "unable to lock file" in str(error):
+                raise StoreError(f"{self.path} is open for writing in another process (HDF5's file lock: {error}); "
+                                 "wait for that run to end, or use another file") from error
             raise StoreError(f"{self.path}: cannot open as an HDF5 episode store ({error})") from error
 
     def _check_format(self) -> None:

@@ -47,3 +47,21 @@ def score_difference(returns, baseline) -> dict:
         raise ValueError(f"need at least two returns of each, got {a.size} and {b.size}")
     return {"difference": float(a.mean() - b.mean()),
             "standard_error": float(np.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size))}
+
+
+def correlation(x, y) -> float:
+    """Pearson correlation of two (N,) arrays; nan when either is constant or N < 2."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    return float(np.corrcoef(x, y)[0, 1]) if len(x) > 1 and x.std() > 0 and y.std() > 0 else float("nan")
+
+
+def auc(labels: np.ndarray, scores: np.ndarray) -> float:
+    """Area under the ROC curve (ties count half); nan without both classes."""
+    labels = np.asarray(labels, bool)
+    n1, n0 = int(labels.sum()), int((~labels).sum())
+    if n1 == 0 or n0 == 0:
+        return float("nan")
+    _, inverse, counts = np.unique(scores, return_inverse=True, return_counts=True)
+    rank_of = np.cumsum(counts) - (counts - 1) / 2  # the mean rank of each distinct score
+    ranks = rank_of[inverse]
+    return float((ranks[labels].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))

@@ -26,7 +26,40 @@ class ConfigMismatch(ValueError):
 
 
 class NonFiniteLoss(FloatingPointError):
-    """A loss became NaN or infinite; the message names the step."""
+    """A loss term or the gradient norm became NaN or infinite; the message names the model,
+    the update and the term, and where the last good checkpoint is."""
+
+
+def gradient_step(name: str, update: int, terms: dict, optimiser: torch.optim.Optimizer, parameters, *,
+                  clip_norm: float | None = None, kept: str = "no checkpoint is written by this loop") -> float:
+    """The one guarded update of every gradient loop in the package (vision, memory, RSSM,
+    AlphaZero heads, reward model, diagnosis probes).
+
+    ``terms``: scalar loss tensors, ``terms["loss"]`` the one to minimise. Checks that every
+    term is finite, backpropagates, takes the gradient norm of ``parameters`` (clipping it at
+    ``clip_norm`` if given), checks that it is finite, then steps. A non-finite term or norm
+    raises :class:`NonFiniteLoss` before any weight changes, naming ``name`` (the model),
+    ``update`` (1-based) and the term, and saying ``kept`` (where the last good checkpoint
+    is). Returns the gradient norm (before clipping).
+    """
+    bad = {k: float(v.detach()) for k, v in terms.items() if not torch.isfinite(v).all()}
+    if bad:
+        raise NonFiniteLoss(f"{name}: non-finite loss term {', '.join(f'{k} = {v}' for k, v in bad.items())} at "
+                            f"update {update} (terms: { {k: round(float(v.detach()), 4) for k, v in terms.items()} }); "
+                            f"stopped before that update; {kept}")
+    optimiser.zero_grad(set_to_none=True)
+    terms["loss"].backward()
+    parameters = [p for p in parameters if p.grad is not None]
+    if clip_norm is None:
+        norm = torch.nn.utils.get_total_norm([p.grad for p in parameters])
+    else:
+        norm = torch.nn.utils.clip_grad_norm_(parameters, clip_norm)
+    if not torch.isfinite(norm):
+        optimiser.zero_grad(set_to_none=True)
+        raise NonFiniteLoss(f"{name}: non-finite gradient norm ({float(norm)}) at update {update}; stopped "
+                            f"before that update; {kept}")
+    optimiser.step()
+    return float(norm)
 
 
 def config_dict(config) -> dict:
@@ -83,12 +116,8 @@ def train(model: torch.nn.Module, optimiser: torch.optim.Optimizer, loss_fn: Cal
     while state["step"] < steps and not state["stopped"]:
         model.train()
         terms = loss_fn(sample("train", rng))
-        _check_finite(terms, state["step"] + 1, checkpoint)
-        optimiser.zero_grad(set_to_none=True)
-        terms["loss"].backward()
-        if clip_norm is not None:
-            torch.nn.utils.clip_grad_norm_(model.parameters(), clip_norm)
-        optimiser.step()
+        kept = f"the last good checkpoint is kept at {checkpoint}" if checkpoint.exists() else "no checkpoint yet"
+        gradient_step(desc, state["step"] + 1, terms, optimiser, model.parameters(), clip_norm=clip_norm, kept=kept)
         state["step"] += 1
         bar.update(1)
         if state["step"] % eval_every == 0 or state["step"] == steps:
@@ -105,13 +134,6 @@ def train(model: torch.nn.Module, optimiser: torch.optim.Optimizer, loss_fn: Cal
 def _seeded_torch_state(seed: int) -> torch.Tensor:
     generator = torch.Generator().manual_seed(seed)
     return generator.get_state()
-
-
-def _check_finite(terms: dict, step: int, checkpoint: Path) -> None:
-    bad = {k: float(v.detach()) for k, v in terms.items() if not torch.isfinite(v).all()}
-    if bad:
-        kept = f"the last good checkpoint is kept at {checkpoint}" if checkpoint.exists() else "no checkpoint yet"
-        raise NonFiniteLoss(f"non-finite loss at step {step}: {bad}; {kept}")
 
 
 @torch.no_grad()

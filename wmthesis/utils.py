@@ -1,9 +1,18 @@
-"""Small helpers shared by every module: device choice, seeding, atomic file writes."""
+"""Small helpers shared by every module: device choice, seeding, atomic file writes, timing,
+weight fingerprints."""
 from __future__ import annotations
 
+import atexit
+import functools
+import hashlib
+import json
 import os
+import pickle
 import random
+import sys
+import time
 from contextlib import contextmanager
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -40,14 +49,26 @@ def atomic_path(path: str | os.PathLike):
             tmp.unlink()
 
 
+# Classes that checkpoints pickled under the package's earlier layout (one folder per kind:
+# models/, agents/, planning/), and where they live now; read_pickle finds them there.
+MOVED_CLASSES = {
+    ("wmthesis.agents.alphazero", "Game"): "wmthesis.alphazero.replay",
+    ("wmthesis.agents.controller_training", "SeededNormal"): "wmthesis.world_models.evolution",
+}
+
+
+class _Unpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str):
+        return super().find_class(MOVED_CLASSES.get((module, name), module), name)
+
+
 def read_pickle(path: str | os.PathLike):
     """The object pickled at `path`; a truncated or corrupt file raises a ValueError that names
-    it (files written through :func:`atomic_path` are whole unless copied or edited by hand)."""
-    import pickle
-
+    it (files written through :func:`atomic_path` are whole unless copied or edited by hand).
+    Classes pickled under the earlier layout are found where they live now (:data:`MOVED_CLASSES`)."""
     with open(path, "rb") as f:
         try:
-            return pickle.load(f)
+            return _Unpickler(f).load()
         except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError) as error:
             raise ValueError(f"{path} is truncated or corrupt ({type(error).__name__}: {error}); "
                              "delete it to start that step again") from error
@@ -77,3 +98,115 @@ def derive_seeds(*keys: int, n: int = 1) -> np.ndarray:
     """``n`` well-mixed uint32 seeds derived from integer ``keys`` (e.g. a base seed and an
     episode index) with NumPy's SeedSequence: the one way every module derives seeds."""
     return np.random.SeedSequence(list(keys)).generate_state(n)
+
+
+@contextmanager
+def timed(timings: dict | None, key: str):
+    start = time.perf_counter()
+    yield
+    if timings is not None:
+        timings[key] += time.perf_counter() - start
+
+
+def fingerprint(model) -> str | None:
+    """A hash of a module's weights (None for anything else, e.g. a plain function)."""
+    if not isinstance(model, torch.nn.Module):
+        return None
+    digest = hashlib.sha1()
+    for name, tensor in model.state_dict().items():
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return digest.hexdigest()[:16]
+
+
+# ----------------------------------------------------------------------------- held folders
+LOCK_NAME = ".wmthesis-lock"
+_held: dict[Path, int] = {}  # folders this process holds -> how many holders inside it
+
+
+class FolderHeld(RuntimeError):
+    """Another live process holds a run's data folder."""
+
+
+def hold(folder: str | os.PathLike) -> Path:
+    """Hold ``folder`` for this process (until :func:`release` or exit): a lock file in it names
+    the process id, the command line and the start time. A folder held by another live process
+    raises :class:`FolderHeld` naming the holder; a lock left by a dead process is taken over,
+    with a message. Holding again from the same process only counts. Returns the folder."""
+    folder = Path(folder).resolve()
+    if folder in _held:
+        _held[folder] += 1
+        return folder
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = folder / LOCK_NAME
+    mine = {"pid": os.getpid(), "command": " ".join(sys.argv) or sys.executable,
+            "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    while True:
+        try:
+            with open(lock, "x") as f:
+                json.dump(mine, f)
+            break
+        except FileExistsError:
+            holder = _read_lock(lock)
+            if holder is not None and _alive(holder.get("pid")):
+                raise FolderHeld(f"{folder} is held by another run: process {holder.get('pid')} "
+                                 f"({holder.get('command')!r}, since {holder.get('started')}); wait for it to end, "
+                                 f"or use another seed or data folder") from None
+            print(f"{folder}: taking over the lock of a run that is gone ({holder}); its finished steps resume",
+                  file=sys.stderr)
+            lock.unlink(missing_ok=True)
+    _held[folder] = 1
+    return folder
+
+
+def release(folder: str | os.PathLike) -> None:
+    """Let go of one hold of ``folder``; the lock file goes with the last."""
+    folder = Path(folder).resolve()
+    if folder not in _held:
+        return
+    _held[folder] -= 1
+    if _held[folder] == 0:
+        del _held[folder]
+        (folder / LOCK_NAME).unlink(missing_ok=True)
+
+
+def releasing_holds(fn):
+    """Decorator: folders :func:`hold` took during the call are let go when it returns or fails."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        before = dict(_held)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            for folder, count in list(_held.items()):
+                for _ in range(count - before.get(folder, 0)):
+                    release(folder)
+    return wrapper
+
+
+@atexit.register
+def _release_all() -> None:
+    for folder in list(_held):
+        _held[folder] = 1
+        release(folder)
+
+
+def _read_lock(lock: Path) -> dict | None:
+    try:
+        return json.loads(lock.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _alive(pid) -> bool:
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    if pid == os.getpid():
+        return False  # our own lock from before a fork/exec is stale for this holder count
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

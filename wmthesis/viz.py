@@ -173,3 +173,11 @@ def markdown_table(rows: Sequence[Sequence], headers: Sequence[str]) -> str:
     lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
     lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
     return "\n".join(lines)
+
+
+def save_figure(fig, path: str | Path, dpi: int = 80) -> Path:
+    """Write ``fig`` to ``path`` (at the modest DPI the committed notebooks use) and close it."""
+    path = Path(path)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return path

@@ -16,6 +16,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
+from wmthesis.envs.actions import EpisodeGuard
 from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize
 from wmthesis.utils import check_choice
 
@@ -67,9 +68,39 @@ def make_atari(game: str, preprocessing: str = "none", action_repeat: int = 4,
         env = FramePreprocessing(env, preprocessing, CROPS[game])
     if max_steps is not None:
         env = gym.wrappers.TimeLimit(env, max_episode_steps=max_steps)
-    return env
+    return EpisodeGuard(env)
 
 
 def _check_positive(name: str, value) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
+
+
+class NoopStart(gym.Wrapper):
+    """Starts each episode with ``k`` no-op actions (action 0), ``k`` in ``[0, noop_max)``
+    drawn from the reset's seed (the controller's evaluation does the same): Boxing without
+    sticky actions is deterministic, so greedy test games would otherwise all be one game."""
+
+    def __init__(self, env, noop_max: int = 30):
+        super().__init__(env)
+        self.noop_max, self.rng = noop_max, np.random.default_rng()
+
+    def reset(self, *, seed=None, options=None):
+        observation, info = self.env.reset(seed=seed, options=options)
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        for _ in range(int(self.rng.integers(max(self.noop_max, 1)))):  # noop_count(seed, noop_max) when seeded
+            observation, _, terminated, truncated, info = self.env.step(0)
+            if terminated or truncated:
+                observation, info = self.env.reset()
+        return observation, info
+
+
+def noop_count(seed: int, noop_max: int = 30) -> int:
+    """The number of no-ops :class:`NoopStart` plays after a reset with ``seed``."""
+    return int(np.random.default_rng(seed).integers(max(noop_max, 1)))
+
+
+def boxing_env(noop_max: int = 30) -> gym.Env:
+    """Boxing with World Models frames (64, 64, 3) uint8 and no-op starts."""
+    return NoopStart(make_atari("Boxing", preprocessing="world_models"), noop_max)

@@ -33,6 +33,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from wmthesis.envs.actions import check_action, check_order
 from wmthesis.utils import check_choice
 
 WALL, FLOOR, TARGET, BOX_ON_TARGET, BOX, PLAYER, PLAYER_ON_TARGET = range(7)
@@ -103,6 +104,9 @@ class SokobanEnv(gym.Env):
         if min(h, w) < 3 or num_boxes < 1 or max_steps < 1 or tile_size < 1:
             raise ValueError(f"need dim_room >= (3, 3), num_boxes >= 1, max_steps >= 1 and "
                              f"tile_size >= 1; got {dim_room}, {num_boxes}, {max_steps}, {tile_size}")
+        if (h - 2) * (w - 2) < num_boxes + 2:  # generate_level needs more floor than boxes + player
+            raise ValueError(f"{num_boxes} boxes cannot fit a {h}x{w} room: its {(h - 2) * (w - 2)} inner cells "
+                             f"must hold the boxes, the player and at least one free cell ({num_boxes + 2})")
         self.dim_room, self.num_boxes, self.max_steps = (h, w), int(num_boxes), int(max_steps)
         self.observation, self.render_mode, self.tile_size = observation, render_mode, int(tile_size)
         if frame_size is not None and (observation != "rgb" or int(frame_size) < 1):
@@ -121,6 +125,7 @@ class SokobanEnv(gym.Env):
         self.board = np.zeros((h, w), np.uint8)
         self.generation_info: dict = {}
         self.steps = 0
+        self._episode = "new"  # new -> running -> ended (see wmthesis.envs.actions.check_order)
 
     def reset(self, *, seed=None, options=None):
         """Generate a new level from ``self.np_random`` (or start from ``options["board"]``)."""
@@ -129,11 +134,13 @@ class SokobanEnv(gym.Env):
             self.board = np.array(options["board"], dtype=np.uint8)
         else:
             self.board, self.generation_info = generate_level(self.dim_room, self.num_boxes, self.np_random)
-        self.steps = 0
+        self.steps, self._episode = 0, "running"
         return self._observe(), {"boxes_on_target": self.boxes_on_target()}
 
     def step(self, action):
-        box_change = apply_action(self.board, int(action))
+        """Play ``action`` (an integer in ``[0, 8)``; anything else raises a ``ValueError``)."""
+        check_order(self._episode)
+        box_change = apply_action(self.board, check_action(action, self.action_space.n))
         self.steps += 1
         reward = STEP_PENALTY
         if box_change > 0:
@@ -144,6 +151,7 @@ class SokobanEnv(gym.Env):
         if terminated:
             reward += SOLVED_REWARD
         truncated = not terminated and self.steps >= self.max_steps
+        self._episode = "ended" if terminated or truncated else "running"
         info = {"boxes_on_target": self.boxes_on_target()}
         return self._observe(), float(reward), terminated, truncated, info
 

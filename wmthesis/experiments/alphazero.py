@@ -9,8 +9,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmthesis.config import CollectConfig, MemoryConfig, VisionConfig, for_profile, profile_name
-from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, _save
-from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds, read_pickle
+from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header
+from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds, hold, read_pickle, releasing_holds
+from wmthesis.viz import save_figure
 
 ALPHAZERO_REFERENCE = {"random": 0.1, "human": 12.1,
                        "thesis World Models + AlphaZero": "no score: 'did not train to properly plan', abandoned"}
@@ -18,6 +19,7 @@ ALPHAZERO_DIAGNOSIS_DEPTH = {"smoke": 5, "quick": 10, "thesis": 10}
 RECORDING_STEPS = 400  # the rerun recording shows the first steps of one evaluation game
 
 
+@releasing_holds
 def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str | None = None,
                         progress: bool = True) -> dict:
     """Thesis 5.4.2: World Models + AlphaZero on Boxing, and why the thesis's version fails.
@@ -25,13 +27,13 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     Reuses the boxing-wm pipeline's random rollouts, vision and latents (the same artifacts
     under ``data/<profile>/boxing-wm/seed<seed>/``, cached), trains a deterministic memory in
     its own folder ``data/<profile>/boxing-wm-alphazero/seed<seed>/``, then self-play for each
-    variant of :data:`~wmthesis.agents.alphazero.VARIANTS` (``variant=None``: all of them, side
+    variant of :data:`~wmthesis.alphazero.selfplay.VARIANTS` (``variant=None``: all of them, side
     by side; one name: that one only), each resumable from its checkpoint. Every variant, the
     boxing-wm controller (when its run exists) and random play then play the same greedy
     evaluation games (same no-op starts). Diagnosis: the memory's reward error along the search
     depth, whether a linear value on ``[z h]`` predicts the random rollouts' returns at all,
     whether an MLP on ``[z h a]`` can tell which action earns more in the next steps
-    (:func:`~wmthesis.agents.alphazero_diagnosis.action_predictability`), the value scale, the spread of
+    (:func:`~wmthesis.alphazero.diagnosis.action_predictability`), the value scale, the spread of
     root Q, ties and the actions taken. The ``learned-reward`` variant trains its reward model on
     the same random rollouts (and its self-play games).
 
@@ -44,21 +46,23 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     the metrics; ``score`` is the last variant's (``imitation`` when all run);
     ``against_random``: each agent's mean minus random play's, with its standard error.
     """
-    from wmthesis.agents import alphazero as az
-    from wmthesis.agents import alphazero_diagnosis as diagnosis
-    from wmthesis.agents.controller_training import VAEVision
-    from wmthesis.agents.world_models import LatentStore, encode_store, train_memory, train_vision
+    from wmthesis.alphazero.latent_mdp import LatentMDP
+    from wmthesis.alphazero.selfplay import VARIANTS, train_alphazero
+    from wmthesis.envs.atari import boxing_env
+    from wmthesis.alphazero import diagnosis
+    from wmthesis.world_models.vision import VAEVision
+    from wmthesis.world_models.train import LatentStore, encode_store, train_memory, train_vision
     from wmthesis.config import AlphaZeroConfig
     from wmthesis.data import EpisodeStore, collect
     from wmthesis.metrics import score_difference, score_summary
     from wmthesis.viz import record_frames
 
-    variants = tuple(az.VARIANTS) if variant is None else (variant,)
-    check_choice("variant of boxing-wm-alphazero", variants[0], az.VARIANTS)
+    variants = tuple(VARIANTS) if variant is None else (variant,)
+    check_choice("variant of boxing-wm-alphazero", variants[0], VARIANTS)
     profile = profile_name(profile)
     started = time.time()
     wm = data_dir(profile, "boxing-wm", f"seed{seed}")
-    work = data_dir(profile, "boxing-wm-alphazero", f"seed{seed}")
+    work = hold(data_dir(profile, "boxing-wm-alphazero", f"seed{seed}"))
     out = data_dir("results", "boxing-wm-alphazero", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
     collect_cfg = for_profile(CollectConfig, profile)
     store = collect("boxing", collect_cfg.episodes, wm / "random.h5", workers=collect_cfg.workers, seed=seed,
@@ -71,9 +75,9 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
 
     configs, runs, games, ablations = {}, {}, {}, {}
     for name in variants:
-        configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **az.VARIANTS[name])
+        configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **VARIANTS[name])
         expert = _expert(profile, seed, wm, vision, progress) if cfg.expert_games else None
-        run = az.train_alphazero(lambda: az.boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
+        run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
                                  seed=seed, progress=progress, rollouts=LatentStore(latents), expert=expert)
         runs[name] = run.summary()
         games[name] = _alphazero_evaluate(run, vision, memory, cfg, work / name, seed)
@@ -88,7 +92,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     with EpisodeStore(store) as episodes:  # random play over the self-play games' length, for the curve
         random_in_store = [float(episodes.episode(i)["rewards"][:cfg.max_steps].sum()) for i in range(len(episodes))]
 
-    mdp = az.LatentMDP(memory)
+    mdp = LatentMDP(memory)
     all_games = [game for name in variants for game in games[name]]
     depth = ALPHAZERO_DIAGNOSIS_DEPTH[profile]
     reward_error = diagnosis.reward_error_by_depth(mdp, all_games, depth)
@@ -96,18 +100,18 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     action_fit = diagnosis.action_predictability(mdp, LatentStore(latents), seed=seed)
     search = {name: diagnosis.search_statistics(games[name], cfg.gamma, cfg.c, cfg.simulations) for name in variants}
     figures = [
-        _save(diagnosis.plot_self_play(runs, {f"random play, first {cfg.max_steps or 'all'} steps (store)":
+        save_figure(diagnosis.plot_self_play(runs, {f"random play, first {cfg.max_steps or 'all'} steps (store)":
                                        float(np.mean(random_in_store))}), out / "self_play_curve.png"),
-        _save(diagnosis.plot_search(games, cfg.gamma, cfg.c, cfg.simulations), out / "search_statistics.png"),
-        _save(diagnosis.plot_reward_error(reward_error, np.concatenate([g.depths for g in all_games])),
+        save_figure(diagnosis.plot_search(games, cfg.gamma, cfg.c, cfg.simulations), out / "search_statistics.png"),
+        save_figure(diagnosis.plot_reward_error(reward_error, np.concatenate([g.depths for g in all_games])),
               out / "reward_error_by_depth.png"),
-        _save(diagnosis.plot_visits(games[variants[-1]][0]), out / "visit_distributions.png"),
+        save_figure(diagnosis.plot_visits(games[variants[-1]][0]), out / "visit_distributions.png"),
     ]
     returns = {**{f"AlphaZero {name}": [g.score for g in games[name]] for name in variants}, **ablations,
                **baselines["returns"]}
     scores = {name: score_summary(r) for name, r in returns.items()}
     against_random = {name: score_difference(r, returns["random"]) for name, r in returns.items() if name != "random"}
-    figures.append(_save(_score_figure(scores), out / "scores.png"))
+    figures.append(save_figure(_score_figure(scores), out / "scores.png"))
     shown = games[variants[-1]][0]
     recording = record_frames(out / "evaluation_game.rrd", {"observation": shown.frames},
                               {name: values[:RECORDING_STEPS] for name, values in
@@ -140,10 +144,11 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
 
 def _evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]:
     """The seed of each evaluation game, shared by every agent compared (through
-    :func:`~wmthesis.agents.alphazero.game_seeds`: the same no-op starts). Seeds whose no-op
+    :func:`~wmthesis.alphazero.replay.game_seeds`: the same no-op starts). Seeds whose no-op
     count repeats an earlier game's are skipped: Boxing is deterministic, so a greedy agent
     would replay the same game."""
-    from wmthesis.agents.alphazero import game_seeds, noop_count
+    from wmthesis.alphazero.replay import game_seeds
+    from wmthesis.envs.atari import noop_count
 
     seeds, counts, k = [], set(), 0
     while len(seeds) < episodes:
@@ -162,7 +167,9 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrai
     after imitation, before self-play (``evaluation-pretrained.pkl``)."""
     import pickle
 
-    from wmthesis.agents import alphazero as az
+    from wmthesis.alphazero.heads import Evaluator
+    from wmthesis.alphazero.selfplay import AlphaZeroMind, play
+    from wmthesis.envs.atari import boxing_env
 
     path = work / ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl")
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
@@ -174,13 +181,13 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrai
     except (OSError, ValueError):
         pass
     heads = run.pretrained_heads() if pretrained else run.heads
-    mind = az.AlphaZeroMind(vision, run.mdp(memory), az.Evaluator(heads), cfg)
-    env = az.boxing_env(cfg.noop_max)
+    mind = AlphaZeroMind(vision, run.mdp(memory), Evaluator(heads), cfg)
+    env = boxing_env(cfg.noop_max)
     games = []
     try:
         for k, game_seed in enumerate(key["seeds"]):
             mind.keep_frames = k == 0
-            game = az.play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
+            game = play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
             if game.frames is not None:
                 game.frames = game.frames[:RECORDING_STEPS]
             games.append(game)
@@ -194,8 +201,9 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrai
 def _policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list[float]:
     """The evaluation games' returns of the trained policy head played greedily without search
     (how much the search adds to what the heads learned); cached in ``policy_head.json``."""
-    from wmthesis.agents import alphazero as az
-    from wmthesis.agents.imitation import PolicyHeadMind
+    from wmthesis.alphazero.replay import game_seeds
+    from wmthesis.envs.atari import boxing_env
+    from wmthesis.alphazero.imitation import PolicyHeadMind
     from wmthesis.core import loop
 
     key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
@@ -203,11 +211,11 @@ def _policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> lis
     cached = _read_json(work / "policy_head.json")
     if cached is not None and cached["key"] == key:
         return cached["returns"]
-    mind, env, returns = PolicyHeadMind(vision, run.mdp(memory), run.heads), az.boxing_env(cfg.noop_max), []
+    mind, env, returns = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max), []
     try:
         for game_seed in key["seeds"]:
             history = loop(env, mind, policy="deterministic", callbacks=[mind], max_steps=cfg.eval_max_steps,
-                           seed=az.game_seeds(game_seed)[0], train_mode=False)
+                           seed=game_seeds(game_seed)[0], train_mode=False)
             returns.append(float(history[0]["return"]))
     finally:
         env.close()
@@ -233,8 +241,10 @@ def _expert(profile: str, seed: int, wm: Path, vision, progress: bool):
 def _controller_minds(profile: str, wm: Path, vision) -> tuple:
     """``(agent_seed -> ControllerMind, name)`` for the boxing-wm controller under `wm`, or
     ``(None, why not)`` when it is missing or was trained on another memory."""
-    from wmthesis.agents.controller_training import ControllerMind, _fingerprint, load_run
-    from wmthesis.agents.world_models import make_memory
+    from wmthesis.world_models.controller import ControllerMind
+    from wmthesis.utils import fingerprint
+    from wmthesis.world_models.evolution import load_run
+    from wmthesis.world_models.train import make_memory
     from wmthesis.training import load_weights
 
     controller_path, memory_path = wm / "controller" / "controller.pkl", wm / "memory-mdn.best.pt"
@@ -243,7 +253,7 @@ def _controller_minds(profile: str, wm: Path, vision) -> tuple:
                       "the comparison with it is skipped")
     run = load_run(controller_path)
     mdn = load_weights(memory_path, make_memory(16, 18, for_profile(MemoryConfig, profile))).eval()
-    if _fingerprint(mdn) != run.task["memory"]:
+    if fingerprint(mdn) != run.task["memory"]:
         return None, f"the controller in {controller_path.parent} was trained on another memory: skipped"
     controller = run.controller("mean")
     return (lambda agent_seed: ControllerMind(vision, mdn, controller)), \
@@ -253,7 +263,8 @@ def _controller_minds(profile: str, wm: Path, vision) -> tuple:
 def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int) -> dict:
     """Random play and the boxing-wm controller (when its run exists) on the evaluation games;
     cached in ``baselines.json``. Returns ``returns`` by agent and ``notes``."""
-    from wmthesis.agents.alphazero import boxing_env, game_seeds
+    from wmthesis.envs.atari import boxing_env
+    from wmthesis.alphazero.replay import game_seeds
     from wmthesis.core import RandomMind, loop
 
     controller_path = wm / "controller" / "controller.pkl"

@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.config import for_profile, profile_name
-from wmthesis.experiments.results import _read_json, _run_header, _save
-from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds
+from wmthesis.experiments.results import _read_json, _run_header
+from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds, hold, releasing_holds
+from wmthesis.viz import save_figure
 
 # Experiment -> (environment, the thesis's variants for that game, the default variant).
 PLANET_GAMES = {
@@ -63,11 +64,12 @@ PLANET_OPEN_LOOP = {
 
 
 def planet_variants(name: str) -> tuple[str, ...]:
-    """The :data:`~wmthesis.agents.planet.VARIANTS` valid for PlaNet experiment ``name``."""
+    """The :data:`~wmthesis.planet.train.VARIANTS` valid for PlaNet experiment ``name``."""
     check_choice("PlaNet experiment", name, PLANET_GAMES)
     return PLANET_GAMES[name][1]
 
 
+@releasing_holds
 def planet_experiment(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
                       progress: bool = True) -> dict:
     """Thesis 5.5.1 (``planet-sokoban``) and 5.6.1-5.6.6 (``planet-boxing``, ``planet-freeway``):
@@ -81,8 +83,8 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     as it is. Returns the metrics: ``score`` (greedy test episodes), ``open_loop`` (error per
     horizon and at the cut-off), the learning ``curve``, ``reference`` (published numbers).
     """
-    from wmthesis.agents.planet import (VARIANTS, horizon_error_figure, learning_curve_figure, load_planet,
-                                        open_loop_figure, train_planet, with_variant)
+    from wmthesis.planet.train import VARIANTS, load_planet, train_planet, with_variant
+    from wmthesis.planet.figures import horizon_error_figure, learning_curve_figure, open_loop_figure
     from wmthesis.data import EpisodeStore
     from wmthesis.envs import ATARI_GAMES
     from wmthesis.config import PlaNetConfig
@@ -95,7 +97,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     assert variant in VARIANTS, variant
     profile = profile_name(profile)
     started = time.time()
-    work = data_dir(profile, name, f"{variant}-seed{seed}")
+    work = hold(data_dir(profile, name, f"{variant}-seed{seed}"))
     out = data_dir("results", name, f"{profile}-seed{seed}", variant)
     config = for_profile(PlaNetConfig, profile,
                          **(SOKOBAN_CHANGES if env_name == "sokoban-small" else ATARI_CHANGES)[profile])
@@ -121,18 +123,18 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     title = {"planet-sokoban": "Fig. 58", "planet-boxing": "Fig. 59/510", "planet-freeway": "Fig. 511"}[name]
     label = f"{env_name}, {variant}"
     figures = [
-        _save(open_loop_figure(rollout, sequences=1 if profile == "smoke" else 3,
+        save_figure(open_loop_figure(rollout, sequences=1 if profile == "smoke" else 3,
                                columns=min(context + horizon, 20),
                                title=f"{title}: {label}, open-loop after {context} context frames"),
               out / "open_loop.png"),
-        _save(horizon_error_figure({label: rollout["mse"]}, title=f"open-loop error, {label}"),
+        save_figure(horizon_error_figure({label: rollout["mse"]}, title=f"open-loop error, {label}"),
               out / "horizon_error.png"),
     ]
     references = {key: value for key, value in PLANET_REFERENCE[name].items()
                   if key in ("random", "human") and isinstance(value, float)}
     if not references:
         references = {"random (seed episodes)": float(np.mean(random_returns))}
-    figures.append(_save(learning_curve_figure({label: meta["curve"]}, references=references,
+    figures.append(save_figure(learning_curve_figure({label: meta["curve"]}, references=references,
                                                title=f"PlaNet {label}: test score"), out / "learning_curve.png"))
     recording = record_frames(out / "open_loop.rrd",
                               {"truth": rollout["truth"][0], "prediction": rollout["prediction"][0]},
@@ -158,7 +160,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
 def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval: int, updates: int) -> list[float]:
     """``n_eval`` greedy planner episodes (seeds from (seed, 2, k), apart from training's
     tests); cached in ``evaluation.json`` for the checkpoint's number of updates."""
-    from wmthesis.agents.planet import PlanetMind, make_planet_env, planet_interpreter
+    from wmthesis.planet.train import PlanetMind, make_planet_env, planet_interpreter
     from wmthesis.core import loop
 
     path = work / "evaluation.json"
@@ -182,11 +184,11 @@ def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval
 
 
 def _planet_open_loop(model, store, length: int, context: int, config, seed: int, sequences: int = 6) -> dict:
-    """:func:`~wmthesis.agents.planet.open_loop` on chunks of the most recent planner episodes
+    """:func:`~wmthesis.planet.train.open_loop` on chunks of the most recent planner episodes
     long enough (the last one was collected after the final update: never trained on)."""
     import torch
 
-    from wmthesis.agents.planet import open_loop
+    from wmthesis.planet.train import open_loop
 
     lengths = store.episode_lengths
     long_enough = [i for i in range(config.seed_episodes, len(store)) if lengths[i] >= length]

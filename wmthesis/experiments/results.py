@@ -8,7 +8,6 @@ import platform
 from datetime import date
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 
 
@@ -27,12 +26,6 @@ def _first_run_seconds(path: Path, seconds: float) -> float:
         return json.loads(path.read_text())["first_run_wall_seconds"]
     except (OSError, ValueError, KeyError):
         return seconds
-
-
-def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=80, bbox_inches="tight")
-    plt.close(fig)
-    return path
 
 
 def _read_json(path: Path) -> dict | None:

@@ -10,21 +10,24 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
-from wmthesis.experiments.results import _first_run_seconds, _run_header, _save
-from wmthesis.utils import atomic_path, data_dir
+from wmthesis.experiments.results import _first_run_seconds, _run_header
+from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
+from wmthesis.viz import save_figure
 
 # Published numbers (DESIGN.md) shown beside ours.
 BOXING_REFERENCE = {"random": 0.1, "human": 12.1, "thesis World Models": "above 18"}
 
 
+@releasing_holds
 def boxing_world_models(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """Thesis 5.4.1: World Models on Boxing, random rollouts -> VAE -> MDN-RNN -> CMA-ES.
 
     Returns the metrics dict (also written to ``metrics.json``): the controller's score over
     10 full evaluation episodes with varied starts, the learning curves, the open-loop error.
     """
-    from wmthesis.agents.controller_training import train_controller
-    from wmthesis.agents.world_models import open_loop, reconstruct
+    from wmthesis.world_models.evolution import train_controller
+    from wmthesis.world_models.prediction import open_loop
+    from wmthesis.world_models.train import reconstruct
     from wmthesis.data import EpisodeStore
     from wmthesis.metrics import score_summary
     from wmthesis.viz import record_frames
@@ -66,7 +69,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
 def _final_score(run, vision, memory, cfg, profile: str) -> np.ndarray:
     """The CMA-ES mean's returns (n,) over 10 full bouts (2 short ones in smoke), the same
     seeded no-op starts for every controller and seed."""
-    from wmthesis.agents.controller_training import evaluate_population, make_game
+    from wmthesis.world_models.evolution import evaluate_population
+    from wmthesis.envs.vector import make_game
 
     n_eval = 2 if profile == "smoke" else 10
     game = make_game("boxing", n_eval, noop_max=cfg.noop_max)
@@ -84,7 +88,7 @@ def open_loop_errors(vae, memory, episode: dict, context: int, horizon: int, sta
     (starting every ``context + horizon`` steps), beside the "nothing moves" baseline that
     repeats the last context frame. Returns ``pixel_error``, ``latent_error`` and
     ``still_pixel_error`` (horizon,) and ``rollouts``."""
-    from wmthesis.agents.world_models import open_loop
+    from wmthesis.world_models.prediction import open_loop
     from wmthesis.metrics import horizon_errors
 
     frames, actions, span = episode["observations"], episode["actions"], context + horizon
@@ -118,11 +122,11 @@ class BoxingWorldModel(NamedTuple):
 def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     """Random rollouts -> VAE -> latents -> MDN-RNN under ``data/<profile>/boxing-wm/seed<seed>/``,
     each step cached."""
-    from wmthesis.agents.controller_training import VAEVision
-    from wmthesis.agents.world_models import encode_store, train_memory, train_vision
+    from wmthesis.world_models.vision import VAEVision
+    from wmthesis.world_models.train import encode_store, train_memory, train_vision
     from wmthesis.data import collect
 
-    work = data_dir(profile, "boxing-wm", f"seed{seed}")
+    work = hold(data_dir(profile, "boxing-wm", f"seed{seed}"))
 
     collect_cfg = for_profile(CollectConfig, profile)
     store = collect("boxing", collect_cfg.episodes, work / "random.h5", workers=collect_cfg.workers, seed=seed,
@@ -139,6 +143,7 @@ def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
 DREAM_CHANGES = dict(dream=True, population=64, episodes=5)
 
 
+@releasing_holds
 def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float = 1.0,
                  progress: bool = True) -> dict:
     """Beyond the thesis: evolve the Boxing controller inside the memory's dream, as Ha &
@@ -151,7 +156,7 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
     metrics) the learning curve, whose ``mean``/``best`` are dream returns and ``eval_return``
     real ones, and the real score of the final mean over 10 full bouts.
     """
-    from wmthesis.agents.controller_training import train_controller
+    from wmthesis.world_models.evolution import train_controller
     from wmthesis.metrics import score_summary
 
     if not temperature > 0:
@@ -194,17 +199,17 @@ def plot_dream(curves: dict, ax=None):
 
 
 def _boxing_figures(out: Path, frames, reconstructions, rollout, curve) -> list[Path]:
-    from wmthesis.agents.controller_training import plot_learning_curve
+    from wmthesis.world_models.figures import plot_learning_curve
     from wmthesis.viz import image_rows
 
     paths = []
     fig = image_rows({"original": list(frames[::25][:8]), "reconstruction": list(reconstructions)})
     fig.suptitle("Fig. 56: vision reconstructions")
-    paths.append(_save(fig, out / "fig56_reconstructions.png"))
+    paths.append(save_figure(fig, out / "fig56_reconstructions.png"))
     fig = image_rows({"truth": list(rollout["truth"][::3]), "memory": list(rollout["prediction"][::3])})
     fig.suptitle("Fig. 57: open-loop memory rollout (every 3rd step)")
-    paths.append(_save(fig, out / "fig57_open_loop.png"))
+    paths.append(save_figure(fig, out / "fig57_open_loop.png"))
     fig, ax = plt.subplots(figsize=(5, 3))
     plot_learning_curve(curve, ax=ax, title="CMA-ES fitness per generation")
-    paths.append(_save(fig, out / "cmaes_curve.png"))
+    paths.append(save_figure(fig, out / "cmaes_curve.png"))
     return paths

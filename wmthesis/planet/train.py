@@ -25,9 +25,7 @@ import math
 import time
 import warnings
 from pathlib import Path
-from typing import Sequence
 
-import matplotlib.pyplot as plt
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -38,8 +36,9 @@ from wmthesis.core import Callback, Interpreter, Mind, loop
 from wmthesis.data import EpisodeBuffer, EpisodeStore, episode_seeds, play_random_episode
 from wmthesis.envs import ATARI_GAMES, make_env
 from wmthesis.envs.preprocessing import crop_resize, quantize, to_float
-from wmthesis.models.rssm import RSSM, frames_out, one_hot_previous, planet_loss
-from wmthesis.planning.cem import cem_belief
+from wmthesis.planet.rssm import RSSM, frames_out, one_hot_previous, planet_loss
+from wmthesis.planet.cem import cem_belief
+from wmthesis.training import gradient_step
 from wmthesis.utils import atomic_path, check_choice, derive_seeds, device, seed_everything
 
 FRAME_SIZE = 64
@@ -231,7 +230,9 @@ def train_updates(model: RSSM, optimizer, store: EpisodeStore, config: PlaNetCon
                   run_dir: Path | None = None) -> dict[str, float]:
     """``config.update_steps`` updates on chunks from ``store``; the mean of each loss term.
 
-    Raises ``FloatingPointError`` on a non-finite loss, before the step is taken.
+    Each update goes through :func:`~wmthesis.training.gradient_step` (gradient norm clipped at
+    ``grad_clip``): a non-finite loss term or gradient norm raises
+    :class:`~wmthesis.training.NonFiniteLoss` (a ``FloatingPointError``) before the step.
     """
     dev = next(model.parameters()).device
     sums: dict[str, float] = {}
@@ -239,13 +240,9 @@ def train_updates(model: RSSM, optimizer, store: EpisodeStore, config: PlaNetCon
     for _ in range(config.update_steps):
         batch = store.sample_chunks(config.batch_size, config.chunk_length, run.np_rng)
         terms = batch_loss(model, {key: value.to(dev) for key, value in batch.items()}, config, run.torch_rng)
-        if not torch.isfinite(terms["loss"]):
-            where = f" in {run_dir}" if run_dir else ""
-            raise FloatingPointError(
-                f"PlaNet loss is {terms['loss'].item()} at update {run.updates + 1}{where} "
-                f"(terms: { {k: round(v.item(), 4) for k, v in terms.items()} }); stopped, the last good "
-                f"checkpoint (update {_checkpoint_updates(run_dir)}) is kept")
-        optimizer_step(model, optimizer, terms["loss"], config)
+        where = f" in {run_dir}" if run_dir else ""
+        gradient_step("PlaNet RSSM", run.updates + 1, terms, optimizer, model.parameters(), clip_norm=config.grad_clip,
+                      kept=f"the last good checkpoint{where} (update {_checkpoint_updates(run_dir)}) is kept")
         run.updates += 1
         for key, value in terms.items():
             sums[key] = sums.get(key, 0.0) + float(value.detach())
@@ -254,21 +251,13 @@ def train_updates(model: RSSM, optimizer, store: EpisodeStore, config: PlaNetCon
 
 def batch_loss(model: RSSM, batch: dict[str, torch.Tensor], config: PlaNetConfig,
                generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
-    """:func:`~wmthesis.models.rssm.planet_loss` with the config's knobs on a batch of
+    """:func:`~wmthesis.planet.rssm.planet_loss` with the config's knobs on a batch of
     :meth:`~wmthesis.data.EpisodeStore.sample_chunks` (on the model's device)."""
     return planet_loss(model, batch["observations"], batch["actions"], batch["rewards"], bits=config.bits,
                        kl_scale=config.kl_scale, free_nats=config.free_nats,
                        decoder_variance=config.decoder_variance, reward_scale=config.reward_scale,
                        overshooting_distance=config.overshooting_distance,
                        overshooting_scale=config.overshooting_scale, generator=generator)
-
-
-def optimizer_step(model: RSSM, optimizer, loss: torch.Tensor, config: PlaNetConfig) -> None:
-    """Backpropagate ``loss``, clip the gradient norm at ``grad_clip``, take an Adam step."""
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
-    optimizer.step()
 
 
 def _checkpoint_updates(run_dir: Path | None):
@@ -434,87 +423,7 @@ def evaluate_open_loop(model: RSSM, store: EpisodeStore, *, sequences: int = 6, 
                      generator=generator)
 
 
-# ---------------------------------------------------------------------------- figures
-def open_loop_figure(result: dict, *, sequences: int = 3, columns: int | None = None,
-                     scale: float = 0.9, title: str | None = None):
-    """Thesis Fig. 58 style: per sequence a row of true frames and a row of the model's
-    frames; the model row shows the ``context`` true frames, then its open-loop predictions
-    (columns titled +1, +2, ...). ``result`` is :func:`open_loop`'s output."""
-    truth, prediction, context = result["truth"], result["prediction"], result["context"]
-    sequences = min(sequences, len(truth))
-    columns = min(columns or truth.shape[1], truth.shape[1])
-    fig, axes = plt.subplots(2 * sequences, columns, squeeze=False,
-                             figsize=(scale * columns, scale * 2 * sequences + (0.3 if title else 0)))
-    for index in range(sequences):
-        model_row = np.concatenate([truth[index, :context], prediction[index, context:]])
-        for row, (label, frames) in enumerate((("truth", truth[index]), ("model", model_row))):
-            for t, ax in enumerate(axes[2 * index + row]):
-                ax.imshow(frames[t], interpolation="nearest")
-                ax.set_xticks([])
-                ax.set_yticks([])
-                if t >= context and row == 1:
-                    for spine in ax.spines.values():
-                        spine.set_edgecolor("tab:red")
-            axes[2 * index + row, 0].set_ylabel(f"{label} {index + 1}", fontsize=7)
-    for t, ax in enumerate(axes[0]):
-        ax.set_title("context" if t == context // 2 else (f"+{t - context + 1}" if t >= context else ""),
-                     fontsize=7)
-    if title:
-        fig.suptitle(title, fontsize=9)
-    fig.tight_layout(pad=0.2, rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight() if title else 1))
-    return fig
 
-
-def horizon_error_figure(curves: dict[str, Sequence[float]], *, title: str | None = None):
-    """Open-loop prediction error against the prediction horizon, one line per entry
-    (e.g. ``{"unchanged": result["mse"], "free nats 12": other["mse"]}``)."""
-    fig, ax = plt.subplots(figsize=(4.5, 3))
-    for label, mse in curves.items():
-        ax.plot(np.arange(1, len(mse) + 1), mse, marker=".", label=label)
-    ax.set_xlabel("steps predicted open-loop")
-    ax.set_ylabel("MSE per pixel")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    if title:
-        ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    return fig
-
-
-def learning_curve_figure(curves: dict[str, dict], *, references: dict[str, float] | None = None,
-                          x: str = "env_steps", title: str | None = None):
-    """Test score (mean and std band) against agent steps, one line per run; training
-    episodes' returns as faint dots. ``curves`` maps labels to :func:`train_planet`'s
-    ``curve`` (or ``curve.json``); ``references`` draws horizontal lines (e.g. random, human).
-    """
-    fig, ax = plt.subplots(figsize=(5, 3.2))
-    for label, curve in curves.items():
-        tests = curve.get("test", [])
-        line = None
-        if tests:
-            steps = np.array([entry[x] for entry in tests])
-            mean = np.array([entry["mean"] for entry in tests])
-            std = np.array([entry["std"] for entry in tests])
-            (line,) = ax.plot(steps, mean, marker=".", label=f"{label} (test)")
-            ax.fill_between(steps, mean - std, mean + std, alpha=0.2, color=line.get_color())
-        train = curve.get("train", [])
-        if train:
-            ax.scatter([entry[x] for entry in train], [entry["return"] for entry in train], s=6, alpha=0.4,
-                       color=None if line is None else line.get_color(),
-                       label=None if line is not None else f"{label} (train)")
-    for name, value in (references or {}).items():
-        ax.axhline(value, linestyle="--", linewidth=0.8, color="gray")
-        ax.annotate(name, (ax.get_xlim()[0], value), fontsize=7, color="gray", va="bottom")
-    ax.set_xlabel({"env_steps": "agent steps", "frames": "frames"}.get(x, x))
-    ax.set_ylabel("score")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    if title:
-        ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    return fig
-
-
-__all__ = ["train_planet", "train_updates", "batch_loss", "optimizer_step", "PlanetMind", "VARIANTS", "with_variant", "make_planet_env",
+__all__ = ["train_planet", "train_updates", "batch_loss", "PlanetMind", "VARIANTS", "with_variant", "make_planet_env",
            "planet_frame", "planet_interpreter", "build_model", "load_planet", "open_loop",
-           "evaluate_open_loop", "open_loop_figure", "horizon_error_figure", "learning_curve_figure"]
+           "evaluate_open_loop"]

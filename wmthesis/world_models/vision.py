@@ -114,3 +114,20 @@ def frames_to_input(frames: torch.Tensor) -> torch.Tensor:
 def input_to_frames(x: torch.Tensor) -> torch.Tensor:
     """float (..., 3, 64, 64) in [0, 1] -> uint8 frames (..., 64, 64, 3)."""
     return x.clamp(0, 1).mul(255).round().to(torch.uint8).movedim(-3, -1)
+
+
+class VAEVision:
+    """The VAE's encoder as vision: uint8 frames (N, 64, 64, 3) -> latent means ``mu`` (N, L).
+
+    ``bfloat16=True`` encodes under bfloat16 autocast: about twice as fast on a CPU with
+    AVX-512 BF16, latents within ~1e-2 of float32 (use the same vision to train and to play).
+    """
+
+    def __init__(self, vae: torch.nn.Module, bfloat16: bool = False):
+        self.vae, self.bfloat16 = vae.eval(), bfloat16
+        self.latent_size = vae.latent_size
+
+    def __call__(self, frames: torch.Tensor) -> torch.Tensor:
+        device = next(self.vae.parameters()).device
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=self.bfloat16):
+            return self.vae.encode(frames_to_input(frames.to(device)))[0].float()

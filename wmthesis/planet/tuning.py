@@ -1,7 +1,7 @@
 """Random search over PlaNet's KL scale x free nats (thesis 5.6.3-5.6.5), measured, not eyed.
 
 The thesis tuned the two knobs jointly by random search and judged the runs "with a researcher
-eye". Here each trial trains PlaNet (:func:`~wmthesis.agents.planet.train_planet`) with one
+eye". Here each trial trains PlaNet (:func:`~wmthesis.planet.train.train_planet`) with one
 setting and is measured by its final greedy test score, its open-loop prediction error at the
 game's cut-off horizon (:data:`GAMES`), or both (:data:`OBJECTIVES`; ``SearchConfig.objective``).
 
@@ -51,12 +51,16 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 import optuna
+import torch
 from optuna.distributions import FloatDistribution
 from optuna.samplers import RandomSampler
 from optuna.trial import TrialState
 from sqlalchemy.engine import make_url
 
 from wmthesis.config import PlaNetConfig, SearchConfig, for_profile, profile_name
+from wmthesis.data import EpisodeStore
+from wmthesis.planet.figures import open_loop_figure
+from wmthesis.planet.train import STORE, evaluate_open_loop, load_planet, train_planet
 from wmthesis.utils import atomic_path, check_choice, data_dir
 
 
@@ -221,10 +225,6 @@ def _surplus(trial: optuna.Trial, cfg: SearchConfig) -> bool:
 def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str, storage: str | None = None):
     """Train PlaNet with the trial's setting, measure it, save ``metrics.json`` and the
     open-loop figure in :func:`trial_dir`; return the objective value(s)."""
-    from wmthesis.agents.planet import (STORE, evaluate_open_loop, load_planet, open_loop_figure,
-                                        train_planet)
-    from wmthesis.data import EpisodeStore
-
     game = GAMES[name]
     if _surplus(trial, cfg):
         trial.set_user_attr("surplus", True)
@@ -283,8 +283,6 @@ def work(name: str, cfg: SearchConfig, profile: str, storage: str, threads: int 
     workers may still both start a trial for the last place: the later-numbered one finds
     itself surplus and fails at once (:class:`SurplusTrial`)."""
     if threads:
-        import torch
-
         torch.set_num_threads(threads)
     study = open_study(name, cfg, profile, storage)
     objective = functools.partial(run_trial, name=name, cfg=cfg, profile=profile, storage=storage)

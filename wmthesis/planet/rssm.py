@@ -10,7 +10,7 @@ stochastic part ``s_t`` (a 30-dimensional diagonal Gaussian)::
     p(r_t | h_t, s_t) = N(reward([h_t, s_t]), 1)  FF with two hidden layers of 100
 
 Standard deviations are ``softplus(x) + min_std`` (0.1, as the official code). The encoder and
-decoder are the World Models VAE's convolutional networks (:mod:`wmthesis.models.vae`); the
+decoder are the World Models VAE's convolutional networks (:mod:`wmthesis.world_models.vision`); the
 decoder's raw output is the mean of the Gaussian over pixels. Observations are 5-bit frames
 turned into floats in [-0.5, 0.5) by :func:`~wmthesis.envs.preprocessing.to_float`, with
 uniform dequantisation noise when training.
@@ -52,7 +52,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from wmthesis.envs.preprocessing import to_float, to_uint8
-from wmthesis.models.vae import Decoder, Encoder
+from wmthesis.world_models.vision import Decoder, Encoder
 
 EMBEDDING_SIZE = 1024  # the VAE encoder's features
 

@@ -6,7 +6,7 @@ bouts, :class:`ExpertRecorder` runs the search's own deterministic memory beside
 frames and actions, so each step becomes a training sample of the AlphaZero heads:
 features ``[z_t h_{t-1}]`` (the memory's h, not the expert's), the expert's action as a one-hot
 policy target, and the real reward for the value targets. :func:`expert_games` returns them as
-:class:`~wmthesis.agents.alphazero.Game` records; :func:`~wmthesis.agents.alphazero.train_alphazero`
+:class:`~wmthesis.alphazero.replay.Game` records; :func:`~wmthesis.alphazero.selfplay.train_alphazero`
 puts them in the replay and pretrains the heads on them before the first self-play game.
 """
 from __future__ import annotations
@@ -18,15 +18,17 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from wmthesis.alphazero.latent_mdp import State
+from wmthesis.alphazero.replay import Game, game_seeds
 from wmthesis.core import Callback, Mind, loop
 
 
 class ExpertRecorder(Callback):
-    """Records one game of another mind as a :class:`~wmthesis.agents.alphazero.Game`.
+    """Records one game of another mind as a :class:`~wmthesis.alphazero.replay.Game`.
 
     ``vision``: uint8 frames (N, ...) -> latents (N, L); ``mdp``: the
-    :class:`~wmthesis.agents.alphazero.LatentMDP` whose LSTM state gives the features, stepped
-    with every real action as :class:`~wmthesis.agents.alphazero.AlphaZeroMind` steps it. Pass it
+    :class:`~wmthesis.alphazero.latent_mdp.LatentMDP` whose LSTM state gives the features, stepped
+    with every real action as :class:`~wmthesis.alphazero.selfplay.AlphaZeroMind` steps it. Pass it
     to :func:`~wmthesis.core.loop` as a callback; the finished game is in :attr:`game`.
     """
 
@@ -45,8 +47,6 @@ class ExpertRecorder(Callback):
         self._last, self._terminated, self._started = None, False, time.perf_counter()
 
     def on_step_taken(self, step, transition, info) -> None:
-        from wmthesis.agents.alphazero import State
-
         z = self.encode(transition.state)
         next_state, predicted = self.mdp.transition(State(z, self.h, self.c), transition.action)
         for key, value in (("features", np.concatenate([z, self.h])), ("actions", transition.action),
@@ -58,8 +58,6 @@ class ExpertRecorder(Callback):
             self._last = np.concatenate([self.encode(transition.next_state), self.h])
 
     def on_episode_end(self, episode: int, train_mode: bool) -> None:
-        from wmthesis.agents.alphazero import Game
-
         s, A = self._steps, self.mdp.n_actions
         actions = np.array(s["actions"], np.int64)
         T = len(actions)
@@ -80,10 +78,8 @@ def expert_games(env, make_expert: Callable[[int], object], vision: Callable, md
     ``make_expert(agent_seed)``: a fresh :class:`~wmthesis.core.Mind` for one game; when it is
     also a :class:`~wmthesis.core.Callback` (as the World Models controller, whose memory must
     follow the real actions), it gets the loop's callbacks too. The game of seed ``s`` resets
-    the env with and seeds the expert from :func:`~wmthesis.agents.alphazero.game_seeds` of ``s``.
+    the env with and seeds the expert from :func:`~wmthesis.alphazero.replay.game_seeds` of ``s``.
     """
-    from wmthesis.agents.alphazero import game_seeds
-
     recorder, games = ExpertRecorder(vision, mdp), []
     for index, seed in enumerate(tqdm(list(seeds), desc="expert games", disable=not progress)):
         env_seed, agent_seed = game_seeds(int(seed))

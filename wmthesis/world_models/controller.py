@@ -12,9 +12,13 @@ b (the order of ``torch.nn.utils.parameters_to_vector`` on an ``nn.Linear``).
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import torch
 from torch import nn
+
+from wmthesis.core import Callback, Mind
 
 
 class Controller(nn.Module):
@@ -76,3 +80,46 @@ def unflatten(params: torch.Tensor, in_features: int, n_actions: int) -> tuple[t
 def population_scores(weight: torch.Tensor, bias: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """Every candidate scores its own episodes: W (P, A, F), b (P, A), x (P, E, F) -> (P, E, A)."""
     return torch.baddbmm(bias[:, None, :], x, weight.transpose(1, 2))
+
+
+class ControllerMind(Mind, Callback):
+    """Vision + memory + controller as a HumbleRL mind, for :func:`wmthesis.core.loop`.
+
+    It is also a callback that advances the memory with the action actually taken and resets
+    it at each episode start, so pass it both ways::
+
+        loop(env, mind, callbacks=[mind], policy="deterministic")
+
+    ``plan(state)``: the observation (e.g. (64, 64, 3) uint8) -> action scores (A,).
+    """
+
+    def __init__(self, vision: Callable, memory, controller: Controller):
+        self.vision, self.memory, self.controller = vision, memory, controller
+        if memory is not None:
+            memory.eval()
+        self.reset()
+
+    def reset(self) -> None:
+        self.state = None if self.memory is None else self.memory.initial_state(1)
+        self.h = None if self.memory is None else torch.zeros(1, self.memory.hidden_size)
+        self.z = None
+
+    @torch.inference_mode()
+    def plan(self, state, train_mode: bool = True, debug_mode: bool = False) -> np.ndarray:
+        if self.z is not None:
+            raise RuntimeError("ControllerMind.plan was called twice without a step: pass the mind "
+                               "as a callback too, loop(env, mind, callbacks=[mind])")
+        self.z = self.vision(torch.as_tensor(np.asarray(state))[None])
+        h = None if self.h is None else self.h.to(self.z.device)
+        return self.controller.to(self.z.device)(self.z, h)[0].cpu().numpy()
+
+    def on_episode_start(self, episode: int, train_mode: bool) -> None:
+        self.reset()
+
+    @torch.inference_mode()
+    def on_step_taken(self, step, transition, info) -> None:
+        if self.memory is not None:
+            action = torch.tensor([transition.action], device=self.z.device)
+            out = self.memory.step(self.z, action, self.state)
+            self.h, self.state = out.hidden, out.state
+        self.z = None

@@ -19,8 +19,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from wmthesis.agents.alphazero import (Game, LatentMDP, _corr, _split_episodes, _stack_rows, rollout_episodes,
-                                       value_targets)
+from wmthesis.alphazero.heads import value_targets
+from wmthesis.alphazero.latent_mdp import LatentMDP, _split_episodes, _stack_rows, rollout_episodes
+from wmthesis.alphazero.replay import Game
+from wmthesis.metrics import correlation
+from wmthesis.training import gradient_step
 
 # ----------------------------------------------------------------------------- diagnosis
 def reward_error_by_depth(mdp: LatentMDP, games, depth: int) -> dict:
@@ -71,7 +74,7 @@ def reward_error_by_depth(mdp: LatentMDP, games, depth: int) -> dict:
 def value_predictability(mdp: LatentMDP, latents, gamma: float, n_step: int, val_fraction: float = 0.1,
                          ridge: float = 1.0) -> dict:
     """Can a linear value on ``[z h]`` predict returns at all? Fits one by ridge regression to
-    the random rollouts (``latents``: a :class:`~wmthesis.agents.world_models.LatentStore`;
+    the random rollouts (``latents``: a :class:`~wmthesis.world_models.train.LatentStore`;
     h from the memory reading each episode) and reports the correlation of its predictions with
     the targets on the training episodes and on the last ``val_fraction`` of episodes, for the
     ``monte-carlo`` returns and the ``n-step`` discounted reward sums (the bootstrap term
@@ -96,9 +99,9 @@ def value_predictability(mdp: LatentMDP, latents, gamma: float, n_step: int, val
     for name, parts in targets.items():
         y = np.concatenate(parts)
         w = np.linalg.solve(x[train].T @ x[train] + ridge * np.eye(x.shape[1]), x[train].T @ y[train])
-        result[name] = {"train_corr": _corr(x[train] @ w, y[train]), "val_corr": _corr(x[val] @ w, y[val])}
-    result["reward"] = {"train_corr": _corr(predicted[train], rewards[train]),
-                        "val_corr": _corr(predicted[val], rewards[val])}
+        result[name] = {"train_corr": correlation(x[train] @ w, y[train]), "val_corr": correlation(x[val] @ w, y[val])}
+    result["reward"] = {"train_corr": correlation(predicted[train], rewards[train]),
+                        "val_corr": correlation(predicted[val], rewards[val])}
     return result
 
 
@@ -106,7 +109,7 @@ def action_predictability(mdp: LatentMDP, latents, horizons=(3, 8), val_fraction
                           hidden: int = 64, seed: int = 0) -> dict:
     """Does ``[z h]`` say *which action* is better? (What any planner on this model needs.)
 
-    On the random rollouts (a :class:`~wmthesis.agents.world_models.LatentStore`; h from the
+    On the random rollouts (a :class:`~wmthesis.world_models.train.LatentStore`; h from the
     memory), fits an MLP ``Q(z, h, a)`` by MSE to the sum of the next k rewards
     ``r_t + ... + r_{t+k-1}`` (for each k in ``horizons``; the actions after a_t are random, so
     this is the random policy's Q) and reports on the last ``val_fraction`` of the episodes:
@@ -138,17 +141,17 @@ def _fit_q(train: tuple, val: tuple, n_actions: int, epochs: int, hidden: int, s
 
     optimiser = torch.optim.Adam(net.parameters(), lr=1e-3, weight_decay=1e-4)
     rng = np.random.default_rng(seed)
+    update = 0
     for _ in range(epochs):
         for batch in torch.from_numpy(rng.permutation(len(y))).split(256):
-            loss = F.mse_loss(q(x[batch], a[batch]), y[batch])
-            optimiser.zero_grad(set_to_none=True)
-            loss.backward()
-            optimiser.step()
+            update += 1
+            gradient_step("diagnosis Q probe", update, {"loss": F.mse_loss(q(x[batch], a[batch]), y[batch])},
+                          optimiser, net.parameters())
     xv, av, yv = (torch.as_tensor(v) for v in val)  # Q of every action on the held-out rows
     with torch.no_grad():
         every = torch.stack([q(xv, torch.full_like(av, j)) for j in range(n_actions)], 1).numpy()
     taken, v, yv = every[np.arange(len(yv)), av.numpy()], every.mean(1), yv.numpy()
-    return {"q_corr": _corr(taken, yv), "v_corr": _corr(v, yv), "advantage_corr": _corr(taken - v, yv - v),
+    return {"q_corr": correlation(taken, yv), "v_corr": correlation(v, yv), "advantage_corr": correlation(taken - v, yv - v),
             "advantage_std": float((every - v[:, None]).std()), "val_rows": int(len(yv))}
 
 
@@ -174,7 +177,7 @@ def search_statistics(games, gamma: float, c: float, simulations: int) -> dict:
     A = q.shape[1]
     tied = float(np.mean((policies == policies.max(-1, keepdims=True)).sum(-1) > 1))
     return {"root_value": root_values, "returns": returns, "q_spread": spread, "visit_entropy": entropy, "tied": tied,
-            "prior_bonus": c / A * math.sqrt(simulations) / 2, "value_return_corr": _corr(root_values, returns)}
+            "prior_bonus": c / A * math.sqrt(simulations) / 2, "value_return_corr": correlation(root_values, returns)}
 
 
 # ----------------------------------------------------------------------------- figures

@@ -27,13 +27,10 @@ on ``z`` alone).
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 import pickle
 import time
-from collections import defaultdict
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
@@ -41,12 +38,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from wmthesis.core import Callback, Mind
-from wmthesis.models.controller import Controller, features, num_parameters, population_scores, unflatten
-from wmthesis.models.memory import Mixture, sample_mixture
-from wmthesis.models.vae import frames_to_input
+from wmthesis.envs.vector import make_game
 from wmthesis.training import check_resumable
-from wmthesis.utils import atomic_path, check_choice, derive_seeds, read_pickle
+from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint, read_pickle, timed
+from wmthesis.world_models.controller import Controller, features, num_parameters, population_scores, unflatten
+from wmthesis.world_models.memory import Mixture, sample_mixture
 
 FORMAT = "wmthesis-controller"
 FORMAT_VERSION = 1
@@ -56,138 +52,9 @@ RESUMABLE_FIELDS = ("generations",)  # config fields that may change when resumi
 
 
 # ----------------------------------------------------------------------------- vision
-class VAEVision:
-    """The VAE's encoder as vision: uint8 frames (N, 64, 64, 3) -> latent means ``mu`` (N, L).
-
-    ``bfloat16=True`` encodes under bfloat16 autocast: about twice as fast on a CPU with
-    AVX-512 BF16, latents within ~1e-2 of float32 (use the same vision to train and to play).
-    """
-
-    def __init__(self, vae: torch.nn.Module, bfloat16: bool = False):
-        self.vae, self.bfloat16 = vae.eval(), bfloat16
-        self.latent_size = vae.latent_size
-
-    def __call__(self, frames: torch.Tensor) -> torch.Tensor:
-        device = next(self.vae.parameters()).device
-        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=self.bfloat16):
-            return self.vae.encode(frames_to_input(frames.to(device)))[0].float()
 
 
 # ----------------------------------------------------------------------------- games
-@contextmanager
-def _timed(timings: dict | None, key: str):
-    start = time.perf_counter()
-    yield
-    if timings is not None:
-        timings[key] += time.perf_counter() - start
-
-
-class AtariGame:
-    """``num_envs`` Atari games in ale-py's C++ vector env with World Models frames.
-
-    Same dynamics as :func:`wmthesis.envs.atari.make_atari` (frame skip 4, sticky actions off,
-    no max-pooling, no fire on reset, unclipped rewards), raw frames cropped and resized to
-    (64, 64, 3) uint8 here with the same :func:`crop_resize`. The games are deterministic, so
-    ``reset(seeds)`` only draws, from each episode's seed, its number of leading no-op actions
-    in ``[0, noop_max)`` (``noops``, (N,)), which the evaluator plays before the controller
-    takes over (a seeded reset of ale-py reloads the ROM: ~0.15 s an env). ``step(actions)``
-    returns ``(frames, rewards, done)``; once an env's episode ended, its rewards are 0 and its
-    frames stale. ``timings`` accumulates seconds under ``env`` and ``preprocess``.
-    """
-
-    def __init__(self, game: str, num_envs: int, *, noop_max: int = 30, action_repeat: int = 4,
-                 num_threads: int | None = None):
-        from ale_py.vector_env import AtariVectorEnv
-
-        from wmthesis.envs.preprocessing import CROPS
-
-        self.num_envs, self.crop = num_envs, CROPS[game]
-        self.env = AtariVectorEnv(
-            game.lower(), num_envs, num_threads=num_threads or min(num_envs, os.cpu_count() or 1),
-            img_height=210, img_width=160, grayscale=False, stack_num=1, frameskip=action_repeat,
-            maxpool=False, repeat_action_probability=0.0, noop_max=0, reward_clipping=False,
-            episodic_life=False, use_fire_reset=False)
-        self.n_actions, self.noop_max = int(self.env.single_action_space.n), noop_max
-        self.noops = np.zeros(num_envs, np.int64)
-        self.frames = np.zeros((num_envs, 64, 64, 3), np.uint8)
-        self.done = np.ones(num_envs, bool)
-        self.timings: dict = defaultdict(float)
-
-    def reset(self, seeds: np.ndarray) -> np.ndarray:
-        with _timed(self.timings, "env"):
-            raw, _ = self.env.reset()
-        self.noops = np.array([np.random.default_rng(int(s)).integers(max(self.noop_max, 1)) for s in seeds])
-        self.done[:] = False
-        return self._preprocess(raw)
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        with _timed(self.timings, "env"):
-            raw, rewards, terminated, truncated, _ = self.env.step(np.asarray(actions, np.int64))
-        rewards = np.where(self.done, 0.0, rewards.astype(np.float64))
-        self.done |= terminated | truncated
-        return self._preprocess(raw), rewards, self.done.copy()
-
-    def _preprocess(self, raw: np.ndarray) -> np.ndarray:
-        """(N, 1, 210, 160, 3) raw frames -> (N, 64, 64, 3) World Models frames (live envs only)."""
-        from wmthesis.envs.preprocessing import crop_resize
-
-        with _timed(self.timings, "preprocess"):
-            for i in np.flatnonzero(~self.done):
-                self.frames[i] = crop_resize(raw[i, 0], self.crop, 64)
-        return self.frames
-
-    def close(self) -> None:
-        self.env.close()
-
-
-class ListGame:
-    """``num_envs`` gymnasium envs from ``make()`` stepped in a list (Sokoban); same interface
-    as :class:`AtariGame`. Observations are as the envs return them; ``reset(seeds)`` seeds
-    each env's episode (a new Sokoban level per seed); no leading no-ops."""
-
-    def __init__(self, make: Callable, num_envs: int):
-        self.envs = [make() for _ in range(num_envs)]
-        self.num_envs, self.n_actions = num_envs, int(self.envs[0].action_space.n)
-        self.noops = np.zeros(num_envs, np.int64)  # Sokoban has no no-op action
-        self.observations: np.ndarray | None = None
-        self.done = np.ones(num_envs, bool)
-        self.timings: dict = defaultdict(float)
-
-    def reset(self, seeds: np.ndarray) -> np.ndarray:
-        with _timed(self.timings, "env"):
-            self.observations = np.stack([env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds)])
-        self.done[:] = False
-        return self.observations
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        rewards = np.zeros(self.num_envs)
-        with _timed(self.timings, "env"):
-            for i in np.flatnonzero(~self.done):
-                observation, rewards[i], terminated, truncated, _ = self.envs[i].step(int(actions[i]))
-                self.observations[i] = observation
-                self.done[i] = terminated or truncated
-        return self.observations, rewards, self.done.copy()
-
-    def close(self) -> None:
-        for env in self.envs:
-            env.close()
-
-
-def make_game(name: str, num_envs: int, *, noop_max: int = 30, num_threads: int | None = None, **options):
-    """``num_envs`` copies of game ``name`` for batched evaluation.
-
-    Atari games (``boxing``, ``freeway``): :class:`AtariGame` (options: ``action_repeat``).
-    Sokoban: :class:`ListGame` of ``make_env(name, **options)`` (``noop_max`` is unused).
-    """
-    from wmthesis.envs import ATARI_GAMES, make_env
-
-    check_choice("environment", name, tuple(ATARI_GAMES) + ("sokoban", "sokoban-small"))
-    if name in ATARI_GAMES:
-        unknown = sorted(set(options) - {"action_repeat"})
-        if unknown:
-            raise TypeError(f"unknown option(s) {unknown} for the batched {name!r}; valid: action_repeat")
-        return AtariGame(ATARI_GAMES[name], num_envs, noop_max=noop_max, num_threads=num_threads, **options)
-    return ListGame(lambda: make_env(name, **options), num_envs)
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -220,7 +87,7 @@ def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, m
     if game.num_envs != P * E:
         raise ValueError(f"the game has {game.num_envs} envs; {P} candidates x {E} episodes need {P * E}")
     frames = game.reset(np.tile(np.asarray(seeds), P))
-    with _timed(timings, "vision"):
+    with timed(timings, "vision"):
         z = vision(torch.from_numpy(frames))
     H = 0 if memory is None else memory.hidden_size
     weight, bias = _population(params, z.shape[-1] + H, game.n_actions, z.device)
@@ -229,10 +96,10 @@ def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, m
     returns, steps = np.zeros(P * E), np.zeros(P * E, np.int64)
     noops = torch.as_tensor(game.noops, device=z.device)
     for t in range(max_steps or 2**62):
-        with _timed(timings, "controller"):
+        with timed(timings, "controller"):
             actions = torch.where(noops > t, 0, _act(weight, bias, z, h))
         if memory is not None:
-            with _timed(timings, "memory"):
+            with timed(timings, "memory"):
                 out = memory.step(z, actions, state)
                 h, state = out.hidden, out.state
         alive = ~game.done
@@ -241,7 +108,7 @@ def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, m
         steps += alive
         if done.all():
             break
-        with _timed(timings, "vision"):
+        with timed(timings, "vision"):
             z = vision(torch.from_numpy(frames))
     return returns.reshape(P, E), steps.reshape(P, E)
 
@@ -295,9 +162,9 @@ def dream_population(params, memory, start_latents: torch.Tensor, *, temperature
     returns = torch.zeros(P * E, dtype=torch.float64, device=z.device)
     steps = torch.zeros(P * E, dtype=torch.int64, device=z.device)
     for t in range(max_steps):
-        with _timed(timings, "controller"):
+        with timed(timings, "controller"):
             actions = torch.where(noops > t, 0, _act(weight, bias, z, h))
-        with _timed(timings, "memory"):
+        with timed(timings, "memory"):
             out = memory.step(z, actions, state)
             returns += out.reward.double() * alive
             steps += alive
@@ -370,7 +237,7 @@ def train_controller(env_name: str, vision: Callable, memory, cfg, *, out_dir: s
     """Evolve a controller for ``env_name`` with CMA-ES (see the module docstring).
 
     ``vision``: frames -> z (e.g. :class:`VAEVision`); ``memory``: a
-    :class:`~wmthesis.models.memory.Memory` or None; ``cfg``: a
+    :class:`~wmthesis.world_models.memory.Memory` or None; ``cfg``: a
     :class:`~wmthesis.config.ControllerConfig`. With ``out_dir``, each generation writes
     ``controller.pkl`` and ``curve.json`` there atomically, and an existing checkpoint is
     resumed: only ``generations`` may differ from its config, anything else (config, game,
@@ -474,19 +341,8 @@ def _task(env_name: str, env_options: dict, probe, vision, memory) -> dict:
         raise ValueError(f"the memory was built for {memory.n_actions} actions; {env_name} has {probe.n_actions}")
     return dict(env=env_name, env_options=env_options, latent_size=int(z.shape[-1]),
                 hidden_size=0 if memory is None else memory.hidden_size, n_actions=probe.n_actions,
-                memory=_fingerprint(memory), vision=_fingerprint(getattr(vision, "vae", vision)),
+                memory=fingerprint(memory), vision=fingerprint(getattr(vision, "vae", vision)),
                 vision_bfloat16=bool(getattr(vision, "bfloat16", False)))
-
-
-def _fingerprint(model) -> str | None:
-    """A hash of a module's weights (None for anything else, e.g. a plain function)."""
-    if not isinstance(model, torch.nn.Module):
-        return None
-    digest = hashlib.sha1()
-    for name, tensor in model.state_dict().items():
-        digest.update(name.encode())
-        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
-    return digest.hexdigest()[:16]
 
 
 def _resume(path: Path, cfg, task: dict) -> ControllerRun:
@@ -518,71 +374,6 @@ def load_run(path: str | os.PathLike) -> ControllerRun:
 
 
 # ----------------------------------------------------------------------------- figures
-def plot_learning_curve(curve: list[dict], ax=None, title: str | None = None):
-    """Best/mean/worst population fitness per generation (the band spans worst to best) and,
-    where present, the real-game return of the CMA-ES mean (mean +- std). Returns the figure."""
-    import matplotlib.pyplot as plt
-
-    if ax is None:
-        _, ax = plt.subplots(figsize=(6, 3.5))
-    generation = [e["generation"] for e in curve]
-    ax.fill_between(generation, [e["worst"] for e in curve], [e["best"] for e in curve], alpha=0.2,
-                    label="population (worst to best)")
-    ax.plot(generation, [e["best"] for e in curve], lw=1, label="best")
-    ax.plot(generation, [e["mean"] for e in curve], lw=1.5, label="mean")
-    evals = [e for e in curve if "eval_return" in e]
-    if evals:
-        ax.errorbar([e["generation"] for e in evals], [e["eval_return"] for e in evals],
-                    [e["eval_std"] for e in evals], fmt="o", ms=3, capsize=2, color="k",
-                    label="CMA-ES mean, real game")
-    ax.xaxis.set_major_locator(plt.MaxNLocator(integer=True))
-    ax.set_xlabel("generation")
-    ax.set_ylabel("return")
-    ax.set_title(title or "Controller fitness (CMA-ES)")
-    ax.legend(fontsize=7)
-    ax.figure.tight_layout()
-    return ax.figure
 
 
 # ----------------------------------------------------------------------------- the mind
-class ControllerMind(Mind, Callback):
-    """Vision + memory + controller as a HumbleRL mind, for :func:`wmthesis.core.loop`.
-
-    It is also a callback that advances the memory with the action actually taken and resets
-    it at each episode start, so pass it both ways::
-
-        loop(env, mind, callbacks=[mind], policy="deterministic")
-
-    ``plan(state)``: the observation (e.g. (64, 64, 3) uint8) -> action scores (A,).
-    """
-
-    def __init__(self, vision: Callable, memory, controller: Controller):
-        self.vision, self.memory, self.controller = vision, memory, controller
-        if memory is not None:
-            memory.eval()
-        self.reset()
-
-    def reset(self) -> None:
-        self.state = None if self.memory is None else self.memory.initial_state(1)
-        self.h = None if self.memory is None else torch.zeros(1, self.memory.hidden_size)
-        self.z = None
-
-    @torch.inference_mode()
-    def plan(self, state, train_mode: bool = True, debug_mode: bool = False) -> np.ndarray:
-        if self.z is not None:
-            raise RuntimeError("ControllerMind.plan was called twice without a step: pass the mind "
-                               "as a callback too, loop(env, mind, callbacks=[mind])")
-        self.z = self.vision(torch.as_tensor(np.asarray(state))[None])
-        h = None if self.h is None else self.h.to(self.z.device)
-        return self.controller.to(self.z.device)(self.z, h)[0].cpu().numpy()
-
-    def on_episode_start(self, episode: int, train_mode: bool) -> None:
-        self.reset()
-
-    @torch.inference_mode()
-    def on_step_taken(self, step, transition, info) -> None:
-        if self.memory is not None:
-            action = torch.tensor([transition.action], device=self.z.device)
-            out = self.memory.step(self.z, action, self.state)
-            self.h, self.state = out.hidden, out.state
-        self.z = None

@@ -1,0 +1,195 @@
+"""Bad input never acts silently: each row of the README's "what happens when ..." table is a
+test here (or names the test that covers it)."""
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from wmthesis.__main__ import main
+from wmthesis.envs import make_env
+from wmthesis.envs.sokoban import SokobanEnv
+from wmthesis.training import NonFiniteLoss, gradient_step
+from wmthesis.utils import LOCK_NAME, FolderHeld, hold, release, releasing_holds
+
+
+# ----------------------------------------------------------------------------- actions
+@pytest.mark.parametrize("action", [-1, 8, 2.7, float("nan"), "2", None, np.array([1, 2]), True])
+def test_sokoban_refuses_an_illegal_action_naming_it_and_the_range(action):
+    env = make_env("sokoban-small", observation="grid")
+    env.reset(seed=0)
+    board = env.unwrapped.board.copy()
+    with pytest.raises(ValueError, match=r"action .* valid action is an integer in \[0, 7\]"):
+        env.step(action)
+    assert np.array_equal(env.unwrapped.board, board)  # nothing was played
+
+
+def test_sokoban_takes_numpy_integers():
+    env = make_env("sokoban-small", observation="grid")
+    env.reset(seed=0)
+    for action in (np.int64(3), np.array(2), 1):
+        env.step(action)
+    assert env.unwrapped.steps == 3
+
+
+@pytest.mark.parametrize("action", [99, -1, 1.5])
+def test_boxing_refuses_an_illegal_action(action):
+    env = make_env("boxing")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=rf"action {action!r} .*\[0, 17\]"):
+        env.step(action)
+    env.close()
+
+
+@pytest.mark.parametrize("name", ["sokoban-small", "freeway"])
+def test_stepping_before_reset_says_to_call_reset(name):
+    env = make_env(name)
+    with pytest.raises(RuntimeError, match=r"call reset\(\) first"):
+        env.step(0)
+    env.close()
+
+
+@pytest.mark.parametrize("name", ["sokoban-small", "freeway"])
+def test_stepping_after_the_episode_ended_is_refused_saying_why(name):
+    env = make_env(name, max_steps=3)
+    env.reset(seed=0)
+    for _ in range(3):
+        _, _, terminated, truncated, _ = env.step(0)
+    assert terminated or truncated
+    with pytest.raises(RuntimeError, match=r"after the episode ended.*call reset\(\)"):
+        env.step(0)
+    env.reset(seed=1)
+    env.step(0)  # a new episode plays again
+    env.close()
+
+
+def test_impossible_sokoban_sizes_are_refused_at_construction():
+    started = time.perf_counter()
+    with pytest.raises(ValueError, match=r"5 boxes cannot fit a 3x3 room: its 1 inner cells"):
+        SokobanEnv(dim_room=(3, 3), num_boxes=5)
+    with pytest.raises(ValueError, match=r"3 boxes cannot fit a 4x4 room: its 4 inner cells .* \(5\)"):
+        SokobanEnv(dim_room=(4, 4), num_boxes=3)
+    assert time.perf_counter() - started < 1.0  # at once, not after 1,000 rooms
+    SokobanEnv(dim_room=(4, 5), num_boxes=2).reset(seed=0)  # 6 inner cells: 2 boxes, the player, one free
+
+
+# ----------------------------------------------------------------------------- command line
+def test_zero_episodes_collects_nothing_and_says_so(tmp_path, capsys):
+    out = tmp_path / "none.h5"
+    assert main(["collect", "sokoban-small", "--episodes", "0", "--out", str(out)]) == 0
+    assert "nothing to collect" in capsys.readouterr().out and not out.exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["collect", "sokoban-small", "--workers", "0"], "--workers: 0 is out of range (valid: 1 or more)"),
+    (["collect", "sokoban-small", "--episodes", "-3"], "--episodes: -3 is out of range (valid: 0 or more)"),
+    (["collect", "sokoban-small", "--max-steps", "0"], "--max-steps: 0 is out of range (valid: 1 or more)"),
+    (["collect", "sokoban-small", "--seed", "-1"], "--seed: -1 is out of range (valid: 0 or more)"),
+    (["collect", "sokoban-small", "--episodes", "two"], "--episodes: 'two' is not an integer"),
+    (["reproduce", "planet-boxing", "--seed", "-2"], "--seed: -2 is out of range (valid: 0 or more)"),
+    (["search", "planet-boxing", "--trials", "0"], "--trials: 0 is out of range (valid: 1 or more)"),
+    (["view", "x.h5", "--episode", "-1"], "--episode: -1 is out of range (valid: 0 or more)"),
+])
+def test_invalid_numbers_on_the_command_line_are_refused_with_the_range(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- NaN and inf
+def test_the_guard_names_the_model_the_update_and_the_term_before_any_change():
+    layer = torch.nn.Linear(3, 1)
+    optimiser = torch.optim.SGD(layer.parameters(), lr=0.1)
+    before = [p.detach().clone() for p in layer.parameters()]
+    out = layer(torch.ones(1, 3)).sum().abs() + 1
+    terms = {"loss": out * float("nan"), "kl": out * 0, "reward": out * float("inf")}
+    with pytest.raises(NonFiniteLoss, match=r"vision: non-finite loss term loss = nan, reward = inf at update 7"):
+        gradient_step("vision", 7, terms, optimiser, layer.parameters(), kept="kept at ck.pt")
+    grad = torch.nn.Parameter(torch.zeros(3))
+    with pytest.raises(NonFiniteLoss, match=r"memory: non-finite gradient norm \(inf\) at update 2.*kept at ck.pt"):
+        gradient_step("memory", 2, {"loss": grad.sqrt().sum()}, torch.optim.SGD([grad], lr=0.1), [grad],
+                      kept="kept at ck.pt")  # d sqrt(x) / dx at 0 is inf, the loss 0 is finite
+    assert all(torch.equal(a, b) for a, b in zip(before, layer.parameters())) and torch.equal(grad, torch.zeros(3))
+
+
+def test_the_alphazero_heads_and_the_reward_model_stop_on_nan():
+    from wmthesis.alphazero.heads import AlphaZeroHeads, make_optimiser, train_round
+    from wmthesis.alphazero.latent_mdp import RewardModel, train_reward_model
+    from wmthesis.alphazero.replay import Game
+    from wmthesis.config import AlphaZeroConfig
+
+    config = AlphaZeroConfig(epochs=1, batch_size=4)
+    heads = AlphaZeroHeads(2, 3, 2)
+    T = 6
+    game = Game(index=0, features=np.full((T, 5), np.nan, np.float32), policies=np.full((T, 2), 0.5, np.float32),
+                actions=np.zeros(T, np.int64), rewards=np.zeros(T, np.float32),
+                predicted_rewards=np.zeros(T, np.float32), root_values=np.zeros(T, np.float32),
+                depths=np.zeros(T, np.int16), q=np.zeros((T, 2), np.float32), terminated=True,
+                last_features=np.zeros(5, np.float32), seconds=0.0)
+    with pytest.raises(NonFiniteLoss, match="AlphaZero heads: non-finite loss term .* at update 1"):
+        train_round(heads, make_optimiser(heads, config), [game], config, np.random.default_rng(0))
+    model = RewardModel(5, 2, hidden=8, reward_range=1)
+    rows = (np.ones((8, 5), np.float32), np.zeros(8, np.int64), np.zeros(8, np.float32))
+    rows[0][3] = np.inf
+    with pytest.raises(NonFiniteLoss, match="reward model: non-finite"):
+        train_reward_model(model, torch.optim.Adam(model.parameters()), rows, 1, 4, np.random.default_rng(0))
+
+
+# ----------------------------------------------------------------------------- held folders
+HOLDER = """
+import sys, time
+from wmthesis.utils import hold
+hold(sys.argv[1])
+print("held", flush=True)
+time.sleep(60)
+"""
+
+
+def test_a_folder_held_by_another_run_names_the_holder_and_a_dead_ones_lock_is_taken_over(tmp_path, capsys):
+    folder = tmp_path / "run"
+    other = subprocess.Popen([sys.executable, "-c", HOLDER, str(folder)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert other.stdout.readline().strip() == "held"
+        with pytest.raises(FolderHeld, match=rf"held by another run: process {other.pid} \(.*-c"):
+            hold(folder)
+    finally:
+        other.kill()
+        other.wait()
+    assert (folder / LOCK_NAME).exists()  # SIGKILL left its lock behind
+    assert hold(folder) == folder.resolve()
+    assert "taking over the lock of a run that is gone" in capsys.readouterr().err
+    assert str(os.getpid()) in (folder / LOCK_NAME).read_text()
+    hold(folder)  # the same process may hold it again
+    release(folder)
+    assert (folder / LOCK_NAME).exists()
+    release(folder)
+    assert not (folder / LOCK_NAME).exists()
+
+
+def test_an_experiment_lets_go_of_its_folder_when_it_returns_or_fails(tmp_path):
+    @releasing_holds
+    def experiment(fail: bool):
+        hold(tmp_path / "work")
+        assert (tmp_path / "work" / LOCK_NAME).exists()
+        if fail:
+            raise KeyError("boom")
+
+    experiment(False)
+    assert not (tmp_path / "work" / LOCK_NAME).exists()
+    with pytest.raises(KeyError):
+        experiment(True)
+    assert not (tmp_path / "work" / LOCK_NAME).exists()
+
+
+def test_the_command_line_reports_a_held_folder_in_one_line(tmp_path, capsys, monkeypatch):
+    import wmthesis.experiments as experiments
+
+    def held(*args, **kwargs):
+        raise FolderHeld("data/smoke/sokoban-wm/seed0 is held by another run: process 12 ('python -m wmthesis')")
+
+    monkeypatch.setattr(experiments, "reproduce", held)
+    assert main(["reproduce", "sokoban-wm", "--profile", "smoke"]) == 2
+    assert "error: data/smoke/sokoban-wm/seed0 is held by another run: process 12" in capsys.readouterr().err

@@ -1,0 +1,87 @@
+"""PlaNet's figures: open-loop rollouts (thesis Fig. 58, 59, 510), error by horizon, learning curves."""
+from __future__ import annotations
+
+from typing import Sequence
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+
+def open_loop_figure(result: dict, *, sequences: int = 3, columns: int | None = None,
+                     scale: float = 0.9, title: str | None = None):
+    """Thesis Fig. 58 style: per sequence a row of true frames and a row of the model's
+    frames; the model row shows the ``context`` true frames, then its open-loop predictions
+    (columns titled +1, +2, ...). ``result`` is :func:`open_loop`'s output."""
+    truth, prediction, context = result["truth"], result["prediction"], result["context"]
+    sequences = min(sequences, len(truth))
+    columns = min(columns or truth.shape[1], truth.shape[1])
+    fig, axes = plt.subplots(2 * sequences, columns, squeeze=False,
+                             figsize=(scale * columns, scale * 2 * sequences + (0.3 if title else 0)))
+    for index in range(sequences):
+        model_row = np.concatenate([truth[index, :context], prediction[index, context:]])
+        for row, (label, frames) in enumerate((("truth", truth[index]), ("model", model_row))):
+            for t, ax in enumerate(axes[2 * index + row]):
+                ax.imshow(frames[t], interpolation="nearest")
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if t >= context and row == 1:
+                    for spine in ax.spines.values():
+                        spine.set_edgecolor("tab:red")
+            axes[2 * index + row, 0].set_ylabel(f"{label} {index + 1}", fontsize=7)
+    for t, ax in enumerate(axes[0]):
+        ax.set_title("context" if t == context // 2 else (f"+{t - context + 1}" if t >= context else ""),
+                     fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout(pad=0.2, rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight() if title else 1))
+    return fig
+
+
+def horizon_error_figure(curves: dict[str, Sequence[float]], *, title: str | None = None):
+    """Open-loop prediction error against the prediction horizon, one line per entry
+    (e.g. ``{"unchanged": result["mse"], "free nats 12": other["mse"]}``)."""
+    fig, ax = plt.subplots(figsize=(4.5, 3))
+    for label, mse in curves.items():
+        ax.plot(np.arange(1, len(mse) + 1), mse, marker=".", label=label)
+    ax.set_xlabel("steps predicted open-loop")
+    ax.set_ylabel("MSE per pixel")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def learning_curve_figure(curves: dict[str, dict], *, references: dict[str, float] | None = None,
+                          x: str = "env_steps", title: str | None = None):
+    """Test score (mean and std band) against agent steps, one line per run; training
+    episodes' returns as faint dots. ``curves`` maps labels to :func:`train_planet`'s
+    ``curve`` (or ``curve.json``); ``references`` draws horizontal lines (e.g. random, human).
+    """
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    for label, curve in curves.items():
+        tests = curve.get("test", [])
+        line = None
+        if tests:
+            steps = np.array([entry[x] for entry in tests])
+            mean = np.array([entry["mean"] for entry in tests])
+            std = np.array([entry["std"] for entry in tests])
+            (line,) = ax.plot(steps, mean, marker=".", label=f"{label} (test)")
+            ax.fill_between(steps, mean - std, mean + std, alpha=0.2, color=line.get_color())
+        train = curve.get("train", [])
+        if train:
+            ax.scatter([entry[x] for entry in train], [entry["return"] for entry in train], s=6, alpha=0.4,
+                       color=None if line is None else line.get_color(),
+                       label=None if line is not None else f"{label} (train)")
+    for name, value in (references or {}).items():
+        ax.axhline(value, linestyle="--", linewidth=0.8, color="gray")
+        ax.annotate(name, (ax.get_xlim()[0], value), fontsize=7, color="gray", va="bottom")
+    ax.set_xlabel({"env_steps": "agent steps", "frames": "frames"}.get(x, x))
+    ax.set_ylabel("score")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig
