@@ -499,11 +499,11 @@ def test_action_predictability_finds_an_advantage_only_where_there_is_one(action
 def test_evaluation_games_start_with_different_noop_counts():
     from wmthesis.alphazero.replay import game_seeds
     from wmthesis.envs.atari import noop_count
-    from wmthesis.experiments.alphazero import _evaluation_seeds
+    from wmthesis.alphazero.evaluation import evaluation_seeds
 
-    seeds = _evaluation_seeds(0, 10, noop_max=30)
+    seeds = evaluation_seeds(0, 10, noop_max=30)
     assert len({noop_count(game_seeds(s)[0], 30) for s in seeds}) == 10  # a greedy agent would replay a repeat
-    assert len(_evaluation_seeds(0, 5, noop_max=3)) == 5  # more games than no-op counts: repeats allowed
+    assert len(evaluation_seeds(0, 5, noop_max=3)) == 5  # more games than no-op counts: repeats allowed
     env = NoopStart(Corridor(), noop_max=30)
     for seed in (7, 8):
         env.reset(seed=seed)

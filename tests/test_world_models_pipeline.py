@@ -82,7 +82,7 @@ def test_latents_and_memory(trained, boxing_store, tmp_path):
     assert result["pixel_error"].shape == (10,) and np.isfinite(result["latent_error"]).all()
     assert result["pixel_error"].max() < 0.1  # decoded predictions look like Boxing frames
 
-    from wmthesis.experiments.world_models import open_loop_errors
+    from wmthesis.world_models.prediction import open_loop_errors
     errors = open_loop_errors(vae, memory, episode, context=20, horizon=10, starts=8)
     assert errors["rollouts"] == 3  # 100 steps hold three spans of 30
     first = open_loop(vae, memory, episode["observations"][60:], episode["actions"][60:], context=20, horizon=10)

@@ -8,9 +8,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
+from wmthesis.alphazero.evaluation import evaluation_seeds, greedy_returns
 from wmthesis.config import CollectConfig, MemoryConfig, VisionConfig, for_profile, profile_name
 from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header
-from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds, hold, read_pickle, releasing_holds
+from wmthesis.utils import atomic_path, check_choice, data_dir, hold, read_pickle, releasing_holds
 from wmthesis.viz import save_figure
 
 ALPHAZERO_REFERENCE = {"random": 0.1, "human": 12.1,
@@ -142,25 +143,6 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     return metrics
 
 
-def _evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]:
-    """The seed of each evaluation game, shared by every agent compared (through
-    :func:`~wmthesis.alphazero.replay.game_seeds`: the same no-op starts). Seeds whose no-op
-    count repeats an earlier game's are skipped: Boxing is deterministic, so a greedy agent
-    would replay the same game."""
-    from wmthesis.alphazero.replay import game_seeds
-    from wmthesis.envs.atari import noop_count
-
-    seeds, counts, k = [], set(), 0
-    while len(seeds) < episodes:
-        game_seed = int(derive_seeds(seed, 3, k)[0])
-        count = noop_count(game_seeds(game_seed)[0], noop_max)
-        if count not in counts or len(counts) >= max(noop_max, 1):
-            seeds.append(game_seed)
-            counts.add(count)
-        k += 1
-    return seeds
-
-
 def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False) -> list:
     """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
     cached in ``evaluation.pkl`` for the run's number of games. ``pretrained``: the heads
@@ -173,7 +155,7 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrai
 
     path = work / ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl")
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
     try:  # a missing or corrupt cache is played again
         cached = read_pickle(path)
         if cached["key"] == key:
@@ -201,22 +183,17 @@ def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrai
 def _policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list[float]:
     """The evaluation games' returns of the trained policy head played greedily without search
     (how much the search adds to what the heads learned); cached in ``policy_head.json``."""
-    from wmthesis.alphazero.replay import game_seeds
     from wmthesis.envs.atari import boxing_env
     from wmthesis.alphazero.imitation import PolicyHeadMind
-    from wmthesis.core import loop
 
     key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
     cached = _read_json(work / "policy_head.json")
     if cached is not None and cached["key"] == key:
         return cached["returns"]
-    mind, env, returns = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max), []
+    mind, env = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max)
     try:
-        for game_seed in key["seeds"]:
-            history = loop(env, mind, policy="deterministic", callbacks=[mind], max_steps=cfg.eval_max_steps,
-                           seed=game_seeds(game_seed)[0], train_mode=False)
-            returns.append(float(history[0]["return"]))
+        returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=cfg.eval_max_steps)
     finally:
         env.close()
     with atomic_path(work / "policy_head.json") as tmp:
@@ -264,12 +241,11 @@ def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int
     """Random play and the boxing-wm controller (when its run exists) on the evaluation games;
     cached in ``baselines.json``. Returns ``returns`` by agent and ``notes``."""
     from wmthesis.envs.atari import boxing_env
-    from wmthesis.alphazero.replay import game_seeds
-    from wmthesis.core import RandomMind, loop
+    from wmthesis.core import RandomMind
 
     controller_path = wm / "controller" / "controller.pkl"
     key = {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": _evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
            "controller_mtime": controller_path.stat().st_mtime_ns if controller_path.is_file() else None}
     cached = _read_json(work / "baselines.json")
     if cached is not None and cached["key"] == key:
@@ -284,13 +260,8 @@ def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int
     env = boxing_env(cfg.noop_max)
     try:
         for name, make_mind in minds.items():
-            returns[name] = []
-            for game_seed in key["seeds"]:
-                env_seed, agent_seed = game_seeds(game_seed)
-                mind = make_mind(agent_seed)
-                history = loop(env, mind, policy="deterministic", callbacks=[mind] if name != "random" else None,
-                               max_steps=cfg.eval_max_steps, seed=env_seed, train_mode=False)
-                returns[name].append(float(history[0]["return"]))
+            returns[name] = greedy_returns(env, make_mind, key["seeds"], max_steps=cfg.eval_max_steps,
+                                           as_callback=name != "random")
     finally:
         env.close()
     result = {"key": key, "returns": returns, "notes": notes}

@@ -13,6 +13,7 @@ from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, Visio
 from wmthesis.experiments.results import _first_run_seconds, _run_header
 from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
 from wmthesis.viz import save_figure
+from wmthesis.world_models.prediction import open_loop_errors
 
 # Published numbers (DESIGN.md) shown beside ours.
 BOXING_REFERENCE = {"random": 0.1, "human": 12.1, "thesis World Models": "above 18"}
@@ -81,27 +82,6 @@ def _final_score(run, vision, memory, cfg, profile: str) -> np.ndarray:
     finally:
         game.close()
     return returns[0]
-
-
-def open_loop_errors(vae, memory, episode: dict, context: int, horizon: int, starts: int = 8) -> dict:
-    """The open-loop error by horizon averaged over up to ``starts`` rollouts of one episode
-    (starting every ``context + horizon`` steps), beside the "nothing moves" baseline that
-    repeats the last context frame. Returns ``pixel_error``, ``latent_error`` and
-    ``still_pixel_error`` (horizon,) and ``rollouts``."""
-    from wmthesis.world_models.prediction import open_loop
-    from wmthesis.metrics import horizon_errors
-
-    frames, actions, span = episode["observations"], episode["actions"], context + horizon
-    pixel, latent, still = [], [], []
-    for t0 in range(0, len(frames) - span + 1, span)[:starts]:
-        rollout = open_loop(vae, memory, frames[t0:], actions[t0:], context=context, horizon=horizon)
-        pixel.append(rollout["pixel_error"])
-        latent.append(rollout["latent_error"])
-        still.append(horizon_errors(rollout["truth"], np.repeat(frames[t0 + context - 1][None], horizon, 0)))
-    if not pixel:
-        raise ValueError(f"the episode has {len(frames)} steps; open loop needs context + horizon = {span}")
-    return {"pixel_error": np.mean(pixel, 0), "latent_error": np.mean(latent, 0),
-            "still_pixel_error": np.mean(still, 0), "rollouts": len(pixel)}
 
 
 class BoxingWorldModel(NamedTuple):
@@ -174,28 +154,6 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
     with atomic_path(wm.out / f"dream-t{temperature:g}.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
-
-
-def plot_dream(curves: dict, ax=None):
-    """Dream fitness (CMA-ES mean of the population, line) and the real-game return of the
-    CMA-ES mean (points, mean +- std) per generation, one colour per temperature.
-    ``curves``: ``{temperature: controller curve}``. Returns the figure."""
-    if ax is None:
-        _, ax = plt.subplots(figsize=(6, 3.5))
-    for temperature, curve in curves.items():
-        line, = ax.plot([e["generation"] for e in curve], [e["mean"] for e in curve], lw=1.5,
-                        label=f"dream return, tau={temperature:g}")
-        evals = [e for e in curve if "eval_return" in e]
-        ax.errorbar([e["generation"] for e in evals], [e["eval_return"] for e in evals],
-                    [e["eval_std"] for e in evals], fmt="o", ms=4, capsize=2, color=line.get_color(),
-                    label=f"real return, tau={temperature:g}")
-    ax.axhline(0, color="grey", lw=0.5)
-    ax.set_xlabel("generation")
-    ax.set_ylabel("return")
-    ax.set_title("Controller evolved in the dream, played in the real game")
-    ax.legend(fontsize=7)
-    ax.figure.tight_layout()
-    return ax.figure
 
 
 def _boxing_figures(out: Path, frames, reconstructions, rollout, curve) -> list[Path]:

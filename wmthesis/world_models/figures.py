@@ -36,6 +36,29 @@ def plot_learning_curve(curve: list[dict], ax=None, title: str | None = None):
     return ax.figure
 
 
+def plot_dream(curves: dict, ax=None):
+    """Dream fitness (CMA-ES mean of the population, line) and the real-game return of the
+    CMA-ES mean (points, mean +- std) per generation, one colour per temperature.
+    ``curves``: ``{temperature: controller curve}``. Returns the figure."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6, 3.5))
+    for temperature, curve in curves.items():
+        line, = ax.plot([e["generation"] for e in curve], [e["mean"] for e in curve], lw=1.5,
+                        label=f"dream return, tau={temperature:g}")
+        evals = [e for e in curve if "eval_return" in e]
+        ax.errorbar([e["generation"] for e in evals], [e["eval_return"] for e in evals],
+                    [e["eval_std"] for e in evals], fmt="o", ms=4, capsize=2, color=line.get_color(),
+                    label=f"real return, tau={temperature:g}")
+    ax.axhline(0, color="grey", lw=0.5)
+    ax.set_xlabel("generation")
+    ax.set_ylabel("return")
+    ax.set_title("Controller evolved in the dream, played in the real game")
+    ax.legend(fontsize=7)
+    ax.figure.tight_layout()
+    return ax.figure
+
+
+
 def sokoban_figures(out: Path, evaluated: dict, memory_histories: dict, controllers: dict, random_returns,
                      evaluation: dict) -> list[Path]:
     """Fig. 54 and Fig. 55 in the thesis's style, the grid state, the open-loop error curves,

@@ -106,3 +106,21 @@ def head_predictions(memory: Memory, z: torch.Tensor | np.ndarray, actions) -> d
     out = memory(z[None], torch.as_tensor(np.asarray(actions), dtype=torch.long, device=dev)[None])
     return {"reward": out.reward[0].cpu().numpy(),
             "value": None if out.value is None else out.value[0].cpu().numpy()}
+
+
+def open_loop_errors(vae, memory, episode: dict, context: int, horizon: int, starts: int = 8) -> dict:
+    """The open-loop error by horizon averaged over up to ``starts`` rollouts of one episode
+    (starting every ``context + horizon`` steps), beside the "nothing moves" baseline that
+    repeats the last context frame. Returns ``pixel_error``, ``latent_error`` and
+    ``still_pixel_error`` (horizon,) and ``rollouts``."""
+    frames, actions, span = episode["observations"], episode["actions"], context + horizon
+    pixel, latent, still = [], [], []
+    for t0 in range(0, len(frames) - span + 1, span)[:starts]:
+        rollout = open_loop(vae, memory, frames[t0:], actions[t0:], context=context, horizon=horizon)
+        pixel.append(rollout["pixel_error"])
+        latent.append(rollout["latent_error"])
+        still.append(horizon_errors(rollout["truth"], np.repeat(frames[t0 + context - 1][None], horizon, 0)))
+    if not pixel:
+        raise ValueError(f"the episode has {len(frames)} steps; open loop needs context + horizon = {span}")
+    return {"pixel_error": np.mean(pixel, 0), "latent_error": np.mean(latent, 0),
+            "still_pixel_error": np.mean(still, 0), "rollouts": len(pixel)}
