@@ -1,9 +1,12 @@
-"""Test-wide settings: notebooks run in the smoke profile, artifacts go to a temporary folder."""
+"""Test-wide settings: notebooks run in the smoke profile, artifacts go to a temporary folder
+(one per worker process when the tests run in parallel)."""
 import os
 import tempfile
 
 os.environ.setdefault("WMTHESIS_PROFILE", "smoke")
 os.environ.setdefault("WMTHESIS_DATA", tempfile.mkdtemp(prefix="wmthesis-test-data-"))
+if os.environ.get("PYTEST_XDIST_WORKER"):  # each worker process (pytest -n) gets a data folder of its own
+    os.environ["WMTHESIS_DATA"] = os.path.join(os.environ["WMTHESIS_DATA"], os.environ["PYTEST_XDIST_WORKER"])
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as wmthesis sets it; torch is imported below
 

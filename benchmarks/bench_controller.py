@@ -40,12 +40,11 @@ import torch  # noqa: E402
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.world_models.vision import VAEVision
-from wmthesis.world_models.evolution import dream_population, episode_seeds, evaluate_population
-from wmthesis.envs.vector import make_game
+from wmthesis.envs.vector import make_game  # noqa: E402
 from wmthesis.world_models.controller import num_parameters  # noqa: E402
+from wmthesis.world_models.evolution import dream_population, episode_seeds, evaluate_population  # noqa: E402
 from wmthesis.world_models.memory import Memory  # noqa: E402
-from wmthesis.world_models.vision import VAE  # noqa: E402
+from wmthesis.world_models.vision import VAE, VAEVision  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "controller.json"

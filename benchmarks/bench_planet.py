@@ -12,7 +12,8 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
 - ``agent step``: :class:`~wmthesis.planet.train.PlanetMind` ``plan``: encode one frame,
   update the belief, then the CEM.
 - The same two at the ``quick`` profile's planner sizes.
-- ``update``: one training step (loss, backward, clipping, Adam) on 50 chunks of 50 steps of
+- ``update``: one training step through :func:`~wmthesis.training.gradient_step` (loss, NaN
+  guard, backward, clipping, Adam) on 50 chunks of 50 steps of
   64x64 frames, with latent overshooting (distance 50, the thesis default) and without (the
   best Boxing run); and at the ``quick`` profile's batch.
 
@@ -36,10 +37,10 @@ import torch.nn.functional as F
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer
-from wmthesis.training import gradient_step
 from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
+from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
+from wmthesis.training import gradient_step  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "planet.json"

@@ -14,18 +14,18 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.alphazero.selfplay import AlphaZeroMind, VARIANTS, load_run, play, train_alphazero
+from wmthesis.alphazero.diagnosis import action_predictability, reward_error_by_depth, search_statistics
 from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator, alphazero_loss, game_targets, value_targets
+from wmthesis.alphazero.imitation import PolicyHeadMind, agreement, expert_games
 from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, RewardView, State, reward_fit, reward_rows,
                                            train_reward_model)
-from wmthesis.envs.atari import NoopStart
-from wmthesis.alphazero.diagnosis import action_predictability, reward_error_by_depth, search_statistics
-from wmthesis.alphazero.imitation import PolicyHeadMind, agreement, expert_games
+from wmthesis.alphazero.selfplay import AlphaZeroMind, VARIANTS, load_run, play, train_alphazero
 from wmthesis.config import AlphaZeroConfig, for_profile
 from wmthesis.core import Mind, loop
-from wmthesis.world_models.memory import Memory
+from wmthesis.envs.atari import NoopStart
 from wmthesis.training import ConfigMismatch
 from wmthesis.utils import read_pickle
+from wmthesis.world_models.memory import Memory
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 L, A, H = 5, 2, 8

@@ -193,3 +193,26 @@ def test_the_command_line_reports_a_held_folder_in_one_line(tmp_path, capsys, mo
     monkeypatch.setattr(experiments, "reproduce", held)
     assert main(["reproduce", "sokoban-wm", "--profile", "smoke"]) == 2
     assert "error: data/smoke/sokoban-wm/seed0 is held by another run: process 12" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- artifacts of the earlier layout
+def test_a_controller_checkpoint_of_the_earlier_layout_is_read(tmp_path, monkeypatch):
+    """``controller.pkl`` pickled the CMA-ES strategy with its ``SeededNormal`` under
+    ``wmthesis.agents.controller_training``; it is found where it lives now."""
+    import pickle
+    import types
+
+    from wmthesis.utils import read_pickle
+    from wmthesis.world_models import evolution
+
+    old = types.ModuleType("wmthesis.agents.controller_training")
+    old.SeededNormal = evolution.SeededNormal
+    monkeypatch.setitem(sys.modules, "wmthesis.agents.controller_training", old)
+    monkeypatch.setattr(evolution.SeededNormal, "__module__", "wmthesis.agents.controller_training")
+    normal = evolution.SeededNormal(3)
+    (tmp_path / "controller.pkl").write_bytes(pickle.dumps({"randn": normal}))
+    monkeypatch.undo()
+    assert b"wmthesis.agents.controller_training" in (tmp_path / "controller.pkl").read_bytes()
+    loaded = read_pickle(tmp_path / "controller.pkl")["randn"]
+    assert isinstance(loaded, evolution.SeededNormal)
+    assert np.array_equal(loaded(4), evolution.SeededNormal(3)(4))

@@ -9,8 +9,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from wmthesis.core import Callback, loop
 from wmthesis.alphazero.mcts import MCTS
+from wmthesis.core import Callback, loop
 
 LEFT, RIGHT = 0, 1
 

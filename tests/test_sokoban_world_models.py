@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.envs.vector import ListGame, make_game
-from wmthesis.world_models.evolution import random_play
-from wmthesis.world_models.grid import GRID_NOISE_STD, GridVision, decode_grid, encode_grid_store, grid_accuracy
-from wmthesis.world_models.train import LatentStore
-from wmthesis.world_models.prediction import head_predictions, open_loop, open_loop_grid, rollout_latents
 from wmthesis.data import EpisodeStore, collect
 from wmthesis.envs import make_env
 from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, TARGET, grid_frames, read_grid, solve
+from wmthesis.envs.vector import ListGame, make_game
 from wmthesis.experiments import EXPERIMENTS, sokoban_wm_configs
-from wmthesis.world_models.sokoban import head_numbers, levels_solved
+from wmthesis.world_models.evolution import random_play
+from wmthesis.world_models.grid import GRID_NOISE_STD, GridVision, decode_grid, encode_grid_store, grid_accuracy
 from wmthesis.world_models.memory import Memory
+from wmthesis.world_models.prediction import head_predictions, open_loop, open_loop_grid, rollout_latents
+from wmthesis.world_models.sokoban import head_numbers, levels_solved
+from wmthesis.world_models.train import LatentStore
 from wmthesis.world_models.vision import VAE
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py

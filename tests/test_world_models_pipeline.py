@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.world_models.train import (LatentStore, encode_store, reconstruct, split_episodes, train_memory,
-                                         train_vision)
-from wmthesis.world_models.prediction import open_loop
 from wmthesis.config import MemoryConfig, VisionConfig, for_profile
 from wmthesis.data import EpisodeStore, collect
-from wmthesis.world_models.vision import VAE
 from wmthesis.training import ConfigMismatch
+from wmthesis.world_models.prediction import open_loop
+from wmthesis.world_models.train import (LatentStore, encode_store, reconstruct, split_episodes, train_memory,
+                                         train_vision)
+from wmthesis.world_models.vision import VAE
 
 
 @pytest.fixture(scope="module")

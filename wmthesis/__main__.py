@@ -51,7 +51,8 @@ def cmd_collect(args) -> int:
     max_steps = args.max_steps if args.max_steps is not None else cfg.max_steps
     preprocessing = args.preprocessing or ("world_models" if args.env in ATARI_GAMES else None)
     out = Path(args.out) if args.out else default_store_path(args.env, preprocessing)
-    path = collect(args.env, episodes, out, workers=cfg.workers if args.workers is None else args.workers, seed=args.seed,
+    workers = cfg.workers if args.workers is None else args.workers
+    path = collect(args.env, episodes, out, workers=workers, seed=args.seed,
                    preprocessing=preprocessing, max_steps=max_steps)
     print(f"{path}: {episodes} episodes")
     return 0

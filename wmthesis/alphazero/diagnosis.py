@@ -151,7 +151,8 @@ def _fit_q(train: tuple, val: tuple, n_actions: int, epochs: int, hidden: int, s
     with torch.no_grad():
         every = torch.stack([q(xv, torch.full_like(av, j)) for j in range(n_actions)], 1).numpy()
     taken, v, yv = every[np.arange(len(yv)), av.numpy()], every.mean(1), yv.numpy()
-    return {"q_corr": correlation(taken, yv), "v_corr": correlation(v, yv), "advantage_corr": correlation(taken - v, yv - v),
+    return {"q_corr": correlation(taken, yv), "v_corr": correlation(v, yv),
+            "advantage_corr": correlation(taken - v, yv - v),
             "advantage_std": float((every - v[:, None]).std()), "val_rows": int(len(yv))}
 
 

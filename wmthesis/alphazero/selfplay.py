@@ -80,13 +80,6 @@ CHECKPOINT_NAME = "alphazero.pkl"
 RESUMABLE_FIELDS = ("games", "eval_episodes", "eval_max_steps")  # config fields that may change when resuming
 
 
-
-# ----------------------------------------------------------------------------- reward model
-
-
-# ----------------------------------------------------------------------------- evaluator
-
-
 # ----------------------------------------------------------------------------- games
 
 

@@ -184,11 +184,11 @@ def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval
 
 
 def _planet_open_loop(model, store, length: int, context: int, config, seed: int, sequences: int = 6) -> dict:
-    """:func:`~wmthesis.planet.train.open_loop` on chunks of the most recent planner episodes
+    """:func:`~wmthesis.planet.prediction.open_loop` on chunks of the most recent planner episodes
     long enough (the last one was collected after the final update: never trained on)."""
     import torch
 
-    from wmthesis.planet.train import open_loop
+    from wmthesis.planet.prediction import open_loop
 
     lengths = store.episode_lengths
     long_enough = [i for i in range(config.seed_episodes, len(store)) if lengths[i] >= length]

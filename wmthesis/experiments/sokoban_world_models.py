@@ -216,5 +216,3 @@ def _sokoban_random_play(level_seeds: np.ndarray, seed: int, max_steps: int | No
         return random_play(game, level_seeds, seed=seed, max_steps=max_steps)
     finally:
         game.close()
-
-

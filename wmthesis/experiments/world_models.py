@@ -86,7 +86,8 @@ def _final_score(run, vision, memory, cfg, profile: str) -> np.ndarray:
 
 class BoxingWorldModel(NamedTuple):
     """The Boxing world model of a profile and seed: its folders (``work``: artifacts,
-    ``out``: results), the random rollouts' store path, the VAE and its :class:`VAEVision`,
+    ``out``: results), the random rollouts' store path, the VAE and its
+    :class:`~wmthesis.world_models.vision.VAEVision`,
     the MDN-RNN memory and the two training histories."""
 
     work: Path

@@ -11,7 +11,7 @@ def open_loop_figure(result: dict, *, sequences: int = 3, columns: int | None = 
                      scale: float = 0.9, title: str | None = None):
     """Thesis Fig. 58 style: per sequence a row of true frames and a row of the model's
     frames; the model row shows the ``context`` true frames, then its open-loop predictions
-    (columns titled +1, +2, ...). ``result`` is :func:`open_loop`'s output."""
+    (columns titled +1, +2, ...). ``result`` is :func:`~wmthesis.planet.prediction.open_loop`'s output."""
     truth, prediction, context = result["truth"], result["prediction"], result["context"]
     sequences = min(sequences, len(truth))
     columns = min(columns or truth.shape[1], truth.shape[1])

@@ -11,8 +11,9 @@
 
 Run folder: ``episodes.h5`` (:class:`~wmthesis.data.EpisodeStore` of 5-bit 64x64 frames),
 ``checkpoint.pt`` and ``curve.json``. :func:`train_planet` is the entry point;
-:class:`PlanetMind` is the agent for :func:`wmthesis.core.loop`; :func:`open_loop` and
-:func:`open_loop_figure` give the thesis's open-loop figures (Fig. 58, 59, 510, 511) and the
+:class:`PlanetMind` is the agent for :func:`wmthesis.core.loop`;
+:func:`~wmthesis.planet.prediction.open_loop` and
+:func:`~wmthesis.planet.figures.open_loop_figure` give the thesis's open-loop figures (Fig. 58, 59, 510, 511) and the
 prediction error per horizon.
 
 Variants (:data:`VARIANTS`) are the thesis's experiments as config changes.
@@ -36,8 +37,8 @@ from wmthesis.core import Callback, Interpreter, Mind, loop
 from wmthesis.data import EpisodeBuffer, EpisodeStore, episode_seeds, play_random_episode
 from wmthesis.envs import ATARI_GAMES, make_env
 from wmthesis.envs.preprocessing import crop_resize, quantize, to_float
-from wmthesis.planet.rssm import RSSM, frames_out, one_hot_previous, planet_loss
 from wmthesis.planet.cem import cem_belief
+from wmthesis.planet.rssm import RSSM, planet_loss
 from wmthesis.training import gradient_step
 from wmthesis.utils import atomic_path, check_choice, derive_seeds, device, seed_everything
 
@@ -242,7 +243,7 @@ def train_updates(model: RSSM, optimizer, store: EpisodeStore, config: PlaNetCon
         terms = batch_loss(model, {key: value.to(dev) for key, value in batch.items()}, config, run.torch_rng)
         where = f" in {run_dir}" if run_dir else ""
         gradient_step("PlaNet RSSM", run.updates + 1, terms, optimizer, model.parameters(), clip_norm=config.grad_clip,
-                      kept=f"the last good checkpoint{where} (update {_checkpoint_updates(run_dir)}) is kept")
+                      kept=f"the last good checkpoint (update {_checkpoint_updates(run_dir)}) is kept{where}")
         run.updates += 1
         for key, value in terms.items():
             sums[key] = sums.get(key, 0.0) + float(value.detach())
@@ -385,45 +386,5 @@ def _results(run_dir: Path, env_name, config, store: EpisodeStore, run: _RunStat
             "seconds": run.seconds, "curve": run.curve, "final_test": tests[-1] if tests else None}
 
 
-# ---------------------------------------------------------------------------- open loop
-@torch.inference_mode()
-def open_loop(model: RSSM, observations: torch.Tensor, actions: torch.Tensor, *, context: int = 5,
-              bits: int = 5, generator: torch.Generator | None = None, sample: bool = False) -> dict:
-    """Filter ``context`` frames, then predict the rest open-loop from the actions taken.
-
-    ``observations`` (B, T, H, W, 3) uint8, ``actions`` (B, T) long (row t: ``a_t``). The
-    frames after the context are decoded from the prior (its means; samples with
-    ``sample=True``). Returns numpy arrays: ``truth`` and ``prediction`` (B, T, H, W, 3)
-    uint8 (the first ``context`` predictions are the posterior reconstructions), and ``mse``
-    (T - context,): the squared error per pixel of each horizon, averaged over the batch, in
-    the model's float units (frames in [-0.5, 0.5), the truth at its bins' centres).
-    """
-    if not 1 <= context < observations.shape[1]:
-        raise ValueError(f"context must be in 1..T-1, got {context} for T = {observations.shape[1]}")
-    dev = next(model.parameters()).device
-    truth = to_float(observations.to(dev), bits) + 0.5 / 2 ** bits
-    prev_actions = one_hot_previous(actions.to(dev), model.n_actions)
-    trajectory = model.observe(model.encode(truth[:, :context]), prev_actions[:, :context], generator)
-    beliefs, states = model.imagine(trajectory.beliefs[:, -1], trajectory.states[:, -1],
-                                    prev_actions[:, context:], generator, sample)
-    predicted = model.decode(beliefs, states)
-    reconstructed = model.decode(trajectory.beliefs, trajectory.states)
-    mse = (predicted - truth[:, context:]).pow(2).mean((0, 2, 3, 4))
-    prediction = frames_out(torch.cat([reconstructed, predicted], 1), bits)
-    return {"truth": observations.cpu().numpy(), "prediction": prediction.cpu().numpy(),
-            "mse": mse.cpu().numpy(), "context": context}
-
-
-def evaluate_open_loop(model: RSSM, store: EpisodeStore, *, sequences: int = 6, length: int = 20,
-                       context: int = 5, bits: int = 5, seed: int = 0) -> dict:
-    """:func:`open_loop` on ``sequences`` random chunks of ``length`` steps from ``store``."""
-    batch = store.sample_chunks(sequences, length, np.random.default_rng(seed))
-    generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
-    return open_loop(model, batch["observations"], batch["actions"], context=context, bits=bits,
-                     generator=generator)
-
-
-
 __all__ = ["train_planet", "train_updates", "batch_loss", "PlanetMind", "VARIANTS", "with_variant", "make_planet_env",
-           "planet_frame", "planet_interpreter", "build_model", "load_planet", "open_loop",
-           "evaluate_open_loop"]
+           "planet_frame", "planet_interpreter", "build_model", "load_planet"]

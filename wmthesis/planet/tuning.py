@@ -60,7 +60,8 @@ from sqlalchemy.engine import make_url
 from wmthesis.config import PlaNetConfig, SearchConfig, for_profile, profile_name
 from wmthesis.data import EpisodeStore
 from wmthesis.planet.figures import open_loop_figure
-from wmthesis.planet.train import STORE, evaluate_open_loop, load_planet, train_planet
+from wmthesis.planet.prediction import evaluate_open_loop
+from wmthesis.planet.train import STORE, load_planet, train_planet
 from wmthesis.utils import atomic_path, check_choice, data_dir
 
 
@@ -92,7 +93,6 @@ METRICS, FIGURE = "metrics.json", "open_loop.png"
 # Study settings that must match when a study is continued (trials, workers, heartbeats may change).
 _SETTINGS = ("seed", "objective", "kl_scale_low", "kl_scale_high", "free_nats_low", "free_nats_high",
              "env_steps", "max_episode_steps", "open_loop_sequences", "open_loop_length")
-
 
 
 # ---------------------------------------------------------------------------- sampler

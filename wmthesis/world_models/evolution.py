@@ -21,8 +21,8 @@ still reads them), seeded per episode from ``(seed, generation)``; Sokoban draws
 from the same seeds instead.
 
 Vision is any callable ``frames -> z``: uint8 (N, *observation_shape) tensor -> float (N, L)
-(:class:`VAEVision` wraps the VAE: ``z = mu``, no sampling). Memory may be ``None`` (controller
-on ``z`` alone).
+(:class:`~wmthesis.world_models.vision.VAEVision` wraps the VAE: ``z = mu``, no sampling).
+Memory may be ``None`` (controller on ``z`` alone).
 """
 from __future__ import annotations
 
@@ -49,12 +49,6 @@ FORMAT_VERSION = 1
 CHECKPOINT_NAME = "controller.pkl"
 CURVE_NAME = "curve.json"
 RESUMABLE_FIELDS = ("generations",)  # config fields that may change when resuming
-
-
-# ----------------------------------------------------------------------------- vision
-
-
-# ----------------------------------------------------------------------------- games
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -236,7 +230,7 @@ def train_controller(env_name: str, vision: Callable, memory, cfg, *, out_dir: s
                      torch_threads: int | None = None, progress: bool = True) -> ControllerRun:
     """Evolve a controller for ``env_name`` with CMA-ES (see the module docstring).
 
-    ``vision``: frames -> z (e.g. :class:`VAEVision`); ``memory``: a
+    ``vision``: frames -> z (e.g. :class:`~wmthesis.world_models.vision.VAEVision`); ``memory``: a
     :class:`~wmthesis.world_models.memory.Memory` or None; ``cfg``: a
     :class:`~wmthesis.config.ControllerConfig`. With ``out_dir``, each generation writes
     ``controller.pkl`` and ``curve.json`` there atomically, and an existing checkpoint is
@@ -371,9 +365,3 @@ def load_run(path: str | os.PathLike) -> ControllerRun:
     if stamp != (FORMAT, FORMAT_VERSION):
         raise ValueError(f"{path} is not a {FORMAT} checkpoint of version {FORMAT_VERSION}")
     return ControllerRun(**saved)
-
-
-# ----------------------------------------------------------------------------- figures
-
-
-# ----------------------------------------------------------------------------- the mind

@@ -58,7 +58,6 @@ def plot_dream(curves: dict, ax=None):
     return ax.figure
 
 
-
 def sokoban_figures(out: Path, evaluated: dict, memory_histories: dict, controllers: dict, random_returns,
                      evaluation: dict) -> list[Path]:
     """Fig. 54 and Fig. 55 in the thesis's style, the grid state, the open-loop error curves,

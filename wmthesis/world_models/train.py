@@ -20,9 +20,9 @@ import torch
 
 from wmthesis.config import MemoryConfig, VisionConfig
 from wmthesis.data import EpisodeStore
-from wmthesis.world_models.memory import Memory, memory_loss
 from wmthesis.training import train
 from wmthesis.utils import atomic_path, device
+from wmthesis.world_models.memory import Memory, memory_loss
 from wmthesis.world_models.vision import VAE, elbo_loss, frames_to_input, input_to_frames, sample_latent
 
 
@@ -214,11 +214,3 @@ def train_memory(latents_path: str | Path, run_dir: str | Path, config: MemoryCo
                     eval_every=config.eval_every, patience=config.patience, desc=f"memory ({config.kind})",
                     progress=progress)
     return memory.eval(), history
-
-
-# ----------------------------------------------------------------------------- open loop
-
-
-# ----------------------------------------------------------------------------- Sokoban (5.3)
-
-
