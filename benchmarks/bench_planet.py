@@ -13,9 +13,11 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
   update the belief, then the CEM.
 - The same two at the ``quick`` profile's planner sizes.
 - ``update``: one training step through :func:`~wmthesis.training.gradient_step` (loss, NaN
-  guard, backward, clipping, Adam) on 50 chunks of 50 steps of
-  64x64 frames, with latent overshooting (distance 50, the thesis default) and without (the
-  best Boxing run); and at the ``quick`` profile's batch.
+  guard, backward, clipping, Adam) on 50 chunks of 50 steps of 64x64 frames, with latent
+  overshooting (distance 50, the thesis default) and without (the best Boxing run); and at
+  the ``quick`` profile's batch. Each beside a bare torch loop of the same model, loss and
+  batch (``vs_bare``: the bare loop's seconds over ours; target >= 0.9), with updates per
+  CPU-hour.
 
 Times are medians over ``--repeats`` (``--updates`` for the training rows) after one warm-up;
 the bare pass, the CEM and the agent step take turns, so their ratios survive a changing load.
@@ -39,6 +41,7 @@ sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve
 
 from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
+from wmthesis.planet.rssm import planet_loss  # noqa: E402
 from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
 from wmthesis.training import gradient_step  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
@@ -108,14 +111,26 @@ def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
 
     batch = dict(observations=observations, actions=actions, rewards=rewards)
 
-    def update():
+    def update():  # ours: the config's loss through the package's one guarded step
         gradient_step("PlaNet RSSM", 1, batch_loss(model, batch, cfg, g), optimizer, model.parameters(),
                       clip_norm=cfg.grad_clip)
 
-    seconds = median_seconds({"update": update}, updates)["update"]
+    def bare():  # a bare torch loop of the same model, loss and batch
+        loss = planet_loss(model, observations, actions, rewards, bits=cfg.bits, kl_scale=cfg.kl_scale,
+                           free_nats=cfg.free_nats, decoder_variance=cfg.decoder_variance,
+                           reward_scale=cfg.reward_scale, overshooting_distance=cfg.overshooting_distance,
+                           overshooting_scale=cfg.overshooting_scale, generator=g)["loss"]
+        optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+        optimizer.step()
+
+    seconds = median_seconds({"update": update, "bare": bare}, updates)
     sizes = f"batch {shape[0]}x{shape[1]}, overshooting {cfg.overshooting_distance}"
-    return dict(what=f"update ({label})", sizes=sizes,
-                seconds=seconds, updates_per_s=1 / seconds, frames_per_s=shape[0] * shape[1] / seconds)
+    frames = shape[0] * shape[1]
+    return dict(what=f"update ({label})", sizes=sizes, seconds=seconds["update"], updates_per_s=1 / seconds["update"],
+                updates_per_hour=3600 / seconds["update"], frames_per_s=frames / seconds["update"],
+                bare_frames_per_s=frames / seconds["bare"], vs_bare=seconds["bare"] / seconds["update"])
 
 
 def main() -> int:
@@ -140,7 +155,8 @@ def main() -> int:
                               args.updates, args.seed))
     results.append(update_row(quick, "quick", args.updates, args.seed))
 
-    print_table(results, ["what", "sizes", "seconds", "ratio", "updates_per_s", "latent_steps_per_s"])
+    print_table(results, ["what", "sizes", "seconds", "ratio", "updates_per_s", "updates_per_hour", "frames_per_s",
+                          "vs_bare", "latent_steps_per_s"])
     meta = machine_meta(seed=args.seed, repeats=args.repeats, updates=args.updates, threads=torch.get_num_threads(),
                         device=str(next(model.parameters()).device), cpus=os.cpu_count(),
                         load_average_before=load_before, load_average_after=os.getloadavg()[0])
