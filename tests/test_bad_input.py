@@ -216,3 +216,26 @@ def test_a_controller_checkpoint_of_the_earlier_layout_is_read(tmp_path, monkeyp
     loaded = read_pickle(tmp_path / "controller.pkl")["randn"]
     assert isinstance(loaded, evolution.SeededNormal)
     assert np.array_equal(loaded(4), evolution.SeededNormal(3)(4))
+
+
+WRITER = """
+import sys, time
+from wmthesis.data import EpisodeStore
+store = EpisodeStore(sys.argv[1], "a", env="test", obs_shape=(2,))
+print("open", flush=True)
+time.sleep(60)
+"""
+
+
+def test_a_store_open_for_writing_in_another_process_is_named_as_such(tmp_path):
+    from wmthesis.data import EpisodeStore, StoreError
+
+    path = tmp_path / "busy.h5"
+    other = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert other.stdout.readline().strip() == "open"
+        with pytest.raises(StoreError, match=r"busy.h5 is open for writing in another process"):
+            EpisodeStore(path, "a")
+    finally:
+        other.kill()
+        other.wait()
