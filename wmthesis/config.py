@@ -237,6 +237,50 @@ class AlphaZeroConfig:
     expert_epochs: int = 30
 
 
+@dataclass(frozen=True)
+class SokobanSearchConfig:
+    """Sokoban solved by search in a learned model (beyond the thesis: its aim, chapter 1, where
+    5.3 and 5.5 stopped at 0 levels). None of this is in the thesis; every value is ours.
+
+    Data: ``random_levels`` levels of uniformly random play per variant, then ``rounds`` rounds
+    per variant of ``levels_per_round`` levels played by the search agent (5.3.3's "iterative
+    approach to gathering data"). The variants are played in the order of ``variants``, the
+    later ones starting from what the earlier ones learned (one model, any board size).
+
+    Model (:mod:`~wmthesis.sokoban_search.model`): ``channels`` x ``blocks`` residual layers,
+    ``model_updates`` Adam updates (``lr``, cosine decay to lr / 10, batch ``batch_size`` with
+    ``event_fraction`` of transitions whose reward is not the step penalty) after random play,
+    ``round_updates`` more after each round. Value (:mod:`~wmthesis.sokoban_search.heuristic`):
+    ``value_channels`` x ``value_blocks``, ``value_updates`` after each round on every labelled
+    state so far.
+
+    Search (:mod:`~wmthesis.sokoban_search.search`): ``budget`` nodes per search, ``batch``
+    nodes per model call, priority ``g + weight * h``, at most ``replans`` searches again after
+    the real game left the plan. Evaluation: ``eval_levels`` unseen levels per variant.
+    """
+
+    variants: tuple = ("sokoban-small", "sokoban")
+    random_levels: int = 2000
+    rounds: int = 4
+    levels_per_round: int = 400
+    channels: int = 64
+    blocks: int = 2
+    model_updates: int = 4000
+    round_updates: int = 1500
+    batch_size: int = 256
+    lr: float = 1e-3
+    event_fraction: float = 0.25
+    value_channels: int = 32
+    value_blocks: int = 2
+    value_updates: int = 1500
+    budget: int = 20_000
+    batch: int = 64
+    weight: float = 1.0
+    replans: int = 4
+    eval_levels: int = 500
+    seed: int = 0
+
+
 # Per profile, per config class name: the fields that differ from the thesis defaults.
 OVERRIDES: dict[str, dict[str, dict]] = {
     "smoke": {
@@ -253,6 +297,9 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                              heartbeat_interval=1, grace_period=3),
         "AlphaZeroConfig": dict(simulations=4, games=4, train_every=2, epochs=2, batch_size=16, max_steps=20,
                                 noop_max=3, test_every=2, test_episodes=1, eval_episodes=2, eval_max_steps=20),
+        "SokobanSearchConfig": dict(random_levels=20, rounds=1, levels_per_round=4, channels=16, model_updates=20,
+                                    round_updates=5, batch_size=32, value_channels=8, value_updates=5,
+                                    budget=300, eval_levels=4),
     },
     "quick": {
         "CollectConfig": dict(episodes=20),

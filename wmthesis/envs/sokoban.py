@@ -128,10 +128,17 @@ class SokobanEnv(gym.Env):
         self._episode = "new"  # new -> running -> ended (see wmthesis.envs.actions.check_order)
 
     def reset(self, *, seed=None, options=None):
-        """Generate a new level from ``self.np_random`` (or start from ``options["board"]``)."""
+        """Generate a new level from ``self.np_random``, or start from ``options["board"]``: board
+        codes (h, w) or a level as text (:mod:`wmthesis.envs.levels`), padded with wall up to
+        ``dim_room``; an unplayable or larger board raises a ``ValueError`` naming why."""
         super().reset(seed=seed)
         if options and options.get("board") is not None:
-            self.board = np.array(options["board"], dtype=np.uint8)
+            from wmthesis.envs.levels import check_board, fit_board, parse_level
+
+            board = options["board"]
+            board = parse_level(board) if isinstance(board, str) else np.array(board, dtype=np.int64)
+            check_board(board)
+            self.board = fit_board(board.astype(np.uint8), self.dim_room)
         else:
             self.board, self.generation_info = generate_level(self.dim_room, self.num_boxes, self.np_random)
         self.steps, self._episode = 0, "running"

@@ -1,0 +1,148 @@
+"""Sokoban levels as text, in the common notation (the XSB format the public Boxoban set uses).
+
+``#`` wall, `` `` (space, also ``-`` or ``_``) floor, ``.`` target, ``$`` box, ``*`` box on
+target, ``@`` player, ``+`` player on target. A file holds one level, or several, each after a
+``; N`` line (Boxoban) or separated by blank lines; other ``;`` lines are comments.
+
+Floor outside the outer walls (classic levels indent their rows with spaces) becomes wall, rows
+are padded with wall to a rectangle, and :func:`fit_board` pads a level with wall up to a room
+size (``SokobanEnv.reset(options={"board": ...})`` needs the env's ``dim_room``)::
+
+    >>> board = parse_level('''
+    ... #####
+    ... #@$.#
+    ... #####''')
+    >>> board.tolist()
+    [[0, 0, 0, 0, 0], [0, 5, 4, 2, 0], [0, 0, 0, 0, 0]]
+    >>> print(board_to_text(board))
+    #####
+    #@$.#
+    #####
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, FLOOR, PLAYER, PLAYER_ON_TARGET, TARGET, WALL
+
+SYMBOLS = {"#": WALL, " ": FLOOR, "-": FLOOR, "_": FLOOR, ".": TARGET, "*": BOX_ON_TARGET,
+           "$": BOX, "@": PLAYER, "+": PLAYER_ON_TARGET}
+TEXT = {WALL: "#", FLOOR: " ", TARGET: ".", BOX_ON_TARGET: "*", BOX: "$", PLAYER: "@",
+        PLAYER_ON_TARGET: "+"}
+
+
+class LevelError(ValueError):
+    """A level that is not a playable Sokoban board; the message names the level and why."""
+
+
+def parse_level(text: str, name: str = "level") -> np.ndarray:
+    """One level's text -> its board, uint8 (h, w) codes, wall-bordered (:func:`check_board`)."""
+    rows = [line.rstrip("\n\r") for line in text.splitlines()]
+    rows = [row for row in rows if row.strip() and not row.lstrip().startswith(";")]
+    if not rows:
+        raise LevelError(f"{name}: no rows")
+    width = max(len(row) for row in rows)
+    board = np.full((len(rows) + 2, width + 2), FLOOR, np.uint8)  # a ring of outside floor
+    for r, row in enumerate(rows):
+        for c, char in enumerate(row):
+            if char not in SYMBOLS:
+                raise LevelError(f"{name}: row {r + 1} column {c + 1} holds {char!r}; valid: "
+                                 + " ".join(repr(s) for s in SYMBOLS))
+            board[r + 1, c + 1] = SYMBOLS[char]
+    board = _wall_outside(board, name)
+    check_board(board, name)
+    return board
+
+
+def parse_levels(text: str, name: str = "levels") -> list[np.ndarray]:
+    """Every level in ``text``: blocks after ``; N`` lines, or separated by blank lines."""
+    blocks, current = [], []
+    for line in text.splitlines():
+        if line.lstrip().startswith(";") or not line.strip():
+            if current:
+                blocks.append(current)
+            current = []
+        else:
+            current.append(line)
+    if current:
+        blocks.append(current)
+    if not blocks:
+        raise LevelError(f"{name}: no levels")
+    return [parse_level("\n".join(block), f"{name}, level {i}") for i, block in enumerate(blocks)]
+
+
+def read_levels(path) -> list[np.ndarray]:
+    """The levels of a text file (:func:`parse_levels`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such levels file")
+    return parse_levels(path.read_text(), str(path))
+
+
+def board_to_text(board: np.ndarray) -> str:
+    """A board (h, w) codes -> its text, one line per row."""
+    return "\n".join("".join(TEXT[int(code)] for code in row) for row in np.asarray(board))
+
+
+def fit_board(board: np.ndarray, dim_room, name: str = "level") -> np.ndarray:
+    """``board`` padded with wall (below and to the right) to ``dim_room`` (h, w); a larger
+    board is refused with both sizes named."""
+    h, w = (int(n) for n in dim_room)
+    bh, bw = board.shape
+    if bh > h or bw > w:
+        raise LevelError(f"{name} is {bh}x{bw}, larger than the {h}x{w} room this agent plays")
+    out = np.full((h, w), WALL, np.uint8)
+    out[:bh, :bw] = board
+    return out
+
+
+def check_board(board: np.ndarray, name: str = "level") -> None:
+    """Refuse a board that cannot be played: codes outside 0..6, an outer ring that is not
+    wall, not exactly one player, no box, or fewer targets than boxes."""
+    board = np.asarray(board)
+    if board.ndim != 2 or min(board.shape) < 3:
+        raise LevelError(f"{name}: a board is 2-D, at least 3x3; got shape {board.shape}")
+    if board.min() < WALL or board.max() > PLAYER_ON_TARGET:
+        raise LevelError(f"{name}: board codes are 0..6, got {int(board.min())}..{int(board.max())}")
+    ring = np.concatenate([board[0], board[-1], board[:, 0], board[:, -1]])
+    if np.any(ring != WALL):
+        raise LevelError(f"{name}: the outer ring must be wall (the level is not enclosed)")
+    players = int(np.isin(board, (PLAYER, PLAYER_ON_TARGET)).sum())
+    boxes = int(np.isin(board, (BOX, BOX_ON_TARGET)).sum())
+    targets = int(np.isin(board, (TARGET, BOX_ON_TARGET, PLAYER_ON_TARGET)).sum())
+    if players != 1:
+        raise LevelError(f"{name}: needs exactly one player ('@' or '+'), found {players}")
+    if boxes == 0 or targets < boxes:
+        raise LevelError(f"{name}: needs at least one box and a target per box; "
+                         f"found {boxes} boxes and {targets} targets")
+
+
+def _wall_outside(board: np.ndarray, name: str) -> np.ndarray:
+    """Floor connected to the outside ring becomes wall; then drop the added ring. Anything
+    else (a box, target or player) reachable from outside means the level is not enclosed."""
+    h, w = board.shape
+    outside, stack = np.zeros_like(board, bool), [(0, 0)]
+    outside[0, 0] = True
+    while stack:
+        r, c = stack.pop()
+        for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+            if 0 <= nr < h and 0 <= nc < w and not outside[nr, nc] and board[nr, nc] != WALL:
+                if board[nr, nc] != FLOOR:
+                    raise LevelError(f"{name}: row {nr} column {nc} is reachable from outside the walls "
+                                     "(the level is not enclosed)")
+                outside[nr, nc] = True
+                stack.append((nr, nc))
+    board = np.where(outside, WALL, board).astype(np.uint8)
+    inner = board[1:-1, 1:-1]
+    # Keep one wall ring: trim whole-wall rows and columns beyond it.
+    rows = np.flatnonzero((inner != WALL).any(1))
+    cols = np.flatnonzero((inner != WALL).any(0))
+    if len(rows) == 0:
+        raise LevelError(f"{name}: no floor inside the walls")
+    return inner[max(rows[0] - 1, 0):rows[-1] + 2, max(cols[0] - 1, 0):cols[-1] + 2].copy()
+
+
+__all__ = ["parse_level", "parse_levels", "read_levels", "board_to_text", "fit_board", "check_board",
+           "LevelError", "SYMBOLS"]

@@ -1,0 +1,225 @@
+"""Expert iteration: random play, then rounds of play by the search agent, each round training
+the model on everything seen and the value on every level solved (5.3.3's suggestion: "an
+iterative approach to gathering data could solve this").
+
+A run lives in one folder: ``experience.h5`` (:class:`~wmthesis.sokoban_search.experience.Experience`)
+and ``state.pt``, written after random play and after every round (the model's and the value's
+weights, the optimisers, the round reached and the history). Re-running resumes after the last
+finished round; rows of a round that was cut off are dropped first, so the result is the same.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from wmthesis.config import SokobanSearchConfig
+from wmthesis.envs.sokoban import CELL_NAMES
+from wmthesis.sokoban_search.agent import SearchAgent, grid_env, level_seeds, random_play
+from wmthesis.sokoban_search.experience import Experience
+from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go
+from wmthesis.sokoban_search.model import SokobanModel
+from wmthesis.training import check_same_config, gradient_step
+from wmthesis.utils import atomic_path, device
+
+N_ACTIONS = 8
+STATE_VERSION = 1
+
+
+@dataclasses.dataclass
+class Run:
+    """What a run has learned: ``model``, ``heuristic`` (None before any level was solved),
+    ``history`` (one dict per stage: random play, then each round), ``rounds_done``."""
+
+    model: SokobanModel
+    heuristic: Heuristic | None
+    history: list
+    rounds_done: int
+
+    def agent(self, cfg: SokobanSearchConfig, model=None) -> SearchAgent:
+        """The search agent of this run (``model``: e.g. the simulator in place of the model)."""
+        heuristic = self.heuristic.estimate if self.heuristic is not None else None
+        return SearchAgent(model if model is not None else self.model, heuristic=heuristic, budget=cfg.budget,
+                           batch=cfg.batch, weight=cfg.weight, replans=cfg.replans)
+
+
+def schedule(cfg: SokobanSearchConfig) -> list[tuple[str, int]]:
+    """The rounds in order: (variant, round within the variant) for ``cfg.rounds`` per variant."""
+    return [(variant, r) for variant in cfg.variants for r in range(cfg.rounds)]
+
+
+def train_search_agent(folder: str | Path, cfg: SokobanSearchConfig, progress: bool = True) -> Run:
+    """Random play, the model trained on it, then every round of :func:`schedule`; resumable."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    run = load_run(folder, cfg)
+    with Experience(folder / "experience.h5") as experience:
+        if run is None:
+            experience.drop_rounds(0)
+            run = _random_stage(experience, cfg, progress)
+            save_run(folder, run, cfg)
+        experience.drop_rounds(run.rounds_done + 1)
+        rounds = schedule(cfg)
+        for index in range(run.rounds_done, len(rounds)):
+            _round(run, experience, cfg, index + 1, *rounds[index], progress)
+            save_run(folder, run, cfg)
+    return run
+
+
+def _random_stage(experience: Experience, cfg: SokobanSearchConfig, progress: bool) -> Run:
+    steps = 0
+    for v, variant in enumerate(cfg.variants):
+        rows = random_play(variant, cfg.seed * 100 + v, cfg.random_levels)
+        experience.add("transitions", 0, **rows)
+        steps += len(rows["actions"])
+    rewards = np.unique(np.concatenate([g["rewards"] for g in experience.arrays("transitions").values()]))
+    torch.manual_seed(cfg.seed)
+    model = SokobanModel(len(CELL_NAMES), N_ACTIONS, rewards, cfg.channels, cfg.blocks).to(device())
+    losses = fit_model(model, experience, cfg, cfg.model_updates, np.random.default_rng([cfg.seed, 0]),
+                       "model (random play)", progress)
+    record = dict(round=0, variant="random play", env_steps=steps, levels=cfg.random_levels * len(cfg.variants),
+                  solved=None, model_loss=losses, exactness=held_out_exactness(model, cfg))
+    return Run(model, None, [record], 0)
+
+
+def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: int, variant: str, r: int,
+           progress: bool) -> None:
+    """Round ``number``: play levels, keep what was seen, train the model and the value."""
+    env = grid_env(variant)
+    agent = run.agent(cfg)
+    seeds = level_seeds(cfg.seed, 1 + number, cfg.levels_per_round)
+    plays = [agent.play(env, s) for s in tqdm(seeds, desc=f"round {number} ({variant})", disable=not progress)]
+    for play in plays:
+        experience.add("transitions", number, **play.transitions)
+        if play.solved:
+            states = play.transitions["states"]
+            experience.add("to_go", number, states=states, labels=steps_to_go(states))
+    rng = np.random.default_rng([cfg.seed, number])
+    losses = fit_model(run.model, experience, cfg, cfg.round_updates, rng, f"model (round {number})", progress)
+    if experience.count("to_go"):
+        if run.heuristic is None:
+            torch.manual_seed(cfg.seed + 1)
+            run.heuristic = Heuristic(len(CELL_NAMES), cfg.value_channels, cfg.value_blocks).to(device())
+        value_error = fit_heuristic(run.heuristic, experience, cfg, rng, f"value (round {number})", progress)
+    else:
+        value_error = None
+    run.history.append(dict(round=number, variant=variant, env_steps=int(sum(len(p.actions) for p in plays)),
+                            levels=len(plays), solved=float(np.mean([p.solved for p in plays])),
+                            expanded=float(np.mean([p.expanded for p in plays])),
+                            seconds_per_level=float(np.mean([p.seconds for p in plays])),
+                            model_loss=losses, value_error=value_error,
+                            exactness=held_out_exactness(run.model, cfg)))
+    run.rounds_done = number
+
+
+# ---------------------------------------------------------------------------- training
+
+def _batches(groups: dict, batch_size: int, rng: np.random.Generator, event_fraction: float = 0.0,
+             events=None):
+    """Endless batches (dicts of tensors) from ``groups`` ({"HxW": arrays}): a group picked in
+    proportion to its rows, then rows uniformly, ``event_fraction`` of them among ``events``."""
+    keys = sorted(groups)
+    sizes = np.array([len(groups[k]["states"]) for k in keys], dtype=np.float64)
+    dev = device()
+    while True:
+        group = groups[keys[rng.choice(len(keys), p=sizes / sizes.sum())]]
+        n = len(group["states"])
+        picked = rng.integers(n, size=batch_size)
+        if events is not None:
+            special = np.flatnonzero(events(group))
+            k = int(round(event_fraction * batch_size)) if len(special) else 0
+            picked[:k] = rng.choice(special, size=k) if k else picked[:k]
+        yield {name: torch.as_tensor(values[picked], device=dev) for name, values in group.items() if name != "rounds"}
+
+
+def _optimise(module, losses, batches, updates: int, lr: float, desc: str, progress: bool) -> dict:
+    """``updates`` Adam steps with a cosine decay from ``lr`` to ``lr / 10``; the mean of each
+    loss term over the last tenth of the updates."""
+    optimiser = torch.optim.Adam(module.parameters(), lr)
+    tail, kept = max(1, updates // 10), {}
+    module.train()
+    for update in tqdm(range(1, updates + 1), desc=desc, disable=not progress, leave=False):
+        for group in optimiser.param_groups:
+            group["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * (update - 1) / updates)))
+        terms = losses(next(batches))
+        gradient_step(desc, update, terms, optimiser, module.parameters(), clip_norm=1.0,
+                      kept="the last finished round is kept in state.pt")
+        if update > updates - tail:
+            for key, value in terms.items():
+                kept[key] = kept.get(key, 0.0) + float(value.detach()) / tail
+    return kept
+
+
+def fit_model(model: SokobanModel, experience: Experience, cfg: SokobanSearchConfig, updates: int,
+              rng: np.random.Generator, desc: str = "model", progress: bool = True) -> dict:
+    """Train ``model`` on every transition of ``experience``."""
+    groups = experience.arrays("transitions")
+    values, counts = np.unique(np.concatenate([g["rewards"] for g in groups.values()]), return_counts=True)
+    commonest = values[counts.argmax()]  # the step penalty; the rest are events worth oversampling
+    batches = _batches(groups, cfg.batch_size, rng, cfg.event_fraction, lambda g: g["rewards"] != commonest)
+    return _optimise(model, model.losses, batches, updates, cfg.lr, desc, progress)
+
+
+def fit_heuristic(heuristic: Heuristic, experience: Experience, cfg: SokobanSearchConfig,
+                  rng: np.random.Generator, desc: str = "value", progress: bool = True) -> float:
+    """Train the value on every labelled state; returns its mean absolute error (steps)."""
+    groups = {k: {"states": g["states"], "to_go": g["labels"]} for k, g in experience.arrays("to_go").items()}
+    kept = _optimise(heuristic, heuristic.losses, _batches(groups, cfg.batch_size, rng), cfg.value_updates,
+                     cfg.lr, desc, progress)
+    return kept["abs_error"]
+
+
+def held_out_exactness(model: SokobanModel, cfg: SokobanSearchConfig, levels: int = 20) -> dict:
+    """One-step whole-board exactness on random play of unseen levels, per variant."""
+    out = {}
+    for v, variant in enumerate(cfg.variants):
+        rows = random_play(variant, 10_000 + cfg.seed * 100 + v, levels)
+        predicted, rewards, dones = model.step(rows["states"], rows["actions"])
+        out[variant] = float((predicted == rows["next_states"]).reshape(len(predicted), -1).all(1).mean())
+    return out
+
+
+# ---------------------------------------------------------------------------- checkpoints
+
+def save_run(folder: Path, run: Run, cfg: SokobanSearchConfig) -> None:
+    payload = {"version": STATE_VERSION, "config": dataclasses.asdict(cfg), "model_config": run.model.config(),
+               "model": run.model.state_dict(), "rounds_done": run.rounds_done, "history": run.history,
+               "heuristic": None if run.heuristic is None else run.heuristic.state_dict()}
+    with atomic_path(folder / "state.pt") as tmp:
+        torch.save(payload, tmp)
+    with atomic_path(folder / "history.json") as tmp:
+        Path(tmp).write_text(json.dumps(run.history, indent=1))
+
+
+def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run | None:
+    """The run saved in ``folder`` (None if there is none); with ``cfg``, refuse one trained with
+    another config."""
+    path = Path(folder) / "state.pt"
+    if not path.exists():
+        return None
+    try:
+        saved = torch.load(path, weights_only=False, map_location=device())
+        version = saved["version"]
+    except Exception as error:  # a truncated or foreign file
+        raise ValueError(f"cannot read {path}: {error}; delete it to start over") from error
+    if version != STATE_VERSION:
+        raise ValueError(f"{path} has format version {version}, this code reads {STATE_VERSION}")
+    if cfg is not None:
+        check_same_config(path, saved["config"], dataclasses.asdict(cfg))
+    model = SokobanModel(**saved["model_config"]).to(device())
+    model.load_state_dict(saved["model"])
+    heuristic = None
+    if saved["heuristic"] is not None:
+        c = saved["config"]
+        heuristic = Heuristic(len(CELL_NAMES), c["value_channels"], c["value_blocks"]).to(device())
+        heuristic.load_state_dict(saved["heuristic"])
+    return Run(model, heuristic, saved["history"], saved["rounds_done"])
+
+
+__all__ = ["Run", "train_search_agent", "load_run", "save_run", "schedule", "fit_model", "fit_heuristic",
+           "held_out_exactness"]

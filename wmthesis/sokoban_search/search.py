@@ -1,0 +1,129 @@
+"""Best-first search in a model with discrete states, batched (what MCTS is to one state at a
+time, this is to a batch: one model call expands ``batch`` nodes by every action).
+
+The model is any ``expand(states) -> (next_states, rewards, dones)``: uint8 states (B, h, w) to
+every action's outcome, (B, A, h, w), (B, A) and (B, A): the learned :class:`~wmthesis.sokoban_search.model.SokobanModel`, or the true rules
+(:class:`Simulator`, the upper bound with the same search). States are hashed by their bytes, so
+a state reached twice is expanded once; a discrete model makes that possible where a continuous
+latent (the thesis's LSTM state) could not.
+
+Priority ``f = g + weight * h``: ``g`` the steps from the root, ``h`` a learned estimate of the
+steps still to go (:class:`~wmthesis.sokoban_search.heuristic.Heuristic`); without one, the
+search is breadth first. The goal is a transition the model predicts to end the episode.
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wmthesis.envs.sokoban import (BOX, BOX_OFF_TARGET_PENALTY, BOX_ON_TARGET_REWARD, SOLVED_REWARD, STEP_PENALTY,
+                                   WALL, apply_action)
+
+
+@dataclass
+class SearchResult:
+    """``actions``: the plan (None when the budget ran out first); ``states``: the model's
+    states along it, uint8 (len(actions) + 1, h, w), the root first; ``expanded`` nodes and
+    ``generated`` model transitions; ``seconds``."""
+
+    actions: list[int] | None
+    states: np.ndarray | None
+    expanded: int
+    generated: int
+    seconds: float
+    info: dict = field(default_factory=dict)
+
+    @property
+    def found(self) -> bool:
+        return self.actions is not None
+
+
+def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000, batch: int = 64,
+               weight: float = 1.0) -> SearchResult:
+    """Search from ``root`` (uint8 (h, w)) for a transition that ``expand`` predicts to end the
+    episode, expanding at most ``budget`` nodes, ``batch`` at a time (the lowest ``f`` first,
+    first-in first-out on ties). ``heuristic(states (B, h, w)) -> steps to go (B,)``."""
+    start = time.perf_counter()
+    root = np.ascontiguousarray(root, dtype=np.uint8)
+    states, parents, actions, depth = [root], [-1], [-1], [0]
+    seen = {root.tobytes()}
+    order = itertools.count()
+    frontier = [(0.0, next(order), 0)]
+    expanded = generated = 0
+    while frontier and expanded < budget:
+        picked = [heapq.heappop(frontier)[2] for _ in range(min(batch, len(frontier), budget - expanded))]
+        expanded += len(picked)
+        children, _, dones = expand(np.stack([states[i] for i in picked]))
+        generated += dones.size
+        fresh = []
+        for (k, action), child in zip(np.ndindex(dones.shape), children.reshape(-1, *root.shape)):
+            parent = picked[k]
+            if dones[k, action]:
+                plan = _path(parents, actions, parent) + [action]
+                path_states = np.stack([states[i] for i in _nodes(parents, parent)] + [child])
+                return SearchResult(plan, path_states, expanded, generated, time.perf_counter() - start)
+            key = child.tobytes()
+            if key in seen:
+                continue
+            seen.add(key)
+            states.append(child)
+            parents.append(parent)
+            actions.append(action)
+            depth.append(depth[parent] + 1)
+            fresh.append(len(states) - 1)
+        if fresh:
+            h = heuristic(np.stack([states[i] for i in fresh])) if heuristic is not None else np.zeros(len(fresh))
+            for i, estimate in zip(fresh, np.asarray(h, dtype=np.float64)):
+                heapq.heappush(frontier, (depth[i] + weight * float(estimate), next(order), i))
+    return SearchResult(None, None, expanded, generated, time.perf_counter() - start,
+                        {"exhausted": not frontier})
+
+
+def _nodes(parents: list[int], node: int) -> list[int]:
+    """The nodes from the root down to ``node``."""
+    path = []
+    while node >= 0:
+        path.append(node)
+        node = parents[node]
+    return path[::-1]
+
+
+def _path(parents: list[int], actions: list[int], node: int) -> list[int]:
+    """The actions from the root down to ``node``."""
+    return [actions[i] for i in _nodes(parents, node)[1:]]
+
+
+class Simulator:
+    """The true rules with the model's interface, over a board's inner cells (B, h, w) (the
+    outer ring, always wall, added and removed around :func:`~wmthesis.envs.sokoban.apply_action`).
+    The reference that tells how much of the search's failures are the model's fault."""
+
+    n_actions = 8
+
+    def expand(self, states: np.ndarray):
+        """Every action's outcome: (B, h, w) -> (B, A, h, w), (B, A), (B, A)."""
+        states = np.asarray(states, dtype=np.uint8)
+        b, a = len(states), self.n_actions
+        children, rewards, dones = self.step(np.repeat(states, a, axis=0), np.tile(np.arange(a), b))
+        return children.reshape(b, a, *states.shape[1:]), rewards.reshape(b, a), dones.reshape(b, a)
+
+    def step(self, states: np.ndarray, actions: np.ndarray):
+        """One action per state: (B, h, w), (B,) -> (B, h, w), (B,), (B,)."""
+        states = np.asarray(states, dtype=np.uint8)
+        b, h, w = states.shape
+        boards = np.full((b, h + 2, w + 2), WALL, np.uint8)
+        boards[:, 1:-1, 1:-1] = states
+        rewards, dones = np.full(b, STEP_PENALTY, np.float32), np.zeros(b, bool)
+        for i in range(b):
+            change = apply_action(boards[i], int(actions[i]))
+            rewards[i] += BOX_ON_TARGET_REWARD if change > 0 else BOX_OFF_TARGET_PENALTY if change < 0 else 0.0
+            dones[i] = not np.any(boards[i] == BOX)
+            rewards[i] += SOLVED_REWARD if dones[i] else 0.0
+        return boards[:, 1:-1, 1:-1].copy(), rewards, dones
+
+
+__all__ = ["best_first", "SearchResult", "Simulator"]
