@@ -6,6 +6,10 @@
         Summarise a store; write a frame strip (PNG) and a rerun recording of one episode.
     reproduce EXPERIMENT [--profile smoke|quick|thesis] [--seed S]
         Run a thesis experiment end to end; results under data/results/EXPERIMENT/.
+    solve-sokoban LEVELS.txt [--profile P] [--seed S] [--out PATH] [--max-steps M]
+        Play the agent that ``reproduce sokoban-search`` trained on every level of a text file
+        (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
+        levels after "; N" lines); writes a JSON list of {level, solved, steps, actions}.
     search planet-boxing|planet-freeway --trials N [--workers K] [--storage URL] [--profile P]
         Random search over KL scale x free nats (optuna); re-running continues the study, and
         any optuna storage URL (e.g. PostgreSQL) lets workers on many machines share it.
@@ -97,9 +101,37 @@ def cmd_reproduce(args) -> int:
 
     metrics = reproduce(args.experiment, args.profile, args.seed, args.variant)
     score = metrics["score"]
-    print(f"{args.experiment} ({metrics['profile']}, seed {args.seed}): score {score['mean']:.1f} +- {score['std']:.1f} "
-          f"over {score['episodes']} episodes; wall time {metrics['wall_seconds']:.0f} s")
+    summary = metrics.get("summary") or (f"score {score['mean']:.1f} +- {score['std']:.1f} "
+                                         f"over {score['episodes']} episodes")
+    print(f"{args.experiment} ({metrics['profile']}, seed {args.seed}): {summary}; "
+          f"wall time {metrics['wall_seconds']:.0f} s")
     print("results:", *metrics["files"]["figures"], metrics["files"]["recording"], sep="\n  ")
+    return 0
+
+
+def cmd_solve_sokoban(args) -> int:
+    import json
+
+    from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
+    from wmthesis.envs.levels import read_levels
+    from wmthesis.experiments.sokoban_search import work_folder
+    from wmthesis.sokoban_search.evaluation import solve_boards
+    from wmthesis.sokoban_search.iteration import load_run
+    from wmthesis.utils import atomic_path
+
+    profile = profile_name(args.profile)
+    boards = read_levels(args.levels)
+    folder = work_folder(profile, args.seed)
+    run = load_run(folder)
+    if run is None:
+        raise ValueError(f"no trained agent in {folder}: run `python -m wmthesis reproduce sokoban-search "
+                         f"--profile {profile} --seed {args.seed}` first")
+    cfg = for_profile(SokobanSearchConfig, profile, seed=args.seed)
+    results = solve_boards(run.agent(cfg), boards, max_steps=args.max_steps)
+    out = Path(args.out) if args.out else Path(args.levels).with_suffix(".solutions.json")
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps(results, indent=1))
+    print(f"{out}: {sum(r['solved'] for r in results)} of {len(results)} levels solved")
     return 0
 
 
@@ -153,6 +185,14 @@ def parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--seed", type=at_least(0), default=0)
     reproduce.add_argument("--variant", help="a variant of the experiment (PlaNet's: see its --help)")
     reproduce.set_defaults(run=cmd_reproduce)
+
+    solve = commands.add_parser("solve-sokoban", help="play the trained Sokoban search agent on levels from a text file")
+    solve.add_argument("levels", help="a text file of levels (# wall, . target, $ box, @ player; '; N' lines between)")
+    solve.add_argument("--profile", choices=PROFILES)
+    solve.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
+    solve.add_argument("--out", help="JSON results (default: LEVELS.solutions.json)")
+    solve.add_argument("--max-steps", type=at_least(1), default=120, help="steps allowed per level")
+    solve.set_defaults(run=cmd_solve_sokoban)
 
     search = commands.add_parser("search", help="random search over KL scale x free nats (optuna)")
     search.add_argument("name", choices=("planet-boxing", "planet-freeway"))

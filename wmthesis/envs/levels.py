@@ -120,7 +120,8 @@ def check_board(board: np.ndarray, name: str = "level") -> None:
 
 
 def _wall_outside(board: np.ndarray, name: str) -> np.ndarray:
-    """Floor connected to the outside ring becomes wall; then drop the added ring. Anything
+    """Floor connected to the outside ring becomes wall; then drop the added ring (the level keeps
+    its own size, wall rows included: a Boxoban level stays 10x10). Anything
     else (a box, target or player) reachable from outside means the level is not enclosed."""
     h, w = board.shape
     outside, stack = np.zeros_like(board, bool), [(0, 0)]
@@ -135,13 +136,9 @@ def _wall_outside(board: np.ndarray, name: str) -> np.ndarray:
                 outside[nr, nc] = True
                 stack.append((nr, nc))
     board = np.where(outside, WALL, board).astype(np.uint8)
-    inner = board[1:-1, 1:-1]
-    # Keep one wall ring: trim whole-wall rows and columns beyond it.
-    rows = np.flatnonzero((inner != WALL).any(1))
-    cols = np.flatnonzero((inner != WALL).any(0))
-    if len(rows) == 0:
+    if not np.any(board != WALL):
         raise LevelError(f"{name}: no floor inside the walls")
-    return inner[max(rows[0] - 1, 0):rows[-1] + 2, max(cols[0] - 1, 0):cols[-1] + 2].copy()
+    return board[1:-1, 1:-1].copy()
 
 
 __all__ = ["parse_level", "parse_levels", "read_levels", "board_to_text", "fit_board", "check_board",

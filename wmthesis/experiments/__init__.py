@@ -2,7 +2,9 @@
 
 One module per experiment: :mod:`~wmthesis.experiments.sokoban_world_models` (5.3),
 :mod:`~wmthesis.experiments.world_models` (Boxing, 5.4.1), :mod:`~wmthesis.experiments.alphazero`
-(5.4.2) and :mod:`~wmthesis.experiments.planet` (5.5, 5.6); :mod:`~wmthesis.experiments.results`
+(5.4.2), :mod:`~wmthesis.experiments.planet` (5.5, 5.6) and
+:mod:`~wmthesis.experiments.sokoban_search` (beyond the thesis: Sokoban solved by search in a
+learned model); :mod:`~wmthesis.experiments.results`
 holds what they share to write their results.
 
 Each experiment writes its artifacts (stores, checkpoints) under ``data/<profile>/<name>/``
@@ -19,13 +21,15 @@ from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, ALPHAZERO
                                             boxing_wm_alphazero)
 from wmthesis.experiments.planet import (ATARI_CHANGES, PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP,
                                          PLANET_REFERENCE, SOKOBAN_CHANGES, planet_experiment, planet_variants)
+from wmthesis.experiments.sokoban_search import SOKOBAN_SEARCH_REFERENCE, sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,
                                                        sokoban_wm_configs, sokoban_world_models)
 from wmthesis.experiments.world_models import BOXING_REFERENCE, DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.utils import check_choice
 
-EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway")
+EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
+               "sokoban-search")
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
@@ -36,13 +40,13 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     refuse one.
     """
     check_choice("experiment", name, EXPERIMENTS)
+    if name in ("sokoban-wm", "boxing-wm", "sokoban-search") and variant is not None:
+        raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
     if name == "sokoban-wm":
-        if variant is not None:
-            raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
         return sokoban_world_models(profile, seed, progress)
+    if name == "sokoban-search":
+        return sokoban_search(profile, seed, progress)
     if name == "boxing-wm":
-        if variant is not None:
-            raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
         return boxing_world_models(profile, seed, progress)
     if name == "boxing-wm-alphazero":
         return boxing_wm_alphazero(profile, seed, variant, progress)
@@ -82,7 +86,7 @@ def _set_threads(threads: int) -> None:
     torch.set_num_threads(threads)
 
 
-__all__ = ["EXPERIMENTS", "reproduce", "reproduce_all",
+__all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", "SOKOBAN_SEARCH_REFERENCE",
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE", "SOKOBAN_WM_REFERENCE",
            "boxing_world_models", "BOXING_REFERENCE",

@@ -15,7 +15,7 @@ import numpy as np
 from wmthesis.envs import SOKOBAN_VARIANTS
 from wmthesis.envs.sokoban import SokobanEnv
 from wmthesis.sokoban_search.search import best_first
-from wmthesis.utils import derive_seeds
+from wmthesis.utils import check_choice, derive_seeds
 
 
 @dataclass
@@ -43,6 +43,7 @@ class Play:
 
 def grid_env(name: str, **options) -> SokobanEnv:
     """The Sokoban variant ``name`` with grid observations."""
+    check_choice("Sokoban variant", name, tuple(SOKOBAN_VARIANTS))
     return SokobanEnv(**SOKOBAN_VARIANTS[name], observation="grid", **options)
 
 

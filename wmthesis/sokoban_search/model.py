@@ -30,7 +30,9 @@ class SokobanModel(nn.Module):
     ``rewards``: the distinct rewards of the training data (the reward head classifies among
     them); a trunk of ``channels`` x ``blocks`` residual 3x3 layers (receptive field
     ``4 * blocks + 3``), then per cell an MLP to the A next codes, and pooled heads for the
-    rewards and ends.
+    rewards and ends. A learned multiple of the input's one-hot codes is added to the next
+    board's logits (a skip connection, as in a residual network: most cells keep their code, so
+    the network learns the changes).
     """
 
     def __init__(self, n_codes: int, n_actions: int, rewards, channels: int = 64, blocks: int = 2):
@@ -45,14 +47,16 @@ class SokobanModel(nn.Module):
                                        nn.Conv2d(2 * channels, self.n_actions * self.n_codes, 1))
         self.event_head = nn.Sequential(nn.Linear(2 * channels, 2 * channels), nn.ReLU(),
                                         nn.Linear(2 * channels, self.n_actions * (len(self.rewards) + 1)))
+        self.copy = nn.Parameter(torch.tensor(3.0))  # a skip connection: the input's code, scaled
 
     def forward(self, state: torch.Tensor):
         b, h, w = state.shape
-        x = self.stem(F.one_hot(state.long(), self.n_codes).permute(0, 3, 1, 2).float())
+        planes = F.one_hot(state.long(), self.n_codes).permute(0, 3, 1, 2).float()
+        x = self.stem(planes)
         for block in self.blocks:
             x = x + block(x)
         x = F.relu(x)
-        next_logits = self.next_head(x).view(b, self.n_actions, self.n_codes, h, w)
+        next_logits = self.next_head(x).view(b, self.n_actions, self.n_codes, h, w) + self.copy * planes[:, None]
         events = self.event_head(torch.cat([x.mean((2, 3)), x.amax((2, 3))], 1)).view(b, self.n_actions, -1)
         return next_logits, events[..., :-1], events[..., -1]
 

@@ -1,0 +1,220 @@
+"""Sokoban solved by search in a learned model: levels as text, the search, the model, the
+experience file, resuming, saved solutions and bad input."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from wmthesis.config import SokobanSearchConfig, for_profile
+from wmthesis.envs.levels import LevelError, board_to_text, fit_board, parse_level, parse_levels, read_levels
+from wmthesis.envs.sokoban import BOX, PLAYER, SokobanEnv, solve
+from wmthesis.sokoban_search import accuracy
+from wmthesis.sokoban_search.agent import SearchAgent, grid_env, level_seeds, random_play
+from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
+from wmthesis.sokoban_search.experience import Experience
+from wmthesis.sokoban_search.iteration import fit_model, load_run, train_search_agent
+from wmthesis.sokoban_search.model import SokobanModel
+from wmthesis.sokoban_search.search import Simulator, best_first
+
+# A Boxoban-style file: two levels after "; N" lines (level 0: generated, seed 1 of a 10x10 room
+# with 2 boxes; level 1: a small classic-style level, rows indented with outside floor).
+LEVELS = """; 0
+##########
+###      #
+####  .$@#
+##  . ####
+##    ####
+## $    ##
+##     ###
+##########
+##########
+##########
+
+; 1
+####
+# .#
+#  ###
+#*@  #
+#  $ #
+#  ###
+####
+"""
+
+
+# ---------------------------------------------------------------------------- levels as text
+
+def test_a_level_in_text_reads_to_the_board_codes_and_back():
+    board = parse_level("#####\n#@$.#\n#####")
+    assert board.tolist() == [[0, 0, 0, 0, 0], [0, 5, 4, 2, 0], [0, 0, 0, 0, 0]]
+    assert board_to_text(board) == "#####\n#@$.#\n#####"
+    assert parse_level("#####\n#+*$#\n# . #\n#####")[1].tolist() == [0, 6, 3, 4, 0]
+
+
+def test_a_boxoban_file_holds_several_levels_and_outside_floor_becomes_wall(tmp_path):
+    path = tmp_path / "levels.txt"
+    path.write_text(LEVELS)
+    first, second = read_levels(path)
+    assert first.shape == (10, 10) and int((first == BOX).sum()) == 2 and first[1, 3] == 1
+    assert second.shape == (7, 6)
+    assert second[6, 4] == 0 and second[0, 5] == 0  # rows shorter than the widest: padded with wall
+    assert [b.shape for b in parse_levels(LEVELS.replace("; 1\n", "\n"))] == [(10, 10), (7, 6)]
+
+
+@pytest.mark.parametrize("text, words", [
+    ("#####\n#@$. \n#####", "enclosed"),
+    ("#####\n#@$.@#\n######", "exactly one player"),
+    ("#####\n#@$x#\n#####", "'x'"),
+    ("#####\n#@ .#\n#####", "at least one box"),
+    ("#####\n#@$ #\n#####", "a target per box"),
+])
+def test_unplayable_levels_are_refused_naming_why(text, words):
+    with pytest.raises(LevelError, match=words):
+        parse_level(text, "my level")
+
+
+def test_env_resets_to_a_text_level_padded_with_wall_to_its_room():
+    env = SokobanEnv((10, 10), 4, observation="grid")
+    env.reset(options={"board": "#####\n#@$.#\n#####"})
+    assert env.board.shape == (10, 10) and env.board[1, 1] == PLAYER and (env.board[3:] == 0).all()
+    _, reward, terminated, _, _ = env.step(3)  # push right: the box lands on the target
+    assert terminated and reward == pytest.approx(10.9)
+    with pytest.raises(LevelError, match="larger than the 7x7 room"):
+        fit_board(np.zeros((8, 8), np.uint8), (7, 7))
+
+
+# ---------------------------------------------------------------------------- search
+
+def test_breadth_first_search_in_the_true_rules_finds_a_shortest_solution():
+    first = parse_levels(LEVELS)[0]
+    result = best_first(Simulator().expand, first[1:-1, 1:-1], budget=50_000)
+    astar = solve(first)
+    assert result.found and len(result.actions) <= len(astar)  # A* is optimal in pushes, not steps
+    env = SokobanEnv((10, 10), 2, observation="grid")
+    env.reset(options={"board": first})
+    for action in result.actions:
+        _, _, terminated, _, _ = env.step(action)
+    assert terminated
+    assert np.array_equal(result.states[0], first[1:-1, 1:-1]) and len(result.states) == len(result.actions) + 1
+
+
+def test_a_heuristic_cuts_the_nodes_a_search_expands():
+    level = parse_levels(LEVELS)[0][1:-1, 1:-1]
+    blind = best_first(Simulator().expand, level, budget=50_000)
+
+    def boxes_off_target(states):  # a test-only oracle: not something the agent is given
+        return 3.0 * (states == BOX).reshape(len(states), -1).sum(1)
+
+    guided = best_first(Simulator().expand, level, heuristic=boxes_off_target, budget=50_000)
+    assert guided.found and guided.expanded < blind.expanded
+
+
+def test_the_search_stops_at_its_budget_and_says_it_found_nothing():
+    easy = parse_level("#######\n#@ $ .#\n#######\n")  # walk, then push right twice
+    assert best_first(Simulator().expand, easy[1:-1, 1:-1], budget=50).found
+    stuck = parse_level("#####\n#$  #\n#@ .#\n#####")  # the box sits in a corner
+    result = best_first(Simulator().expand, stuck[1:-1, 1:-1], budget=30)
+    assert not result.found and result.expanded <= 30 and result.info["exhausted"]
+
+
+# ---------------------------------------------------------------------------- the learned model
+
+def test_the_model_expands_every_action_on_any_board_size():
+    torch.manual_seed(0)
+    model = SokobanModel(7, 8, [-0.1, 0.9], channels=8, blocks=1)
+    for shape in ((5, 5), (8, 8), (3, 9)):
+        nxt, rewards, dones = model.expand(np.zeros((2, *shape), np.uint8))
+        assert nxt.shape == (2, 8, *shape) and rewards.shape == dones.shape == (2, 8)
+        assert set(np.unique(rewards)) <= {np.float32(-0.1), np.float32(0.9)}
+
+
+@pytest.mark.slow
+def test_the_learned_model_becomes_exact_on_sokoban_small_in_a_short_run(tmp_path):
+    cfg = SokobanSearchConfig(variants=("sokoban-small",), channels=32, batch_size=64, lr=3e-3)
+    with Experience(tmp_path / "experience.h5") as experience:
+        experience.add("transitions", 0, **random_play("sokoban-small", 0, 300))
+        rewards = np.unique(experience.arrays("transitions")["5x5"]["rewards"])
+        torch.manual_seed(0)
+        model = SokobanModel(7, 8, rewards, cfg.channels, cfg.blocks)
+        fit_model(model, experience, cfg, 1500, np.random.default_rng(0), progress=False)
+    held_out = random_play("sokoban-small", 99, 30)
+    measures = accuracy.one_step(model, held_out)
+    assert measures["exact"] >= 0.98 > measures["exact_nothing_moves"]
+    assert measures["player_vanished"] <= 0.005 and measures["reward_accuracy"] >= 0.98
+
+
+def test_accuracy_of_the_true_rules_is_perfect_and_the_baseline_is_not():
+    rows = random_play("sokoban-small", 3, 5)
+    measures = accuracy.one_step(Simulator(), rows)
+    assert measures["exact"] == 1.0 and measures["reward_accuracy"] == 1.0 and measures["end_accuracy"] == 1.0
+    assert measures["exact_nothing_moves"] < 1.0
+    states = np.concatenate([rows["states"][:120], rows["next_states"][119:120]])
+    loop = accuracy.open_loop(Simulator(), [(states, rows["actions"][:120])], horizons=(10, 30))
+    assert loop[10]["exact"] == 1.0 and loop[30]["exact"] == 1.0 and loop[30]["player_vanished"] == 0.0
+
+
+# ---------------------------------------------------------------------------- the agent and its run
+
+def test_the_agent_with_the_true_rules_solves_small_levels_and_its_solutions_replay():
+    agent = SearchAgent(Simulator(), budget=5_000)
+    env = grid_env("sokoban-small")
+    seeds = level_seeds(0, 1000, 5)
+    plays = [agent.play(env, s) for s in seeds]
+    assert all(p.solved for p in plays)
+    records = [p.record() for p in plays]
+    assert check_solutions("sokoban-small", records) == [True] * 5
+    records[0]["actions"] = records[0]["actions"][:-1]  # one step short
+    assert check_solutions("sokoban-small", records[:1]) == [False]
+    assert json.loads(json.dumps(records))[1]["seed"] == seeds[1]
+
+
+def test_solve_boards_plays_levels_of_any_size_from_text():
+    boards = parse_levels(LEVELS)
+    results = solve_boards(SearchAgent(Simulator(), budget=20_000), boards, progress=False)
+    assert [r["level"] for r in results] == [0, 1] and all(r["solved"] for r in results)
+    assert results[1]["steps"] == len(results[1]["actions"]) > 0
+
+
+def test_experience_drops_the_rounds_of_an_interrupted_round(tmp_path):
+    rows = random_play("sokoban-small", 0, 2)
+    with Experience(tmp_path / "e.h5") as experience:
+        experience.add("transitions", 0, **rows)
+        experience.add("transitions", 1, **rows)
+        experience.add("to_go", 1, states=rows["states"][:3], labels=np.array([3, 2, 1], np.float32))
+        assert experience.count() == 2 * len(rows["actions"]) and experience.count("to_go") == 3
+        experience.drop_rounds(1)
+        assert experience.count() == len(rows["actions"]) and experience.count("to_go") == 0
+        kept = experience.arrays("transitions")["5x5"]
+        assert np.array_equal(kept["states"], rows["states"]) and (kept["rounds"] == 0).all()
+
+
+def test_a_run_resumes_to_the_same_result_and_refuses_another_config(tmp_path):
+    cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",))
+    first = train_search_agent(tmp_path / "a", cfg, progress=False)
+    again = train_search_agent(tmp_path / "a", cfg, progress=False)  # nothing left to do
+    assert again.history == first.history
+    # Cut off after random play: the round runs again from the saved state to the same weights.
+    straight = train_search_agent(tmp_path / "b", cfg, progress=False)
+    import dataclasses
+    partial = train_search_agent(tmp_path / "c", dataclasses.replace(cfg, rounds=0), progress=False)
+    state = torch.load(tmp_path / "c" / "state.pt", weights_only=False)
+    state["config"]["rounds"] = cfg.rounds
+    torch.save(state, tmp_path / "c" / "state.pt")
+    resumed = train_search_agent(tmp_path / "c", cfg, progress=False)
+    assert partial.rounds_done == 0 and resumed.rounds_done == straight.rounds_done == 1
+    for a, b in zip(resumed.model.state_dict().values(), straight.model.state_dict().values()):
+        assert torch.equal(a, b)
+    with pytest.raises(ValueError, match="another config"):
+        train_search_agent(tmp_path / "a", dataclasses.replace(cfg, budget=7), progress=False)
+
+
+def test_a_corrupt_checkpoint_is_named_and_left_alone(tmp_path):
+    (tmp_path / "state.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="delete it to start over"):
+        load_run(tmp_path)
+    assert (tmp_path / "state.pt").read_bytes() == b"not a checkpoint"
+
+
+def test_an_unknown_variant_fails_with_the_valid_ones():
+    with pytest.raises((ValueError, KeyError), match="sokoban-small"):
+        grid_env("sokoban-huge")

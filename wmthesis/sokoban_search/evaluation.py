@@ -1,0 +1,112 @@
+"""The table of issue 14: solve rates on unseen levels within the environment's 120 steps.
+
+Rows: random play; the thesis (0 levels, 5.3 and 5.5); the search agent in its learned model;
+the same agent, same budget, with the true rules in place of the model (the upper bound: the gap
+to it is the model's fault); A* over pushes (``envs.sokoban.solve``, a reference with the rules
+and a heuristic written in, not an agent).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from wmthesis.envs.sokoban import solve
+from wmthesis.sokoban_search.agent import Play, grid_env, random_play
+from wmthesis.utils import derive_seeds
+
+THESIS_SOLVED = 0.0  # 5.3 and 5.5: no level solved
+
+
+def play_levels(agent, variant: str, seeds, desc: str = "levels", progress: bool = True) -> list[Play]:
+    """The agent on the levels ``seeds`` generate, in the real environment."""
+    env = grid_env(variant)
+    return [agent.play(env, int(s)) for s in tqdm(seeds, desc=desc, disable=not progress)]
+
+
+def agent_row(plays: list[Play]) -> dict:
+    """Solve rate and costs of a list of plays."""
+    solved = [p for p in plays if p.solved]
+    moves = sum(len(p.actions) for p in plays)
+    return {"levels": len(plays), "solved": len(solved), "solve_rate": len(solved) / len(plays),
+            "steps_when_solved": float(np.mean([len(p.actions) for p in solved])) if solved else None,
+            "nodes_per_move": sum(p.expanded for p in plays) / max(moves, 1),
+            "nodes_per_level": float(np.mean([p.expanded for p in plays])),
+            "seconds_per_level": float(np.mean([p.seconds for p in plays]))}
+
+
+def random_row(variant: str, seeds) -> dict:
+    """Uniformly random play, one episode per level (seeded from the level seed)."""
+    start, solved = time.perf_counter(), 0
+    env = grid_env(variant)
+    for s in seeds:
+        rng = np.random.default_rng(derive_seeds(int(s), 1)[0])
+        env.reset(seed=int(s))
+        done = terminated = False
+        while not done:
+            _, _, terminated, truncated, _ = env.step(int(rng.integers(8)))
+            done = terminated or truncated
+        solved += bool(terminated)
+    return {"levels": len(seeds), "solved": solved, "solve_rate": solved / len(seeds),
+            "seconds_per_level": (time.perf_counter() - start) / len(seeds)}
+
+
+def astar_row(variant: str, seeds, max_nodes: int = 100_000) -> dict:
+    """A* over pushes on each level; solved when its solution fits the 120 steps."""
+    env = grid_env(variant)
+    start, solved, lengths = time.perf_counter(), 0, []
+    for s in seeds:
+        env.reset(seed=int(s))
+        actions = solve(env.board, max_nodes=max_nodes)
+        if actions is not None and len(actions) <= env.max_steps:
+            solved += 1
+            lengths.append(len(actions))
+    return {"levels": len(seeds), "solved": solved, "solve_rate": solved / len(seeds),
+            "steps_when_solved": float(np.mean(lengths)) if lengths else None,
+            "seconds_per_level": (time.perf_counter() - start) / len(seeds)}
+
+
+def trajectories(plays: list[Play]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The real (states (T + 1, h, w), actions (T,)) of each play that took a step."""
+    out = []
+    for p in plays:
+        t = p.transitions
+        if len(t["actions"]):
+            out.append((np.concatenate([t["states"], t["next_states"][-1:]]), t["actions"]))
+    return out
+
+
+def solve_boards(agent, boards, max_steps: int = 120, progress: bool = True) -> list[dict]:
+    """The agent on given boards (codes (h, w), any size the model runs on), each in a real
+    environment of the board's size: one ``{"level", "solved", "steps", "actions"}`` per board."""
+    from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, SokobanEnv
+
+    results = []
+    for index, board in enumerate(tqdm(boards, desc="levels", disable=not progress)):
+        boxes = int(np.isin(board, (BOX, BOX_ON_TARGET)).sum())
+        env = SokobanEnv(board.shape, max(boxes, 1), max_steps=max_steps, observation="grid", render_mode=None)
+        play = agent.play(env, board=board)
+        results.append({"level": index, "solved": play.solved, "steps": len(play.actions),
+                        "actions": [int(a) for a in play.actions]})
+    return results
+
+
+def check_solutions(variant: str, records: list[dict]) -> list[bool]:
+    """Replay saved solutions (``seed``, ``actions``) in a fresh environment: whether each
+    really solves its level."""
+    env = grid_env(variant)
+    verdicts = []
+    for record in records:
+        env.reset(seed=int(record["seed"]))
+        terminated = truncated = False
+        for action in record["actions"]:
+            _, _, terminated, truncated, _ = env.step(int(action))
+            if terminated or truncated:
+                break
+        verdicts.append(bool(terminated))
+    return verdicts
+
+
+__all__ = ["play_levels", "solve_boards", "agent_row", "random_row", "astar_row", "trajectories", "check_solutions",
+           "THESIS_SOLVED", "random_play"]

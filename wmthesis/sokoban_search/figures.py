@@ -1,0 +1,76 @@
+"""Figures of the search in a learned Sokoban model: the model's boards against the real ones
+along a plan, the solve rate and the model's exactness by round, the table, a recording."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from wmthesis.envs.sokoban import WALL, make_tiles, render_board
+from wmthesis.sokoban_search.agent import grid_env
+from wmthesis.viz import image_rows, markdown_table, record_frames
+
+TABLE_COLUMNS = ("solve_rate", "solved", "levels", "steps_when_solved", "nodes_per_move", "seconds_per_level")
+
+
+def board_image(state: np.ndarray, tile_size: int = 8) -> np.ndarray:
+    """The picture of a state's inner cells (h, w): (h + 2) x (w + 2) tiles with the wall ring."""
+    board = np.full((state.shape[0] + 2, state.shape[1] + 2), WALL, np.uint8)
+    board[1:-1, 1:-1] = np.clip(state, 0, 6)
+    return render_board(board, make_tiles(tile_size))
+
+
+def plot_plan(real: np.ndarray, predicted: np.ndarray, every: int = 1, columns: int = 10):
+    """Real states (T, h, w) over the model's states (T, h, w) along one plan, every ``every``-th
+    step, differing boards marked in the titles."""
+    picks = np.arange(0, min(len(real), len(predicted)), every)[:columns]
+    return image_rows({"real": [board_image(real[t]) for t in picks],
+                       "model": [board_image(predicted[t]) for t in picks]})
+
+
+def plot_rounds(history: list[dict]):
+    """Solve rate of each round's (unseen) levels and the model's one-step exactness after it."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.2))
+    rounds = [h for h in history if h["solved"] is not None]
+    labels = [f"{h['round']}\n{h['variant'].replace('sokoban-', '')}" for h in rounds]
+    left.bar(range(len(rounds)), [100 * h["solved"] for h in rounds], color="tab:green")
+    left.set_xticks(range(len(rounds)), labels)
+    left.set_ylim(0, 100)
+    left.set(xlabel="round (variant)", ylabel="levels solved (%)", title="the agent on each round's new levels")
+    for variant in history[0]["exactness"]:
+        right.plot([h["round"] for h in history], [100 * h["exactness"][variant] for h in history], "o-", label=variant)
+    right.set(xlabel="round (0: random play)", ylabel="one-step exact boards (%)", title="the model on unseen levels")
+    right.legend()
+    fig.tight_layout()
+    return fig
+
+
+def results_table(rows: dict[str, dict]) -> str:
+    """Markdown table of evaluation rows (name -> measures)."""
+    def cell(value):
+        if value is None:
+            return ""
+        if isinstance(value, float):
+            return f"{value:.3g}"
+        return str(value)
+
+    return markdown_table([[name] + [cell(row.get(c)) for c in TABLE_COLUMNS] for name, row in rows.items()],
+                          ["", *TABLE_COLUMNS])
+
+
+def record_solution(path: str | Path, variant: str, record: dict) -> Path:
+    """A rerun recording of a saved solution replayed in the real environment."""
+    env = grid_env(variant)
+    env.reset(seed=int(record["seed"]))
+    frames, rewards = [env.render()], [0.0]
+    for action in record["actions"]:
+        _, reward, terminated, truncated, _ = env.step(int(action))
+        frames.append(env.render())
+        rewards.append(reward)
+        if terminated or truncated:
+            break
+    return record_frames(path, {"board": np.stack(frames)}, {"reward": np.array(rewards)})
+
+
+__all__ = ["plot_plan", "plot_rounds", "results_table", "record_solution", "board_image"]
