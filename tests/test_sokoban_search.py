@@ -218,3 +218,37 @@ def test_a_corrupt_checkpoint_is_named_and_left_alone(tmp_path):
 def test_an_unknown_variant_fails_with_the_valid_ones():
     with pytest.raises((ValueError, KeyError), match="sokoban-small"):
         grid_env("sokoban-huge")
+
+
+# ---------------------------------------------------------------------------- pixels
+
+def test_cell_codes_learned_from_pixels_stand_for_one_cell_type_each_and_decode_exactly():
+    from wmthesis.sokoban_search.cells import PixelInputs, code_table, crop_ring, fit_coder, render_cells
+
+    states = random_play("sokoban", 0, 30)["states"]
+    coder = fit_coder(render_cells(states[::5]), tile_size=8, n_codes=8)
+    unseen = random_play("sokoban-small", 5, 10)["states"]
+    codes = coder.encode(render_cells(unseen))
+    table = code_table(codes, unseen)
+    assert np.array_equal(table[codes], unseen)  # every cell's code names its true type
+    assert len(set(table[np.unique(codes)])) == len(np.unique(codes))  # no two codes for one type
+    assert np.array_equal(coder.decode(codes), render_cells(unseen))
+    env = SokobanEnv((10, 10), 4, observation="rgb", tile_size=8)
+    observation, _ = env.reset(seed=4)
+    inputs = PixelInputs(coder)
+    assert np.array_equal(crop_ring(observation, 8), render_cells(env.board[None, 1:-1, 1:-1])[0])
+    assert np.array_equal(inputs.observe(env, observation), inputs.from_grid(env.board[None, 1:-1, 1:-1])[0])
+
+
+def test_a_pixel_run_plays_from_frames_and_saves_its_codes(tmp_path):
+    import dataclasses
+
+    cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",), inputs="pixels")
+    run = train_search_agent(tmp_path, cfg, progress=False)
+    assert run.inputs.name == "pixels" and run.model.n_codes == cfg.codes
+    loaded = load_run(tmp_path, cfg)
+    assert np.array_equal(loaded.inputs.coder.codebook, run.inputs.coder.codebook)
+    env = run.agent(cfg).env("sokoban-small")
+    assert env.observation == "rgb"
+    with pytest.raises(ValueError, match="inputs"):
+        train_search_agent(tmp_path / "x", dataclasses.replace(cfg, inputs="voxels"), progress=False)

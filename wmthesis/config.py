@@ -254,12 +254,18 @@ class SokobanSearchConfig:
     ``value_channels`` x ``value_blocks``, ``value_updates`` after each round on every labelled
     state so far.
 
+    Inputs: ``grid`` states (5.3.2) or ``pixels`` (5.3.1: RGB frames of ``tile_size`` pixels a
+    cell, quantised to one of ``codes`` codes per cell by :mod:`~wmthesis.sokoban_search.cells`).
+
     Search (:mod:`~wmthesis.sokoban_search.search`): ``budget`` nodes per search, ``batch``
     nodes per model call, priority ``g + weight * h``, at most ``replans`` searches again after
     the real game left the plan. Evaluation: ``eval_levels`` unseen levels per variant.
     """
 
     variants: tuple = ("sokoban-small", "sokoban")
+    inputs: str = "grid"
+    tile_size: int = 8
+    codes: int = 8
     random_levels: int = 2000
     rounds: int = 4
     levels_per_round: int = 400

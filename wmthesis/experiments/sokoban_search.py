@@ -2,6 +2,7 @@
 iteration, then the table on unseen levels, the model's accuracy, solutions saved and replayed."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -13,8 +14,9 @@ from wmthesis.experiments.results import _first_run_seconds, _jsonable, _read_js
 from wmthesis.metrics import score_summary
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
+from wmthesis.sokoban_search.cells import GRID, code_table
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_row, check_solutions, play_levels,
-                                                random_row, trajectories)
+                                                random_row, replay_states)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution, results_table
 from wmthesis.sokoban_search.iteration import train_search_agent
 from wmthesis.sokoban_search.search import Simulator
@@ -37,44 +39,50 @@ def work_folder(profile: str, seed: int) -> Path:
 
 @releasing_holds
 def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
-    """Train the search agent (resumable), evaluate it on ``eval_levels`` unseen levels of each
-    variant beside random play, the thesis, the true simulator and A*; return the metrics."""
+    """Train the search agent from grid states and from pixels (resumable), evaluate both on
+    ``eval_levels`` unseen levels of each variant beside random play, the thesis, the true
+    simulator and A*; return the metrics."""
     profile = profile_name(profile)
     started = time.time()
-    cfg = for_profile(SokobanSearchConfig, profile, seed=seed)
+    grid_cfg = for_profile(SokobanSearchConfig, profile, seed=seed)
+    configs = {"grid": grid_cfg, "pixels": dataclasses.replace(grid_cfg, inputs="pixels")}
     work, out = hold(work_folder(profile, seed)), data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
-    run = train_search_agent(work, cfg, progress)
+    runs = {name: train_search_agent(work / name, cfg, progress) for name, cfg in configs.items()}
     tables, model_accuracy, solutions = {}, {}, {}
-    for variant in cfg.variants:
-        seeds = level_seeds(seed, EVAL_PURPOSE, cfg.eval_levels)
-        agent_plays = play_levels(run.agent(cfg), variant, seeds, f"{variant}: agent", progress)
-        simulator_plays = play_levels(run.agent(cfg, Simulator()), variant, seeds, f"{variant}: simulator", progress)
+    for variant in grid_cfg.variants:
+        seeds = level_seeds(seed, EVAL_PURPOSE, grid_cfg.eval_levels)
+        played = {name: _cached(work / name / f"eval-{variant}.json", _evaluate, run.agent(configs[name]), variant,
+                                seeds, progress) for name, run in runs.items()}
+        played["simulator"] = _cached(work / f"simulator-{variant}.json", _evaluate,
+                                      runs["grid"].agent(grid_cfg, Simulator(), GRID), variant, seeds, progress)
         tables[variant] = {"random play": _cached(work / f"random-{variant}.json", random_row, variant, seeds),
                            "thesis": {"solve_rate": THESIS_SOLVED},
-                           "agent, learned model (grid)": agent_row(agent_plays),
-                           "agent, true simulator": agent_row(simulator_plays),
+                           "agent, learned model (grid)": played["grid"]["row"],
+                           "agent, learned model (pixels)": played["pixels"]["row"],
+                           "agent, true simulator (grid)": played["simulator"]["row"],
                            "A* (reference)": _cached(work / f"astar-{variant}.json", astar_row, variant, seeds)}
-        held_out = random_play(variant, 20_000 + seed, max(4, cfg.eval_levels // 10))
-        model_accuracy[variant] = {"random play": accuracy.one_step(run.model, held_out),
-                                   "open loop": accuracy.open_loop(run.model, trajectories(simulator_plays))}
-        solutions[variant] = [p.record() for p in agent_plays if p.solved]
-        with atomic_path(out / f"solutions-{variant}.json") as tmp:
-            tmp.write_text(json.dumps(solutions[variant]))
-    figures, recording = _figures(out, run, cfg, solutions)
-    last = cfg.variants[-1]
+        model_accuracy[variant] = {name: _accuracy(run, variant, seed, grid_cfg.eval_levels,
+                                                   played["simulator"]["solutions"])
+                                   for name, run in runs.items()}
+        solutions[variant] = played["pixels"]["solutions"]
+        for name in runs:
+            with atomic_path(out / f"solutions-{name}-{variant}.json") as tmp:
+                tmp.write_text(json.dumps(played[name]["solutions"]))
+    figures, recording = _figures(out, runs, grid_cfg, solutions)
+    last = grid_cfg.variants[-1]
     replayed = check_solutions(last, solutions[last][:20])
-    solved = solutions[last]
+    solved = len(solutions[last])
     metrics = {
         **_run_header("sokoban-search", profile, seed, time.time() - started),
-        "score": score_summary([1.0] * len(solved) + [0.0] * (cfg.eval_levels - len(solved))),
-        "summary": f"{last}: {len(solved)} of {cfg.eval_levels} unseen levels solved "
-                   f"({100 * len(solved) / cfg.eval_levels:.1f}%)",
-        "env_steps": int(sum(h["env_steps"] for h in run.history)),
-        "history": run.history, "tables": tables, "accuracy": model_accuracy,
-        "replayed_solutions": {"checked": len(replayed), "solved": int(sum(replayed))},
+        "score": score_summary([1.0] * solved + [0.0] * (grid_cfg.eval_levels - solved)),
+        "summary": f"{last} from pixels: {solved} of {grid_cfg.eval_levels} unseen levels solved "
+                   f"({100 * solved / grid_cfg.eval_levels:.1f}%)",
+        "env_steps": {name: int(sum(h["env_steps"] for h in run.history)) for name, run in runs.items()},
+        "history": {name: run.history for name, run in runs.items()}, "tables": tables,
+        "accuracy": model_accuracy, "replayed_solutions": {"checked": len(replayed), "solved": int(sum(replayed))},
         "reference": SOKOBAN_SEARCH_REFERENCE,
         "files": {"figures": [str(f) for f in figures], "recording": str(recording),
-                  "solutions": [str(out / f"solutions-{v}.json") for v in cfg.variants]},
+                  "solutions": [str(out / f"solutions-{n}-{v}.json") for n in runs for v in grid_cfg.variants]},
     }
     metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     with atomic_path(out / "metrics.json") as tmp:
@@ -82,8 +90,30 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     return metrics
 
 
+def _evaluate(agent, variant: str, seeds, progress: bool) -> dict:
+    """The agent on the levels: its table row and its solutions (seed, actions, ...)."""
+    plays = play_levels(agent, variant, seeds, f"{variant}: {agent.inputs.name}", progress)
+    return {"row": agent_row(plays), "solutions": [p.record() for p in plays if p.solved]}
+
+
+def _accuracy(run, variant: str, seed: int, levels: int, plans: list[dict]) -> dict:
+    """The model on random play of unseen levels, and open loop along the simulator agent's
+    plans (the planner's own actions), in the model's states (codes for pixels)."""
+    held_out = random_play(variant, 20_000 + seed, max(4, levels // 10))
+    rows = {**held_out, "states": run.inputs.from_grid(held_out["states"]),
+            "next_states": run.inputs.from_grid(held_out["next_states"])}
+    to_types = None
+    if run.inputs.name == "pixels":
+        table = code_table(rows["states"], held_out["states"], run.model.n_codes)
+        to_types = lambda codes: table[codes]  # noqa: E731  (measuring only)
+    sequences = [(run.inputs.from_grid(states), actions) for states, actions in replay_states(variant, plans)]
+    return {"one_step": accuracy.one_step(run.model, rows, to_types),
+            "open_loop": accuracy.open_loop(run.model, sequences, to_types=to_types)}
+
+
 def _cached(path: Path, fn, *args) -> dict:
-    """``fn(*args)``, kept in ``path`` (a re-run reads it)."""
+    """``fn(*args)``, kept in ``path`` (a re-run reads it; a new training round is a new run
+    folder's business: delete the folder to start over)."""
     row = _read_json(path)
     if row is None:
         row = fn(*args)
@@ -92,27 +122,25 @@ def _cached(path: Path, fn, *args) -> dict:
     return row
 
 
-def _figures(out: Path, run, cfg, solutions: dict):
-    """Solve rate by round; the model's boards against the real ones along the longest saved
-    solution of the last variant (the model fed its own predictions); a recording of it."""
-    from wmthesis.sokoban_search.agent import grid_env, grid_state
+def _figures(out: Path, runs: dict, cfg, solutions: dict):
+    """Solve rate by round (both inputs); the pixel model's boards against the real ones along
+    the longest solution of the last variant (the model fed its own predictions, decoded to
+    frames); a recording of it."""
+    from wmthesis.sokoban_search.cells import render_cells
 
-    figures = [save_figure(plot_rounds(run.history), out / "rounds.png")]
-    variant = cfg.variants[-1]
-    records = solutions[variant] or solutions[cfg.variants[0]]
-    variant = variant if solutions[variant] else cfg.variants[0]
-    if not records:
+    figures = [save_figure(plot_rounds(runs["grid"].history, runs["pixels"].history), out / "rounds.png")]
+    variant = next((v for v in reversed(cfg.variants) if solutions[v]), None)
+    if variant is None:
         return figures, None
-    record = max(records, key=lambda r: r["steps"])
-    env = grid_env(variant)
-    real = [grid_state(env, env.reset(seed=record["seed"])[0])]
-    for action in record["actions"]:
-        real.append(grid_state(env, env.step(action)[0]))
-    predicted = [real[0]]
-    for action in record["actions"]:
-        predicted.append(run.model.step(predicted[-1][None], np.array([action]))[0][0])
+    record = max(solutions[variant], key=lambda r: r["steps"])
+    (real, actions), = replay_states(variant, [record])
+    inputs, model = runs["pixels"].inputs, runs["pixels"].model
+    predicted = [inputs.from_grid(real[:1])[0]]
+    for action in actions:
+        predicted.append(model.step(predicted[-1][None], np.array([action]))[0][0])
     every = max(1, len(real) // 10)
-    figures.append(save_figure(plot_plan(np.stack(real), np.stack(predicted), every), out / "plan.png"))
+    figures.append(save_figure(plot_plan(render_cells(real), inputs.coder.decode(np.stack(predicted)), every),
+                               out / "plan.png"))
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 

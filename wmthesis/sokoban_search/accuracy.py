@@ -16,9 +16,11 @@ import numpy as np
 from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, PLAYER, PLAYER_ON_TARGET
 
 
-def one_step(model, rows: dict) -> dict:
+def one_step(model, rows: dict, to_types=None) -> dict:
     """Measures of ``model.step`` on transitions ``rows`` (arrays of
-    :class:`~wmthesis.sokoban_search.experience.Experience`), and of the baseline."""
+    :class:`~wmthesis.sokoban_search.experience.Experience`), and of the baseline.
+    ``to_types``: maps model states to board codes for the vanishing counts (a pixel model's
+    codes, :func:`~wmthesis.sokoban_search.cells.code_table`); None: they are board codes."""
     predicted, rewards, dones = model.step(rows["states"], rows["actions"])
     truth = rows["next_states"]
     values, counts = np.unique(rows["rewards"], return_counts=True)
@@ -29,10 +31,10 @@ def one_step(model, rows: dict) -> dict:
             "reward_accuracy": float(right_reward.mean()),
             "event_reward_accuracy": float(right_reward[events].mean()) if events.any() else None,
             "end_accuracy": float((dones == rows["dones"]).mean()),
-            "player_vanished": vanished_player(predicted), "box_vanished": vanished_boxes(predicted, truth)}
+            **_vanishing(predicted, truth, to_types)}
 
 
-def open_loop(model, trajectories: list[tuple[np.ndarray, np.ndarray]], horizons=(10, 30)) -> dict:
+def open_loop(model, trajectories: list[tuple[np.ndarray, np.ndarray]], horizons=(10, 30), to_types=None) -> dict:
     """Exactness after each horizon k, over ``trajectories`` of (states (T + 1, h, w), actions
     (T,)) at least k long: the model's state after k of its own predictions against the real
     one; with the "nothing moves" baseline and vanishing rates at k."""
@@ -55,9 +57,14 @@ def open_loop(model, trajectories: list[tuple[np.ndarray, np.ndarray]], horizons
             first.extend(s[0] for s, _ in group)
         predicted, truth, first = (np.stack(x) for x in (predicted, truth, first))
         out[k] = {"sequences": len(long_enough), "exact": _exact(predicted, truth),
-                  "exact_nothing_moves": _exact(first, truth), "player_vanished": vanished_player(predicted),
-                  "box_vanished": vanished_boxes(predicted, truth)}
+                  "exact_nothing_moves": _exact(first, truth), **_vanishing(predicted, truth, to_types)}
     return out
+
+
+def _vanishing(predicted: np.ndarray, truth: np.ndarray, to_types=None) -> dict:
+    if to_types is not None:
+        predicted, truth = to_types(predicted), to_types(truth)
+    return {"player_vanished": vanished_player(predicted), "box_vanished": vanished_boxes(predicted, truth)}
 
 
 def vanished_player(states: np.ndarray) -> float:

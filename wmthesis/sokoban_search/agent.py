@@ -14,6 +14,7 @@ import numpy as np
 
 from wmthesis.envs import SOKOBAN_VARIANTS
 from wmthesis.envs.sokoban import SokobanEnv
+from wmthesis.sokoban_search.cells import GRID
 from wmthesis.sokoban_search.search import best_first
 from wmthesis.utils import check_choice, derive_seeds
 
@@ -49,27 +50,31 @@ def grid_env(name: str, **options) -> SokobanEnv:
 
 def grid_state(env: SokobanEnv, observation: np.ndarray) -> np.ndarray:
     """A grid observation (h' * w',) -> the state, uint8 (h', w') (the board's inner cells)."""
-    h, w = env.dim_room
-    return np.asarray(observation, np.uint8).reshape(h - 2, w - 2)
+    return GRID.observe(env, observation)
 
 
 class SearchAgent:
     """Best-first search in ``model`` (a :class:`~wmthesis.sokoban_search.model.SokobanModel` or
     the :class:`~wmthesis.sokoban_search.search.Simulator`: anything with ``expand``), guided by
     ``heuristic`` (steps to go, or None: breadth first), ``budget`` nodes per search, ``batch``
-    per model call; ``observe(env, observation) -> state`` turns what the env shows into the
-    model's state."""
+    per model call; ``inputs`` (:mod:`~wmthesis.sokoban_search.cells`: grid states or pixels)
+    turns what the env shows into the model's state, and makes envs that show it."""
 
-    def __init__(self, model, *, observe=grid_state, heuristic=None, budget: int = 20_000,
+    def __init__(self, model, *, inputs=GRID, heuristic=None, budget: int = 20_000,
                  batch: int = 64, weight: float = 1.0, replans: int = 4):
-        self.model, self.observe = model, observe
+        self.model, self.inputs = model, inputs
         self.heuristic, self.budget, self.batch, self.weight, self.replans = heuristic, budget, batch, weight, replans
+
+    def env(self, variant: str) -> SokobanEnv:
+        """Variant ``variant`` showing what this agent sees."""
+        check_choice("Sokoban variant", variant, tuple(SOKOBAN_VARIANTS))
+        return SokobanEnv(**SOKOBAN_VARIANTS[variant], **self.inputs.env_options)
 
     def play(self, env: SokobanEnv, seed: int | None = None, board=None) -> Play:
         """Play one level: the one ``seed`` generates, or ``board`` (codes or text)."""
         start = time.perf_counter()
         observation, _ = env.reset(seed=seed, options=None if board is None else {"board": board})
-        state = self.observe(env, observation)
+        state = self.inputs.observe(env, observation)
         rows = {k: [] for k in ("states", "actions", "next_states", "rewards", "dones")}
         taken, expanded, generated, searches, solved, over = [], 0, 0, 0, False, False
         while not (solved or over) and searches <= self.replans:
@@ -80,7 +85,7 @@ class SearchAgent:
                 break
             for action, predicted in zip(result.actions, result.states[1:]):
                 observation, reward, solved, over, _ = env.step(action)
-                following = self.observe(env, observation)
+                following = self.inputs.observe(env, observation)
                 for key, value in zip(rows, (state, action, following, reward, solved)):
                     rows[key].append(value)
                 taken.append(action)

@@ -13,7 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from wmthesis.envs.sokoban import solve
-from wmthesis.sokoban_search.agent import Play, grid_env, random_play
+from wmthesis.sokoban_search.agent import Play, grid_env, grid_state, random_play
 from wmthesis.utils import derive_seeds
 
 THESIS_SOLVED = 0.0  # 5.3 and 5.5: no level solved
@@ -21,7 +21,7 @@ THESIS_SOLVED = 0.0  # 5.3 and 5.5: no level solved
 
 def play_levels(agent, variant: str, seeds, desc: str = "levels", progress: bool = True) -> list[Play]:
     """The agent on the levels ``seeds`` generate, in the real environment."""
-    env = grid_env(variant)
+    env = agent.env(variant)
     return [agent.play(env, int(s)) for s in tqdm(seeds, desc=desc, disable=not progress)]
 
 
@@ -67,13 +67,15 @@ def astar_row(variant: str, seeds, max_nodes: int = 100_000) -> dict:
             "seconds_per_level": (time.perf_counter() - start) / len(seeds)}
 
 
-def trajectories(plays: list[Play]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The real (states (T + 1, h, w), actions (T,)) of each play that took a step."""
-    out = []
-    for p in plays:
-        t = p.transitions
-        if len(t["actions"]):
-            out.append((np.concatenate([t["states"], t["next_states"][-1:]]), t["actions"]))
+def replay_states(variant: str, records: list[dict]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The real grid states (T + 1, h', w') and actions (T,) of saved plays (``seed``,
+    ``actions``), replayed in the environment."""
+    env, out = grid_env(variant), []
+    for record in records:
+        states = [grid_state(env, env.reset(seed=int(record["seed"]))[0])]
+        for action in record["actions"]:
+            states.append(grid_state(env, env.step(int(action))[0]))
+        out.append((np.stack(states), np.asarray(record["actions"], np.int64)))
     return out
 
 
@@ -85,7 +87,7 @@ def solve_boards(agent, boards, max_steps: int = 120, progress: bool = True) -> 
     results = []
     for index, board in enumerate(tqdm(boards, desc="levels", disable=not progress)):
         boxes = int(np.isin(board, (BOX, BOX_ON_TARGET)).sum())
-        env = SokobanEnv(board.shape, max(boxes, 1), max_steps=max_steps, observation="grid", render_mode=None)
+        env = SokobanEnv(board.shape, max(boxes, 1), max_steps=max_steps, **agent.inputs.env_options)
         play = agent.play(env, board=board)
         results.append({"level": index, "solved": play.solved, "steps": len(play.actions),
                         "actions": [int(a) for a in play.actions]})
@@ -108,5 +110,5 @@ def check_solutions(variant: str, records: list[dict]) -> list[bool]:
     return verdicts
 
 
-__all__ = ["play_levels", "solve_boards", "agent_row", "random_row", "astar_row", "trajectories", "check_solutions",
+__all__ = ["play_levels", "solve_boards", "agent_row", "random_row", "astar_row", "replay_states", "check_solutions",
            "THESIS_SOLVED", "random_play"]

@@ -22,26 +22,31 @@ def board_image(state: np.ndarray, tile_size: int = 8) -> np.ndarray:
 
 
 def plot_plan(real: np.ndarray, predicted: np.ndarray, every: int = 1, columns: int = 10):
-    """Real states (T, h, w) over the model's states (T, h, w) along one plan, every ``every``-th
-    step, differing boards marked in the titles."""
+    """Real frames (T, H, W, 3) over the model's (T, H, W, 3) along one plan, every
+    ``every``-th step."""
     picks = np.arange(0, min(len(real), len(predicted)), every)[:columns]
-    return image_rows({"real": [board_image(real[t]) for t in picks],
-                       "model": [board_image(predicted[t]) for t in picks]})
+    return image_rows({"real": [real[t] for t in picks], "model": [predicted[t] for t in picks]})
 
 
-def plot_rounds(history: list[dict]):
-    """Solve rate of each round's (unseen) levels and the model's one-step exactness after it."""
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.2))
-    rounds = [h for h in history if h["solved"] is not None]
-    labels = [f"{h['round']}\n{h['variant'].replace('sokoban-', '')}" for h in rounds]
-    left.bar(range(len(rounds)), [100 * h["solved"] for h in rounds], color="tab:green")
-    left.set_xticks(range(len(rounds)), labels)
+def plot_rounds(grid: list[dict], pixels: list[dict] | None = None):
+    """Solve rate of each round's (new, unseen) levels, and the model's one-step exactness on
+    unseen levels after it, for the grid run (and the pixel run)."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 3.4))
+    runs = {"grid": grid, **({"pixels": pixels} if pixels else {})}
+    width = 0.8 / len(runs)
+    for k, (name, history) in enumerate(runs.items()):
+        rounds = [h for h in history if h["solved"] is not None]
+        left.bar(np.arange(len(rounds)) + k * width, [100 * h["solved"] for h in rounds], width, label=name)
+        for variant in history[0]["exactness"]:
+            right.plot([h["round"] for h in history], [100 * h["exactness"][variant] for h in history], "o-",
+                       label=f"{name}, {variant}")
+    labels = [f"{h['round']}\n{h['variant'].replace('sokoban-', '')}" for h in grid if h["solved"] is not None]
+    left.set_xticks(np.arange(len(labels)) + 0.4 - width / 2, labels)
     left.set_ylim(0, 100)
     left.set(xlabel="round (variant)", ylabel="levels solved (%)", title="the agent on each round's new levels")
-    for variant in history[0]["exactness"]:
-        right.plot([h["round"] for h in history], [100 * h["exactness"][variant] for h in history], "o-", label=variant)
+    left.legend(fontsize=8)
     right.set(xlabel="round (0: random play)", ylabel="one-step exact boards (%)", title="the model on unseen levels")
-    right.legend()
+    right.legend(fontsize=7)
     fig.tight_layout()
     return fig
 

@@ -19,33 +19,40 @@ import torch
 from tqdm import tqdm
 
 from wmthesis.config import SokobanSearchConfig
+from wmthesis.envs import SOKOBAN_VARIANTS
 from wmthesis.envs.sokoban import CELL_NAMES
-from wmthesis.sokoban_search.agent import SearchAgent, grid_env, level_seeds, random_play
+from wmthesis.sokoban_search.agent import SearchAgent, level_seeds, random_play
+from wmthesis.sokoban_search.cells import GRID, CellCoder, GridInputs, PixelInputs, fit_coder, render_cells
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.training import check_same_config, gradient_step
-from wmthesis.utils import atomic_path, device
+from wmthesis.utils import atomic_path, check_choice, device
 
 N_ACTIONS = 8
 STATE_VERSION = 1
+INPUTS = ("grid", "pixels")
 
 
 @dataclasses.dataclass
 class Run:
     """What a run has learned: ``model``, ``heuristic`` (None before any level was solved),
-    ``history`` (one dict per stage: random play, then each round), ``rounds_done``."""
+    ``history`` (one dict per stage: random play, then each round), ``rounds_done``, and
+    ``inputs``, what the agent sees (grid states, or pixels through a learned
+    :class:`~wmthesis.sokoban_search.cells.CellCoder`)."""
 
     model: SokobanModel
     heuristic: Heuristic | None
     history: list
     rounds_done: int
+    inputs: GridInputs = GRID
 
-    def agent(self, cfg: SokobanSearchConfig, model=None) -> SearchAgent:
-        """The search agent of this run (``model``: e.g. the simulator in place of the model)."""
+    def agent(self, cfg: SokobanSearchConfig, model=None, inputs=None) -> SearchAgent:
+        """The search agent of this run (``model``, ``inputs``: e.g. the simulator on grid states)."""
         heuristic = self.heuristic.estimate if self.heuristic is not None else None
-        return SearchAgent(model if model is not None else self.model, heuristic=heuristic, budget=cfg.budget,
-                           batch=cfg.batch, weight=cfg.weight, replans=cfg.replans)
+        return SearchAgent(model if model is not None else self.model, inputs=inputs or self.inputs,
+                           heuristic=heuristic, budget=cfg.budget, batch=cfg.batch, weight=cfg.weight,
+                           replans=cfg.replans)
 
 
 def schedule(cfg: SokobanSearchConfig) -> list[tuple[str, int]]:
@@ -55,6 +62,9 @@ def schedule(cfg: SokobanSearchConfig) -> list[tuple[str, int]]:
 
 def train_search_agent(folder: str | Path, cfg: SokobanSearchConfig, progress: bool = True) -> Run:
     """Random play, the model trained on it, then every round of :func:`schedule`; resumable."""
+    check_choice("inputs", cfg.inputs, INPUTS)
+    for variant in cfg.variants:
+        check_choice("Sokoban variant", variant, tuple(SOKOBAN_VARIANTS))
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     run = load_run(folder, cfg)
@@ -72,26 +82,35 @@ def train_search_agent(folder: str | Path, cfg: SokobanSearchConfig, progress: b
 
 
 def _random_stage(experience: Experience, cfg: SokobanSearchConfig, progress: bool) -> Run:
-    steps = 0
-    for v, variant in enumerate(cfg.variants):
-        rows = random_play(variant, cfg.seed * 100 + v, cfg.random_levels)
-        experience.add("transitions", 0, **rows)
-        steps += len(rows["actions"])
+    played = [random_play(variant, cfg.seed * 100 + v, cfg.random_levels) for v, variant in enumerate(cfg.variants)]
+    inputs = GRID
+    if cfg.inputs == "pixels":  # the codes are learned from random play's frames first
+        frames = [render_cells(rows["states"][::20], cfg.tile_size) for rows in played]
+        inputs = PixelInputs(fit_coder(frames, cfg.tile_size, cfg.codes, cfg.seed))
+    for rows in played:
+        experience.add("transitions", 0, **{**rows, "states": inputs.from_grid(rows["states"]),
+                                            "next_states": inputs.from_grid(rows["next_states"])})
+    steps = sum(len(rows["actions"]) for rows in played)
     rewards = np.unique(np.concatenate([g["rewards"] for g in experience.arrays("transitions").values()]))
     torch.manual_seed(cfg.seed)
-    model = SokobanModel(len(CELL_NAMES), N_ACTIONS, rewards, cfg.channels, cfg.blocks).to(device())
+    model = SokobanModel(n_codes(cfg), N_ACTIONS, rewards, cfg.channels, cfg.blocks).to(device())
     losses = fit_model(model, experience, cfg, cfg.model_updates, np.random.default_rng([cfg.seed, 0]),
                        "model (random play)", progress)
     record = dict(round=0, variant="random play", env_steps=steps, levels=cfg.random_levels * len(cfg.variants),
-                  solved=None, model_loss=losses, exactness=held_out_exactness(model, cfg))
-    return Run(model, None, [record], 0)
+                  solved=None, model_loss=losses, exactness=held_out_exactness(model, cfg, inputs))
+    return Run(model, None, [record], 0, inputs)
+
+
+def n_codes(cfg: SokobanSearchConfig) -> int:
+    """Codes per cell: the board's cell types (grid), or the coder's codebook (pixels)."""
+    return cfg.codes if cfg.inputs == "pixels" else len(CELL_NAMES)
 
 
 def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: int, variant: str, r: int,
            progress: bool) -> None:
     """Round ``number``: play levels, keep what was seen, train the model and the value."""
-    env = grid_env(variant)
     agent = run.agent(cfg)
+    env = agent.env(variant)
     seeds = level_seeds(cfg.seed, 1 + number, cfg.levels_per_round)
     plays = [agent.play(env, s) for s in tqdm(seeds, desc=f"round {number} ({variant})", disable=not progress)]
     for play in plays:
@@ -104,7 +123,7 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
     if experience.count("to_go"):
         if run.heuristic is None:
             torch.manual_seed(cfg.seed + 1)
-            run.heuristic = Heuristic(len(CELL_NAMES), cfg.value_channels, cfg.value_blocks).to(device())
+            run.heuristic = Heuristic(n_codes(cfg), cfg.value_channels, cfg.value_blocks).to(device())
         value_error = fit_heuristic(run.heuristic, experience, cfg, rng, f"value (round {number})", progress)
     else:
         value_error = None
@@ -113,7 +132,7 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
                             expanded=float(np.mean([p.expanded for p in plays])),
                             seconds_per_level=float(np.mean([p.seconds for p in plays])),
                             model_loss=losses, value_error=value_error,
-                            exactness=held_out_exactness(run.model, cfg)))
+                            exactness=held_out_exactness(run.model, cfg, run.inputs)))
     run.rounds_done = number
 
 
@@ -174,13 +193,14 @@ def fit_heuristic(heuristic: Heuristic, experience: Experience, cfg: SokobanSear
     return kept["abs_error"]
 
 
-def held_out_exactness(model: SokobanModel, cfg: SokobanSearchConfig, levels: int = 20) -> dict:
+def held_out_exactness(model: SokobanModel, cfg: SokobanSearchConfig, inputs=GRID, levels: int = 20) -> dict:
     """One-step whole-board exactness on random play of unseen levels, per variant."""
     out = {}
     for v, variant in enumerate(cfg.variants):
         rows = random_play(variant, 10_000 + cfg.seed * 100 + v, levels)
-        predicted, rewards, dones = model.step(rows["states"], rows["actions"])
-        out[variant] = float((predicted == rows["next_states"]).reshape(len(predicted), -1).all(1).mean())
+        predicted, _, _ = model.step(inputs.from_grid(rows["states"]), rows["actions"])
+        truth = inputs.from_grid(rows["next_states"])
+        out[variant] = float((predicted == truth).reshape(len(predicted), -1).all(1).mean())
     return out
 
 
@@ -189,7 +209,8 @@ def held_out_exactness(model: SokobanModel, cfg: SokobanSearchConfig, levels: in
 def save_run(folder: Path, run: Run, cfg: SokobanSearchConfig) -> None:
     payload = {"version": STATE_VERSION, "config": dataclasses.asdict(cfg), "model_config": run.model.config(),
                "model": run.model.state_dict(), "rounds_done": run.rounds_done, "history": run.history,
-               "heuristic": None if run.heuristic is None else run.heuristic.state_dict()}
+               "heuristic": None if run.heuristic is None else run.heuristic.state_dict(),
+               "coder": run.inputs.coder.state() if isinstance(run.inputs, PixelInputs) else None}
     with atomic_path(folder / "state.pt") as tmp:
         torch.save(payload, tmp)
     with atomic_path(folder / "history.json") as tmp:
@@ -216,9 +237,10 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
     heuristic = None
     if saved["heuristic"] is not None:
         c = saved["config"]
-        heuristic = Heuristic(len(CELL_NAMES), c["value_channels"], c["value_blocks"]).to(device())
+        heuristic = Heuristic(model.n_codes, c["value_channels"], c["value_blocks"]).to(device())
         heuristic.load_state_dict(saved["heuristic"])
-    return Run(model, heuristic, saved["history"], saved["rounds_done"])
+    inputs = GRID if saved["coder"] is None else PixelInputs(CellCoder(**saved["coder"]))
+    return Run(model, heuristic, saved["history"], saved["rounds_done"], inputs)
 
 
 __all__ = ["Run", "train_search_agent", "load_run", "save_run", "schedule", "fit_model", "fit_heuristic",
