@@ -89,7 +89,7 @@ def _set_threads(threads: int) -> None:
 __all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", "SOKOBAN_SEARCH_REFERENCE",
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE", "SOKOBAN_WM_REFERENCE",
-           "boxing_world_models", "BOXING_REFERENCE",
+           "boxing_world_models", "boxing_dream", "DREAM_CHANGES", "BOXING_REFERENCE",
            "boxing_wm_alphazero", "ALPHAZERO_REFERENCE", "ALPHAZERO_DIAGNOSIS_DEPTH", "RECORDING_STEPS",
            "planet_experiment", "planet_variants", "PLANET_GAMES", "PLANET_REFERENCE", "ATARI_CHANGES",
            "SOKOBAN_CHANGES", "PLANET_EVAL_EPISODES", "PLANET_OPEN_LOOP"]

@@ -64,6 +64,28 @@ def results_table(rows: dict[str, dict]) -> str:
                           ["", *TABLE_COLUMNS])
 
 
+def accuracy_table(measures: dict[str, dict]) -> str:
+    """Markdown table of the models' accuracy (name -> :func:`~wmthesis.sokoban_search.accuracy`
+    measures): exact boards one step and 10 and 30 steps ahead against "nothing moves", reward
+    and end accuracy, vanishing players and boxes."""
+    rows = []
+    for name, m in measures.items():
+        one = m["one_step"]
+        rows.append([f"{name}, one step", one["exact"], one["exact_nothing_moves"], one["reward_accuracy"],
+                     one["event_reward_accuracy"], one["end_accuracy"], one["player_vanished"], one["box_vanished"]])
+        for k, loop in m["open_loop"].items():
+            if loop.get("sequences"):
+                rows.append([f"{name}, open loop +{k} ({loop['sequences']} plans)", loop["exact"],
+                             loop["exact_nothing_moves"], "", "", "", loop["player_vanished"], loop["box_vanished"]])
+    return markdown_table([[_percent(v) for v in row] for row in rows],
+                          ["", "exact boards", "nothing moves", "reward right", "rare rewards right",
+                           "end right", "player vanished", "box vanished"])
+
+
+def _percent(value):
+    return f"{100 * value:.2f}%" if isinstance(value, float) else ("" if value is None else value)
+
+
 def record_solution(path: str | Path, variant: str, record: dict) -> Path:
     """A rerun recording of a saved solution replayed in the real environment."""
     env = grid_env(variant)
@@ -78,4 +100,4 @@ def record_solution(path: str | Path, variant: str, record: dict) -> Path:
     return record_frames(path, {"board": np.stack(frames)}, {"reward": np.array(rewards)})
 
 
-__all__ = ["plot_plan", "plot_rounds", "results_table", "record_solution", "board_image"]
+__all__ = ["plot_plan", "plot_rounds", "results_table", "accuracy_table", "record_solution", "board_image"]

@@ -1,0 +1,87 @@
+"""Search in a learned Sokoban model: model transitions per second (batched) and search nodes per second.
+
+    python benchmarks/bench_sokoban_search.py [--levels 20] [--budget 2000] [--seed 0] [--out PATH]
+
+Rows:
+
+- ``model expand``: :meth:`SokobanModel.expand` (every action's outcome at once) on batches of
+  1, 16, 64 and 256 random boards of the ``sokoban`` (8x8 inner cells) and ``sokoban-small``
+  (5x5) sizes, at the default model size (64 channels, 2 blocks, randomly initialised: speed
+  does not depend on the weights). ``transitions/s`` counts board x action pairs.
+- ``search``: breadth-first :func:`best_first` from ``--levels`` generated levels of each
+  variant with the learned-model interface (the random model above: the search never finds an
+  end, so every search expands its whole ``--budget``) and with the true rules
+  (:class:`Simulator`, which stops when it solves the level): nodes expanded per second,
+  batch 64.
+
+Runs on torch's default threads (the machine's cores). Writes ``benchmarks/results/sokoban_search.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
+
+from wmthesis.sokoban_search.agent import grid_env, grid_state, level_seeds  # noqa: E402
+from wmthesis.sokoban_search.model import SokobanModel  # noqa: E402
+from wmthesis.sokoban_search.search import Simulator, best_first  # noqa: E402
+from _results import machine_meta, print_table, write_results  # noqa: E402
+
+SIZES = {"sokoban": (8, 8), "sokoban-small": (5, 5)}
+REWARDS = (-1.1, -0.1, 0.9, 10.9)
+
+
+def expand_rows(model: SokobanModel, rng: np.random.Generator) -> list[dict]:
+    rows = []
+    for variant, shape in SIZES.items():
+        for batch in (1, 16, 64, 256):
+            states = rng.integers(0, 7, size=(batch, *shape)).astype(np.uint8)
+            model.expand(states)
+            calls, start = 0, time.perf_counter()
+            while time.perf_counter() - start < 1.0:
+                model.expand(states)
+                calls += 1
+            seconds = (time.perf_counter() - start) / calls
+            rows.append(dict(row="model expand", variant=variant, batch=batch, ms_per_call=1e3 * seconds,
+                             transitions_per_s=batch * model.n_actions / seconds))
+    return rows
+
+
+def search_rows(model: SokobanModel, levels: int, budget: int, seed: int) -> list[dict]:
+    rows = []
+    for variant in SIZES:
+        env = grid_env(variant)
+        roots = [grid_state(env, env.reset(seed=s)[0]) for s in level_seeds(seed, 5_000, levels)]
+        for name, expand in (("learned model", model.expand), ("true rules", Simulator().expand)):
+            expanded, seconds = 0, 0.0
+            for root in roots:
+                result = best_first(expand, root, budget=budget, batch=64)
+                expanded, seconds = expanded + result.expanded, seconds + result.seconds
+            rows.append(dict(row=f"search, {name}", variant=variant, levels=levels,
+                             nodes_per_level=expanded / levels, nodes_per_s=expanded / seconds))
+    return rows
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--levels", type=int, default=20)
+    parser.add_argument("--budget", type=int, default=2000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "sokoban_search.json"))
+    args = parser.parse_args(argv)
+    torch.manual_seed(args.seed)
+    model = SokobanModel(7, 8, REWARDS)
+    rows = expand_rows(model, np.random.default_rng(args.seed)) + search_rows(model, args.levels, args.budget, args.seed)
+    print_table(rows)
+    write_results(args.out, machine_meta(threads=torch.get_num_threads(), levels=args.levels, budget=args.budget), rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
