@@ -26,3 +26,23 @@ def test_bad_input_is_a_message_not_a_traceback(tmp_path, capsys):
 def test_alphazero_experiment_is_on_the_command_line(capsys):
     assert main(["reproduce", "boxing-wm-alphazero", "--variant", "nope", "--profile", "smoke"]) == 2
     assert "valid: unchanged, improved" in capsys.readouterr().err
+
+
+def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, capsys, monkeypatch):
+    import json
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path / "data"))
+    levels = tmp_path / "mine.txt"
+    levels.write_text("; 0\n#######\n#@ $ .#\n#######\n\n; 1\n#####\n#@$.#\n#####\n")
+    assert main(["solve-sokoban", str(levels), "--profile", "smoke", "--seed", "3"]) == 2
+    assert "reproduce sokoban-search --profile smoke --seed 3` first" in capsys.readouterr().err
+    assert main(["reproduce", "sokoban-search", "--profile", "smoke", "--seed", "3"]) == 0
+    assert "unseen levels solved" in capsys.readouterr().out
+    out = tmp_path / "results.json"
+    assert main(["solve-sokoban", str(levels), "--profile", "smoke", "--seed", "3", "--out", str(out)]) == 0
+    results = json.loads(out.read_text())
+    assert [r["level"] for r in results] == [0, 1]
+    assert all(set(r) == {"level", "solved", "steps", "actions"} and r["steps"] == len(r["actions"]) for r in results)
+    levels.write_text("#####\n#@$x#\n#####\n")
+    assert main(["solve-sokoban", str(levels), "--profile", "smoke", "--seed", "3"]) == 2
+    assert "level 0: row 2 column 4 holds 'x'" in capsys.readouterr().err

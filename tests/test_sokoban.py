@@ -246,11 +246,11 @@ def test_truncation_after_max_steps():
     assert env.steps == 0
 
 
-def test_reset_from_a_given_board():
-    env = SokobanEnv((10, 10), 4, observation="grid")
+def test_reset_from_a_given_board_padded_with_wall_to_the_room():
+    env = SokobanEnv((7, 7), 2, observation="grid")
     obs, info = env.reset(seed=0, options={"board": BOARD})
-    assert np.array_equal(env.board, BOARD) and info["boxes_on_target"] == 0
-    assert np.array_equal(obs, BOARD[1:-1, 1:-1].ravel())
+    assert np.array_equal(env.board[:5], BOARD) and (env.board[5:] == 0).all() and info["boxes_on_target"] == 0
+    assert np.array_equal(obs, env.board[1:-1, 1:-1].ravel())
 
 
 # ---------------------------------------------------------------------------- generation parts

@@ -6,7 +6,7 @@
         Summarise a store; write a frame strip (PNG) and a rerun recording of one episode.
     reproduce EXPERIMENT [--profile smoke|quick|thesis] [--seed S]
         Run a thesis experiment end to end; results under data/results/EXPERIMENT/.
-    solve-sokoban LEVELS.txt [--profile P] [--seed S] [--out PATH] [--max-steps M]
+    solve-sokoban LEVELS.txt [--profile P] [--seed S] [--out PATH] [--max-steps M] [--inputs pixels|grid]
         Play the agent that ``reproduce sokoban-search`` trained on every level of a text file
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines); writes a JSON list of {level, solved, steps, actions}.
@@ -121,12 +121,12 @@ def cmd_solve_sokoban(args) -> int:
 
     profile = profile_name(args.profile)
     boards = read_levels(args.levels)
-    folder = work_folder(profile, args.seed)
+    folder = work_folder(profile, args.seed) / args.inputs
     run = load_run(folder)
     if run is None:
         raise ValueError(f"no trained agent in {folder}: run `python -m wmthesis reproduce sokoban-search "
                          f"--profile {profile} --seed {args.seed}` first")
-    cfg = for_profile(SokobanSearchConfig, profile, seed=args.seed)
+    cfg = for_profile(SokobanSearchConfig, profile, seed=args.seed, inputs=args.inputs)
     results = solve_boards(run.agent(cfg), boards, max_steps=args.max_steps)
     out = Path(args.out) if args.out else Path(args.levels).with_suffix(".solutions.json")
     with atomic_path(out) as tmp:
@@ -192,6 +192,8 @@ def parser() -> argparse.ArgumentParser:
     solve.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
     solve.add_argument("--out", help="JSON results (default: LEVELS.solutions.json)")
     solve.add_argument("--max-steps", type=at_least(1), default=120, help="steps allowed per level")
+    solve.add_argument("--inputs", choices=("pixels", "grid"), default="pixels",
+                       help="the agent that sees pixels (default) or grid states")
     solve.set_defaults(run=cmd_solve_sokoban)
 
     search = commands.add_parser("search", help="random search over KL scale x free nats (optuna)")
