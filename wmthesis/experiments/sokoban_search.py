@@ -2,12 +2,16 @@
 iteration, then the table on unseen levels, the model's accuracy, solutions saved and replayed."""
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import json
+import multiprocessing
+import os
 import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
 from wmthesis.experiments.results import _first_run_seconds, _jsonable, _read_json, _run_header
@@ -18,7 +22,7 @@ from wmthesis.sokoban_search.cells import GRID, code_table
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_row, check_solutions, play_levels,
                                                 random_row, replay_states)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution
-from wmthesis.sokoban_search.iteration import train_search_agent
+from wmthesis.sokoban_search.iteration import load_run, schedule, train_search_agent
 from wmthesis.sokoban_search.search import Simulator
 from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
 from wmthesis.viz import save_figure
@@ -65,14 +69,22 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     grid_cfg = for_profile(SokobanSearchConfig, profile, seed=seed)
     configs = {"grid": grid_cfg, "pixels": dataclasses.replace(grid_cfg, inputs="pixels")}
     work, out = hold(work_folder(profile, seed)), data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
-    runs = {name: train_search_agent(work / name, cfg, progress) for name, cfg in configs.items()}
+    _parallel([(train_search_agent, work / name, cfg, False) for name, cfg in configs.items()
+               if not _trained(work / name, cfg)], progress)
+    runs = {name: load_run(work / name, cfg) for name, cfg in configs.items()}
     tables, model_accuracy, solutions = {}, {}, {}
+    seeds = level_seeds(seed, EVAL_PURPOSE, grid_cfg.eval_levels)
+    evaluations = {(name, variant): (work / name / f"eval-{variant}.json", (work / name, configs[name], variant, seeds))
+                   for name in configs for variant in grid_cfg.variants}
+    evaluations.update({("simulator", variant): (work / f"simulator-{variant}.json",
+                                                 (work / "grid", grid_cfg, variant, seeds, True))
+                        for variant in grid_cfg.variants})
+    missing = [key for key, (path, _) in evaluations.items() if _read_json(path) is None]
+    for key, result in zip(missing, _parallel([(_evaluate, *evaluations[key][1]) for key in missing], progress)):
+        with atomic_path(evaluations[key][0]) as tmp:
+            tmp.write_text(json.dumps(result))
     for variant in grid_cfg.variants:
-        seeds = level_seeds(seed, EVAL_PURPOSE, grid_cfg.eval_levels)
-        played = {name: _cached(work / name / f"eval-{variant}.json", _evaluate, run.agent(configs[name]), variant,
-                                seeds, progress) for name, run in runs.items()}
-        played["simulator"] = _cached(work / f"simulator-{variant}.json", _evaluate,
-                                      runs["grid"].agent(grid_cfg, Simulator(), GRID), variant, seeds, progress)
+        played = {name: _read_json(evaluations[name, variant][0]) for name in ("grid", "pixels", "simulator")}
         tables[variant] = {"random play": _cached(work / f"random-{variant}.json", random_row, variant, seeds),
                            "thesis": {"solve_rate": THESIS_SOLVED},
                            "agent, learned model (grid)": played["grid"]["row"],
@@ -108,10 +120,41 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     return metrics
 
 
-def _evaluate(agent, variant: str, seeds, progress: bool) -> dict:
-    """The agent on the levels: its table row and its solutions (seed, actions, ...)."""
-    plays = play_levels(agent, variant, seeds, f"{variant}: {agent.inputs.name}", progress)
+def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -> dict:
+    """The run in ``folder`` (with the true rules in place of its model if ``simulator``) on the
+    levels: its table row and its solutions (seed, actions, ...)."""
+    run = load_run(folder, cfg)
+    agent = run.agent(cfg, Simulator(), GRID) if simulator else run.agent(cfg)
+    plays = play_levels(agent, variant, seeds, progress=False)
     return {"row": agent_row(plays), "solutions": [p.record() for p in plays if p.solved]}
+
+
+def _trained(folder: Path, cfg) -> bool:
+    run = load_run(folder, cfg)
+    return run is not None and run.rounds_done == len(schedule(cfg))
+
+
+def _parallel(calls: list[tuple], progress: bool = True) -> list:
+    """``fn(*args)`` for each ``(fn, *args)`` in ``calls``, two at a time in spawned processes
+    with one torch thread each on a machine with 2 cores or more (small convolutions gain less
+    from a second thread than from a second process); in order."""
+    workers = min(len(calls), os.cpu_count() or 1, 2)
+    if workers <= 1:
+        return [fn(*args) for fn, *args in calls]
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_set_threads,
+                                                initargs=(1,)) as executor:
+        futures = [executor.submit(fn, *args) for fn, *args in calls]
+        done = tqdm(concurrent.futures.as_completed(futures), total=len(futures), desc="runs", disable=not progress)
+        for _ in done:
+            pass
+        return [future.result() for future in futures]
+
+
+def _set_threads(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
 
 
 def _accuracy(run, variant: str, seed: int, levels: int, plans: list[dict]) -> dict:

@@ -239,7 +239,7 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
         c = saved["config"]
         heuristic = Heuristic(model.n_codes, c["value_channels"], c["value_blocks"]).to(device())
         heuristic.load_state_dict(saved["heuristic"])
-    inputs = GRID if saved["coder"] is None else PixelInputs(CellCoder(**saved["coder"]))
+    inputs = GRID if saved.get("coder") is None else PixelInputs(CellCoder(**saved["coder"]))
     return Run(model, heuristic, saved["history"], saved["rounds_done"], inputs)
 
 
