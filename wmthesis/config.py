@@ -151,8 +151,8 @@ class ControllerConfig:
 @dataclass(frozen=True)
 class SearchConfig:
     """Random search over KL scale x free nats (thesis 5.6.3-5.6.5; the thesis gives no
-    ranges, trial count or budget: these are ours, wide enough to hold both games' best values,
-    Boxing 3e-2 / 12 and Freeway 8e-3 / 3). KL scale is log-uniform, free nats uniform.
+    ranges, trial count or budget: these are ours, wide enough to hold Boxing's best values,
+    3e-2 / 12 (5.6.4), and our guess for Freeway, 8e-3 / 3 (5.6.5 gives no values)). KL scale is log-uniform, free nats uniform.
     ``objective``: ``score`` (final greedy test score, maximised), ``error`` (open-loop MSE at the
     game's cut-off horizon, minimised) or ``both`` (a two-objective study). ``env_steps``
     and ``max_episode_steps`` override the PlaNet budget and episode cap of each trial (None:

@@ -23,8 +23,10 @@ PLANET_GAMES = {
 }
 
 PLANET_REFERENCE = {
-    "planet-boxing": {"random": 0.1, "human": 12.1, "thesis PlaNet 100k": "6.2±10.7",
-                      "thesis PlaNet 500k": "35.2±8.3", "thesis PlaNet 1M": "78.2±19.1",
+    # The thesis's own Boxing figure (5.6.4, KL scale 0.03, free nats 12): "around 30", no step
+    # count. (Figures "6.2±10.7 at 100k, 35.2±8.3 at 500k, 78.2±19.1 at 1M" once quoted here are
+    # not in the thesis.)
+    "planet-boxing": {"random": 0.1, "human": 12.1, "thesis PlaNet (5.6.4)": "around 30",
                       "SimPLe 100k": 7.8, "DreamerV3 100k": 78.0},
     "planet-freeway": {"random": 0.0, "human": 29.6, "thesis PlaNet": 0.0, "DreamerV3 100k": 0.0,
                        "SimPLe": 16.7, "STORM": 33.5},
