@@ -252,3 +252,12 @@ def test_a_pixel_run_plays_from_frames_and_saves_its_codes(tmp_path):
     assert env.observation == "rgb"
     with pytest.raises(ValueError, match="inputs"):
         train_search_agent(tmp_path / "x", dataclasses.replace(cfg, inputs="voxels"), progress=False)
+
+
+def test_frames_that_are_not_whole_tiles_of_the_coder_are_refused_naming_both_sizes():
+    from wmthesis.sokoban_search.cells import CellCoder
+
+    coder = CellCoder(np.zeros((8, 8 * 8 * 3), np.float32), tile_size=8)
+    assert coder.encode(np.zeros((1, 40, 40, 3), np.uint8)).shape == (1, 5, 5)  # any board size of whole tiles
+    with pytest.raises(ValueError, match="frames of 36x40 pixels are not whole tiles of 8x8"):
+        coder.encode(np.zeros((1, 36, 40, 3), np.uint8))

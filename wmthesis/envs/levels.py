@@ -1,4 +1,5 @@
-"""Sokoban levels as text, in the common notation (the XSB format the public Boxoban set uses).
+"""Sokoban's notation: the board codes, and levels as text in the common notation (the XSB
+format the public Boxoban set uses).
 
 ``#`` wall, `` `` (space, also ``-`` or ``_``) floor, ``.`` target, ``$`` box, ``*`` box on
 target, ``@`` player, ``+`` player on target. A file holds one level, or several, each after a
@@ -25,7 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, FLOOR, PLAYER, PLAYER_ON_TARGET, TARGET, WALL
+# Board codes (``SokobanEnv.board``), the one place they are defined.
+WALL, FLOOR, TARGET, BOX_ON_TARGET, BOX, PLAYER, PLAYER_ON_TARGET = range(7)
+CELL_NAMES = ("wall", "floor", "target", "box on target", "box", "player", "player on target")
 
 SYMBOLS = {"#": WALL, " ": FLOOR, "-": FLOOR, "_": FLOOR, ".": TARGET, "*": BOX_ON_TARGET,
            "$": BOX, "@": PLAYER, "+": PLAYER_ON_TARGET}
@@ -141,5 +144,5 @@ def _wall_outside(board: np.ndarray, name: str) -> np.ndarray:
     return board[1:-1, 1:-1].copy()
 
 
-__all__ = ["parse_level", "parse_levels", "read_levels", "board_to_text", "fit_board", "check_board",
+__all__ = ["WALL", "FLOOR", "TARGET", "BOX_ON_TARGET", "BOX", "PLAYER", "PLAYER_ON_TARGET", "CELL_NAMES", "parse_level", "parse_levels", "read_levels", "board_to_text", "fit_board", "check_board",
            "LevelError", "SYMBOLS"]

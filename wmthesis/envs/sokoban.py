@@ -34,10 +34,9 @@ import numpy as np
 from gymnasium import spaces
 
 from wmthesis.envs.actions import check_action, check_order
+from wmthesis.envs.levels import (BOX, BOX_ON_TARGET, CELL_NAMES, FLOOR, PLAYER, PLAYER_ON_TARGET, TARGET, WALL,
+                                  check_board, fit_board, parse_level)
 from wmthesis.utils import check_choice
-
-WALL, FLOOR, TARGET, BOX_ON_TARGET, BOX, PLAYER, PLAYER_ON_TARGET = range(7)
-CELL_NAMES = ("wall", "floor", "target", "box on target", "box", "player", "player on target")
 ACTIONS = ("push up", "push down", "push left", "push right",
            "move up", "move down", "move left", "move right")
 MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # up, down, left, right: action % 4
@@ -133,8 +132,6 @@ class SokobanEnv(gym.Env):
         ``dim_room``; an unplayable or larger board raises a ``ValueError`` naming why."""
         super().reset(seed=seed)
         if options and options.get("board") is not None:
-            from wmthesis.envs.levels import check_board, fit_board, parse_level
-
             board = options["board"]
             board = parse_level(board) if isinstance(board, str) else np.array(board, dtype=np.int64)
             check_board(board)
