@@ -9,8 +9,9 @@ Rows:
   (5x5) sizes, at the default model size (64 channels, 2 blocks, randomly initialised: speed
   does not depend on the weights). ``transitions/s`` counts board x action pairs.
 - ``search``: breadth-first :func:`best_first` from ``--levels`` generated levels of each
-  variant with the learned-model interface (the random model above: the search never finds an
-  end, so every search expands its whole ``--budget``) and with the true rules
+  variant with the learned-model interface (the random model above, its end logits pinned
+  negative and its skip connection off: the search never finds an end and its children are new
+  states, so every search expands its whole ``--budget``) and with the true rules
   (:class:`Simulator`, which stops when it solves the level): nodes expanded per second,
   batch 64.
 
@@ -77,6 +78,9 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
     model = SokobanModel(7, 8, REWARDS)
+    with torch.no_grad():  # a random model that never predicts an end and whose children differ,
+        model.event_head[-1].bias.view(model.n_actions, -1)[:, -1] = -1e4  # so that a search
+        model.copy.zero_()                                                 # runs its whole budget
     rows = expand_rows(model, np.random.default_rng(args.seed)) + search_rows(model, args.levels, args.budget, args.seed)
     print_table(rows)
     write_results(args.out, machine_meta(threads=torch.get_num_threads(), levels=args.levels, budget=args.budget), rows)
