@@ -80,9 +80,12 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
                                                  (work / "grid", grid_cfg, variant, seeds, True))
                         for variant in grid_cfg.variants})
     missing = [key for key, (path, _) in evaluations.items() if _read_json(path) is None]
-    for key, result in zip(missing, _parallel([(_evaluate, *evaluations[key][1]) for key in missing], progress)):
-        with atomic_path(evaluations[key][0]) as tmp:
+
+    def keep(index: int, result: dict) -> None:  # each evaluation is saved as it finishes
+        with atomic_path(evaluations[missing[index]][0]) as tmp:
             tmp.write_text(json.dumps(result))
+
+    _parallel([(_evaluate, *evaluations[key][1]) for key in missing], progress, keep)
     for variant in grid_cfg.variants:
         played = {name: _read_json(evaluations[name, variant][0]) for name in ("grid", "pixels", "simulator")}
         tables[variant] = {"random play": _cached(work / f"random-{variant}.json", random_row, variant, seeds),
@@ -134,20 +137,26 @@ def _trained(folder: Path, cfg) -> bool:
     return run is not None and run.rounds_done == len(schedule(cfg))
 
 
-def _parallel(calls: list[tuple], progress: bool = True) -> list:
+def _parallel(calls: list[tuple], progress: bool = True, on_done=None) -> list:
     """``fn(*args)`` for each ``(fn, *args)`` in ``calls``, two at a time in spawned processes
     with one torch thread each on a machine with 2 cores or more (small convolutions gain less
-    from a second thread than from a second process); in order."""
+    from a second thread than from a second process); in order. ``on_done(index, result)`` is
+    called as each finishes (to save it at once)."""
+    on_done = on_done or (lambda index, result: None)
     workers = min(len(calls), os.cpu_count() or 1, 2)
     if workers <= 1:
-        return [fn(*args) for fn, *args in calls]
+        results = []
+        for index, (fn, *args) in enumerate(calls):
+            results.append(fn(*args))
+            on_done(index, results[-1])
+        return results
     context = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_set_threads,
                                                 initargs=(1,)) as executor:
-        futures = [executor.submit(fn, *args) for fn, *args in calls]
-        done = tqdm(concurrent.futures.as_completed(futures), total=len(futures), desc="runs", disable=not progress)
-        for _ in done:
-            pass
+        futures = {executor.submit(fn, *args): index for index, (fn, *args) in enumerate(calls)}
+        for future in tqdm(concurrent.futures.as_completed(futures), total=len(futures), desc="runs",
+                           disable=not progress):
+            on_done(futures[future], future.result())
         return [future.result() for future in futures]
 
 
