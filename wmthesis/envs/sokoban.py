@@ -146,14 +146,8 @@ class SokobanEnv(gym.Env):
         check_order(self._episode)
         box_change = apply_action(self.board, check_action(action, self.action_space.n))
         self.steps += 1
-        reward = STEP_PENALTY
-        if box_change > 0:
-            reward += BOX_ON_TARGET_REWARD
-        elif box_change < 0:
-            reward += BOX_OFF_TARGET_PENALTY
         terminated = not np.any(self.board == BOX)
-        if terminated:
-            reward += SOLVED_REWARD
+        reward = step_reward(box_change, terminated)
         truncated = not terminated and self.steps >= self.max_steps
         self._episode = "ended" if terminated or truncated else "running"
         info = {"boxes_on_target": self.boxes_on_target()}
@@ -175,6 +169,17 @@ class SokobanEnv(gym.Env):
 
 
 # ---------------------------------------------------------------------------- game rules
+
+def step_reward(box_change: int, solved: bool) -> float:
+    """The reward of a step: -0.1, +1 when a box went onto a target (``box_change`` > 0), -1
+    when one went off (< 0), +10 when the level is solved."""
+    reward = STEP_PENALTY
+    if box_change > 0:
+        reward += BOX_ON_TARGET_REWARD
+    elif box_change < 0:
+        reward += BOX_OFF_TARGET_PENALTY
+    return reward + (SOLVED_REWARD if solved else 0.0)
+
 
 def apply_action(board: np.ndarray, action: int) -> int:
     """Play `action` on `board` (h, w codes, in place). Returns +1 when a box went onto a target,

@@ -7,18 +7,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from wmthesis.envs.sokoban import WALL, make_tiles, render_board
 from wmthesis.sokoban_search.agent import grid_env
 from wmthesis.viz import image_rows, markdown_table, record_frames
 
 TABLE_COLUMNS = ("solve_rate", "solved", "levels", "steps_when_solved", "nodes_per_move", "seconds_per_level")
-
-
-def board_image(state: np.ndarray, tile_size: int = 8) -> np.ndarray:
-    """The picture of a state's inner cells (h, w): (h + 2) x (w + 2) tiles with the wall ring."""
-    board = np.full((state.shape[0] + 2, state.shape[1] + 2), WALL, np.uint8)
-    board[1:-1, 1:-1] = np.clip(state, 0, 6)
-    return render_board(board, make_tiles(tile_size))
 
 
 def plot_plan(real: np.ndarray, predicted: np.ndarray, every: int = 1, columns: int = 10):
@@ -100,4 +92,4 @@ def record_solution(path: str | Path, variant: str, record: dict) -> Path:
     return record_frames(path, {"board": np.stack(frames)}, {"reward": np.array(rewards)})
 
 
-__all__ = ["plot_plan", "plot_rounds", "results_table", "accuracy_table", "record_solution", "board_image"]
+__all__ = ["plot_plan", "plot_rounds", "results_table", "accuracy_table", "record_solution"]

@@ -20,8 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wmthesis.envs.sokoban import (BOX, BOX_OFF_TARGET_PENALTY, BOX_ON_TARGET_REWARD, SOLVED_REWARD, STEP_PENALTY,
-                                   WALL, apply_action)
+from wmthesis.envs.sokoban import BOX, WALL, apply_action, step_reward
 
 
 @dataclass
@@ -117,12 +116,11 @@ class Simulator:
         b, h, w = states.shape
         boards = np.full((b, h + 2, w + 2), WALL, np.uint8)
         boards[:, 1:-1, 1:-1] = states
-        rewards, dones = np.full(b, STEP_PENALTY, np.float32), np.zeros(b, bool)
+        rewards, dones = np.zeros(b, np.float32), np.zeros(b, bool)
         for i in range(b):
             change = apply_action(boards[i], int(actions[i]))
-            rewards[i] += BOX_ON_TARGET_REWARD if change > 0 else BOX_OFF_TARGET_PENALTY if change < 0 else 0.0
             dones[i] = not np.any(boards[i] == BOX)
-            rewards[i] += SOLVED_REWARD if dones[i] else 0.0
+            rewards[i] = step_reward(change, dones[i])
         return boards[:, 1:-1, 1:-1].copy(), rewards, dones
 
 
