@@ -84,8 +84,14 @@ class PlaNetConfig:
     Adam lr 1e-3, eps 1e-4, gradient clipping 1000, 50 chunks of 50 steps. 6 random seed
     episodes, then one planner episode every C = ``update_steps`` updates (5000, 4.4.3; the
     PlaNet paper used 100), epsilon-greedy 0.3, action repeat 4. CEM: H 12, J 1000, K 100, I 10.
+    Frames: the whole screen resized to 64x64 (4.4.4), the encoder and decoder of depth 32
+    (:mod:`~wmthesis.planet.networks`); ``crop`` keeps only the play area (the World Models crop,
+    :data:`~wmthesis.envs.preprocessing.CROPS`).
     """
 
+    frame_size: int = 64
+    depth: int = 32                      # channels of the first convolution (then x2 per layer)
+    crop: bool = False
     belief_size: int = 200
     state_size: int = 30
     hidden_size: int = 200
@@ -105,6 +111,7 @@ class PlaNetConfig:
     chunk_length: int = 50
     seed_episodes: int = 6
     update_steps: int = 5000
+    pretrain_updates: int = 0            # on the seed episodes alone, before the first planner episode
     action_repeat: int = 4
     max_episode_steps: int | None = None  # None: full-length episodes
     env_steps: int = 1_000_000           # agent steps in the store when training stops

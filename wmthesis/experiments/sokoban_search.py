@@ -2,16 +2,12 @@
 iteration, then the table on unseen levels, the model's accuracy, solutions saved and replayed."""
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import json
-import multiprocessing
-import os
 import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
 from wmthesis.experiments.results import _first_run_seconds, _jsonable, _read_json, _run_header
@@ -24,7 +20,7 @@ from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution
 from wmthesis.sokoban_search.iteration import load_run, schedule, train_search_agent
 from wmthesis.sokoban_search.search import Simulator
-from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
+from wmthesis.utils import atomic_path, data_dir, hold, parallel_calls, releasing_holds
 from wmthesis.viz import save_figure
 
 # Published figures, recalled (issue 14), not re-checked here.
@@ -69,7 +65,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     grid_cfg = for_profile(SokobanSearchConfig, profile, seed=seed)
     configs = {"grid": grid_cfg, "pixels": dataclasses.replace(grid_cfg, inputs="pixels")}
     work, out = hold(work_folder(profile, seed)), data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
-    _parallel([(train_search_agent, work / name, cfg, False) for name, cfg in configs.items()
+    parallel_calls([(train_search_agent, work / name, cfg, False) for name, cfg in configs.items()
                if not _trained(work / name, cfg)], progress)
     runs = {name: load_run(work / name, cfg) for name, cfg in configs.items()}
     tables, model_accuracy, solutions = {}, {}, {}
@@ -85,7 +81,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
         with atomic_path(evaluations[missing[index]][0]) as tmp:
             tmp.write_text(json.dumps(result))
 
-    _parallel([(_evaluate, *evaluations[key][1]) for key in missing], progress, keep)
+    parallel_calls([(_evaluate, *evaluations[key][1]) for key in missing], progress, keep)
     for variant in grid_cfg.variants:
         played = {name: _read_json(evaluations[name, variant][0]) for name in ("grid", "pixels", "simulator")}
         tables[variant] = {"random play": _cached(work / f"random-{variant}.json", random_row, variant, seeds),
@@ -135,35 +131,6 @@ def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -
 def _trained(folder: Path, cfg) -> bool:
     run = load_run(folder, cfg)
     return run is not None and run.rounds_done == len(schedule(cfg))
-
-
-def _parallel(calls: list[tuple], progress: bool = True, on_done=None) -> list:
-    """``fn(*args)`` for each ``(fn, *args)`` in ``calls``, two at a time in spawned processes
-    with one torch thread each on a machine with 2 cores or more (small convolutions gain less
-    from a second thread than from a second process); in order. ``on_done(index, result)`` is
-    called as each finishes (to save it at once)."""
-    on_done = on_done or (lambda index, result: None)
-    workers = min(len(calls), os.cpu_count() or 1, 2)
-    if workers <= 1:
-        results = []
-        for index, (fn, *args) in enumerate(calls):
-            results.append(fn(*args))
-            on_done(index, results[-1])
-        return results
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_set_threads,
-                                                initargs=(1,)) as executor:
-        futures = {executor.submit(fn, *args): index for index, (fn, *args) in enumerate(calls)}
-        for future in tqdm(concurrent.futures.as_completed(futures), total=len(futures), desc="runs",
-                           disable=not progress):
-            on_done(futures[future], future.result())
-        return [future.result() for future in futures]
-
-
-def _set_threads(threads: int) -> None:
-    import torch
-
-    torch.set_num_threads(threads)
 
 
 def _accuracy(run, variant: str, seed: int, levels: int, plans: list[dict]) -> dict:

@@ -85,3 +85,57 @@ def learning_curve_figure(curves: dict[str, dict], *, references: dict[str, floa
         ax.set_title(title, fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def study_error_figure(scores: dict[str, list[dict]], *, title: str | None = None):
+    """The model study's open-loop error on the moving pixels against the horizon: per
+    configuration the seeds' mean with their min-max band, and the two baselines (dashed).
+    ``scores``: ``{variant: [score_run per seed]}`` (:mod:`~wmthesis.planet.study`)."""
+    fig, ax = plt.subplots(figsize=(5.5, 3.4))
+    for variant, runs in scores.items():
+        errors = np.array([run["errors"]["model"] for run in runs])
+        steps = np.arange(1, errors.shape[1] + 1)
+        (line,) = ax.plot(steps, errors.mean(0), marker=".", label=_study_label(runs[0]))
+        ax.fill_between(steps, errors.min(0), errors.max(0), alpha=0.25, color=line.get_color())
+    first = next(iter(scores.values()))[0]["errors"]
+    for name, style in (("repeat last", "--"), ("mean frame", ":")):
+        ax.plot(np.arange(1, len(first[name]) + 1), first[name], style, color="gray", label=name)
+    ax.set_xlabel("steps predicted open-loop")
+    ax.set_ylabel("squared error, moving pixels")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def _study_label(run: dict) -> str:
+    return f"KL scale {run['kl_scale']:g}, free nats {run['free_nats']:g}"
+
+
+def study_pictures_figure(rollouts: dict[str, dict], *, sequence: int = 0, columns: int = 15,
+                          scale: float = 0.8):
+    """Fig. 59 beside Fig. 510: one held-out sequence, the truth above each configuration's
+    open-loop frames (the context frames, then predictions framed in red). ``rollouts``:
+    ``{label: open_loop result}`` on the same sequences."""
+    labels = list(rollouts)
+    first = rollouts[labels[0]]
+    context, columns = first["context"], min(columns, first["truth"].shape[1])
+    rows = [("truth", first["truth"][sequence])] + [
+        (label, np.concatenate([first["truth"][sequence, :context], r["prediction"][sequence, context:]]))
+        for label, r in rollouts.items()]
+    fig, axes = plt.subplots(len(rows), columns, squeeze=False, figsize=(scale * columns, scale * len(rows)))
+    for row, (label, frames) in enumerate(rows):
+        for t, ax in enumerate(axes[row]):
+            ax.imshow(frames[t], interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if row > 0 and t >= context:
+                for spine in ax.spines.values():
+                    spine.set_edgecolor("tab:red")
+        axes[row, 0].set_ylabel(label, fontsize=6, rotation=0, ha="right", va="center")
+    for t, ax in enumerate(axes[0]):
+        ax.set_title(f"+{t - context + 1}" if t >= context else ("context" if t == context // 2 else ""), fontsize=7)
+    fig.tight_layout(pad=0.2)
+    return fig

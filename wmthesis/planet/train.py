@@ -23,21 +23,24 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 import time
 import warnings
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
 from wmthesis.config import PlaNetConfig
-from wmthesis.core import Callback, Interpreter, Mind, loop
+from wmthesis.core import Callback, Mind, loop
 from wmthesis.data import EpisodeBuffer, EpisodeStore, episode_seeds, play_random_episode
 from wmthesis.envs import ATARI_GAMES, make_env
-from wmthesis.envs.preprocessing import crop_resize, quantize, to_float
+from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize, to_float
 from wmthesis.planet.cem import cem_belief
+from wmthesis.planet.networks import vision_networks
 from wmthesis.planet.rssm import RSSM, planet_loss
 from wmthesis.training import gradient_step
 from wmthesis.utils import atomic_path, check_choice, derive_seeds, device, seed_everything
@@ -52,6 +55,7 @@ VARIANTS: dict[str, dict] = {
     "unchanged": {},                                     # 5.5.1, 5.6.1: PlaNet as published
     "action-repeat": dict(action_repeat=8),              # 5.6.2 (the thesis gives no value)
     "decoder-variance": dict(decoder_variance=0.03),     # 5.6.3: = KL scale 3e-2 (rssm docstring)
+    "kl-scale": dict(kl_scale=0.03),                     # 5.6.3 as the KL scale itself
     "free-nats": dict(kl_scale=0.03, free_nats=12.0,     # 5.6.4: Boxing's best, no overshooting
                       overshooting_distance=0),
     "freeway-tuned": dict(kl_scale=8e-3, free_nats=3.0),  # 5.6.5: no values in the thesis; ours
@@ -70,33 +74,46 @@ def with_variant(config: PlaNetConfig, variant: str | dict | None) -> PlaNetConf
     return dataclasses.replace(config, **variant)
 
 
-def make_planet_env(env_name: str, config: PlaNetConfig):
-    """The environment with PlaNet's settings: Atari with ``planet`` preprocessing and the
-    config's action repeat; Sokoban as is (frames are resized by :func:`planet_frame`).
-    ``max_episode_steps`` truncates episodes."""
+def make_planet_env(env_name: str, config: PlaNetConfig) -> gym.Env:
+    """The environment with PlaNet's settings and frames (:class:`PlanetFrames`): Atari with
+    the config's action repeat; ``max_episode_steps`` truncates episodes."""
     options = {} if config.max_episode_steps is None else {"max_steps": config.max_episode_steps}
+    crop = None
     if env_name in ATARI_GAMES:
-        return make_env(env_name, preprocessing="planet", action_repeat=config.action_repeat, **options)
-    return make_env(env_name, **options)
+        options["action_repeat"] = config.action_repeat
+        crop = CROPS[ATARI_GAMES[env_name]] if config.crop else None
+    return PlanetFrames(make_env(env_name, **options), config.frame_size, config.bits, crop)
 
 
-def planet_frame(frame: np.ndarray, bits: int = 5) -> np.ndarray:
-    """Any (H, W, 3) uint8 frame -> (64, 64, 3) with ``bits`` bits (a no-op on Atari frames
-    that ``planet`` preprocessing already made so)."""
-    if frame.shape[:2] != (FRAME_SIZE, FRAME_SIZE):
-        frame = crop_resize(frame, None, FRAME_SIZE)
+class PlanetFrames(gym.ObservationWrapper):
+    """Observations as the RSSM sees them: :func:`planet_frame` of every frame,
+    (size, size, 3) uint8 with ``bits`` bits."""
+
+    def __init__(self, env: gym.Env, size: int = FRAME_SIZE, bits: int = 5, crop=None):
+        super().__init__(env)
+        self.size, self.bits, self.crop = size, bits, crop
+        self.observation_space = gym.spaces.Box(0, 255, (size, size, 3), np.uint8)
+
+    def observation(self, frame: np.ndarray) -> np.ndarray:
+        return planet_frame(frame, self.bits, self.size, self.crop)
+
+
+def planet_frame(frame: np.ndarray, bits: int = 5, size: int = FRAME_SIZE,
+                 crop: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    """Any (H, W, 3) uint8 frame -> (size, size, 3) with ``bits`` bits: the whole frame (or
+    ``frame[top:bottom, left:right]`` for a ``crop``) resized by area, then quantised."""
+    if crop is not None or frame.shape[:2] != (size, size):
+        frame = crop_resize(frame, crop, size)
     return quantize(frame, bits)
-
-
-def planet_interpreter(bits: int = 5) -> Interpreter:
-    """The :class:`~wmthesis.core.Interpreter` that applies :func:`planet_frame`."""
-    return Interpreter(state_fn=lambda frame: planet_frame(frame, bits))
 
 
 def build_model(config: PlaNetConfig, n_actions: int) -> RSSM:
     """An RSSM of the config's sizes on :func:`wmthesis.utils.device`."""
+    encoder, decoder, embedding = vision_networks(config.frame_size, config.depth,
+                                                  config.belief_size + config.state_size)
     return RSSM(n_actions, config.belief_size, config.state_size, config.hidden_size,
-                config.reward_hidden_size, config.min_std).to(device())
+                config.reward_hidden_size, config.min_std, encoder=encoder, decoder=decoder,
+                embedding_size=embedding).to(device())
 
 
 def make_optimizer(model: RSSM, config: PlaNetConfig) -> torch.optim.Adam:
@@ -174,8 +191,13 @@ class _RunState:
 
 
 def train_planet(env_name: str, config: PlaNetConfig, run_dir, *, seed: int,
-                 variant: str | dict | None = None, progress: bool = True) -> dict:
+                 variant: str | dict | None = None, progress: bool = True, start_from=None) -> dict:
     """Train PlaNet on ``env_name`` until the store holds ``config.env_steps`` agent steps.
+
+    ``start_from``: a run folder of the same environment, seed and config (another
+    ``env_steps`` allowed) whose checkpoint and episodes a new ``run_dir`` starts from (copies;
+    ignored once ``run_dir`` has a checkpoint): an agent that goes on from a model trained on
+    seed episodes alone (``env_steps`` = 0).
 
     Resumes from ``run_dir`` when it holds a run of the same environment, seed and config
     (only :data:`RESUMABLE_CHANGES` may differ, e.g. a larger ``env_steps``); a finished run
@@ -187,6 +209,8 @@ def train_planet(env_name: str, config: PlaNetConfig, run_dir, *, seed: int,
     config = with_variant(config, variant)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
+    if start_from is not None and not (run_dir / CHECKPOINT).exists():
+        _copy_run(Path(start_from), run_dir)
     seed_everything(seed)
     dev = device()
     env = make_planet_env(env_name, config)
@@ -195,16 +219,34 @@ def train_planet(env_name: str, config: PlaNetConfig, run_dir, *, seed: int,
     run = _RunState(seed, dev)
     known = _load_checkpoint(run_dir / CHECKPOINT, model, optimizer, run, env_name, seed, config)
     store_options = dict(action_repeat=config.action_repeat, max_steps=config.max_episode_steps,
-                         bits=config.bits)
+                         bits=config.bits, crop=config.crop)
     try:
         with EpisodeStore(run_dir / STORE, "a", env=env_name, preprocessing="planet", seed=seed,
-                          obs_shape=(FRAME_SIZE, FRAME_SIZE, 3), env_options=store_options) as store:
+                          obs_shape=(config.frame_size, config.frame_size, 3), env_options=store_options) as store:
             _seed_episodes(store, env, config, seed)
             _note_unknown_episodes(store, known, run, config)
+            _pretrain(store, model, optimizer, run, config, env_name, seed, run_dir, progress)
             _train_loop(store, env, model, optimizer, run, config, env_name, seed, run_dir, progress)
             return _results(run_dir, env_name, config, store, run)
     finally:
         env.close()
+
+
+def _pretrain(store, model, optimizer, run, config, env_name, seed, run_dir, progress):
+    """Updates on the seed episodes alone until ``pretrain_updates``, a checkpoint after
+    every ``update_steps`` (so a stopped run resumes from its last block)."""
+    with tqdm(total=config.pretrain_updates, initial=min(run.updates, config.pretrain_updates), unit="update",
+              desc=f"planet {env_name} on seed episodes", disable=not progress or config.pretrain_updates == 0) as bar:
+        while run.updates < config.pretrain_updates:
+            start = time.perf_counter()
+            block = dataclasses.replace(config, update_steps=min(config.update_steps,
+                                                                 config.pretrain_updates - run.updates))
+            losses = train_updates(model, optimizer, store, block, run, run_dir)
+            run.seconds += time.perf_counter() - start
+            run.curve.setdefault("pretrain", []).append({"updates": run.updates, "seconds": run.seconds, **losses})
+            _save_checkpoint(run_dir, model, optimizer, run, env_name, seed, config, len(store))
+            bar.update(run.updates - bar.n)
+            bar.set_postfix(loss=f"{losses['loss']:.1f}")
 
 
 def _train_loop(store, env, model, optimizer, run, config, env_name, seed, run_dir, progress):
@@ -261,6 +303,15 @@ def batch_loss(model: RSSM, batch: dict[str, torch.Tensor], config: PlaNetConfig
                        overshooting_scale=config.overshooting_scale, generator=generator)
 
 
+def _copy_run(source: Path, run_dir: Path) -> None:
+    """Copy a run's store and checkpoint into ``run_dir`` (the checkpoint last, atomically)."""
+    if not (source / CHECKPOINT).exists():
+        raise FileNotFoundError(f"{source / CHECKPOINT}: no PlaNet checkpoint to start from")
+    for name in (STORE, CHECKPOINT):
+        with atomic_path(run_dir / name) as tmp:
+            shutil.copyfile(source / name, tmp)
+
+
 def _checkpoint_updates(run_dir: Path | None):
     path = run_dir / CHECKPOINT if run_dir else None
     if path is None or not path.exists():
@@ -270,11 +321,8 @@ def _checkpoint_updates(run_dir: Path | None):
 
 def _seed_episodes(store: EpisodeStore, env, config: PlaNetConfig, seed: int) -> None:
     """Random episodes until the store holds ``seed_episodes`` (episode i seeded from (seed, i))."""
-    interpreter = planet_interpreter(config.bits)
     for index in range(len(store), config.seed_episodes):
-        episode = play_random_episode(env, seed, index)
-        episode["observations"] = np.stack([interpreter(frame)[0] for frame in episode["observations"]])
-        store.append_episode(**episode)
+        store.append_episode(**play_random_episode(env, seed, index))
 
 
 def _collect_episode(store: EpisodeStore, env, model: RSSM, config: PlaNetConfig, seed: int) -> dict:
@@ -284,7 +332,7 @@ def _collect_episode(store: EpisodeStore, env, model: RSSM, config: PlaNetConfig
     mind = PlanetMind.from_config(model, config, mind_seed)
     buffer = EpisodeBuffer()
     model.eval()
-    history = loop(env, mind, planet_interpreter(config.bits), policy="epsilon-greedy",
+    history = loop(env, mind, policy="epsilon-greedy",
                    policy_options={"epsilon": config.epsilon}, callbacks=[mind, buffer],
                    seed=env_seed, train_mode=True)
     store.append_episode(**buffer.episode)
@@ -300,7 +348,7 @@ def _test(env, model: RSSM, config: PlaNetConfig, seed: int, store: EpisodeStore
     for k in range(config.test_episodes):
         env_seed, mind_seed = derive_seeds(seed, 1, len(store), k, n=2)
         mind = PlanetMind.from_config(model, config, int(mind_seed))
-        history = loop(env, mind, planet_interpreter(config.bits), policy="deterministic",
+        history = loop(env, mind, policy="deterministic",
                        callbacks=[mind], seed=int(env_seed), train_mode=False)
         returns.append(history[0]["return"])
     return {"episode": len(store) - 1, "env_steps": store.num_steps,
@@ -387,4 +435,4 @@ def _results(run_dir: Path, env_name, config, store: EpisodeStore, run: _RunStat
 
 
 __all__ = ["train_planet", "train_updates", "batch_loss", "PlanetMind", "VARIANTS", "with_variant", "make_planet_env",
-           "planet_frame", "planet_interpreter", "build_model", "load_planet"]
+           "planet_frame", "PlanetFrames", "build_model", "load_planet"]
