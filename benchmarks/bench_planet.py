@@ -15,7 +15,7 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
 - ``update``: one training step through :func:`~wmthesis.training.gradient_step` (loss, NaN
   guard, backward, clipping, Adam) on 50 chunks of 50 steps of 64x64 frames, with latent
   overshooting (distance 50, the thesis default) and without (the best Boxing run); and at
-  the ``quick`` profile's batch. Each beside a bare torch loop of the same model, loss and
+  the ``quick`` profile's Atari sizes (12x24 chunks of 32x32 frames, networks of depth 16). Each beside a bare torch loop of the same model, loss and
   batch (``vs_bare``: the bare loop's seconds over ours; target >= 0.9), with updates per
   CPU-hour.
 
@@ -40,6 +40,7 @@ import torch.nn.functional as F
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
 from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
+from wmthesis.experiments.planet import ATARI_CHANGES  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
 from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
@@ -84,7 +85,8 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
             rollout(batch)
 
     mind = PlanetMind.from_config(model, cfg, seed)
-    frame = np.random.default_rng(seed).integers(0, 32, (64, 64, 3), dtype=np.uint8) * 8
+    size = cfg.frame_size
+    frame = np.random.default_rng(seed).integers(0, 32, (size, size, 3), dtype=np.uint8) * 8
     with torch.inference_mode():
         seconds = median_seconds({"bare": bare, "cem": lambda: cem_plan(rollout, N_ACTIONS, *sizes, g),
                                   "step": lambda: mind.plan(frame)}, repeats)
@@ -105,7 +107,8 @@ def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
     dev = next(model.parameters()).device
     g = torch.Generator(dev).manual_seed(seed)
     shape = (cfg.batch_size, cfg.chunk_length)
-    observations = torch.randint(0, 32, (*shape, 64, 64, 3), generator=g, device=dev, dtype=torch.uint8) * 8
+    size = cfg.frame_size
+    observations = torch.randint(0, 32, (*shape, size, size, 3), generator=g, device=dev, dtype=torch.uint8) * 8
     actions = torch.randint(0, N_ACTIONS, shape, generator=g, device=dev)
     rewards = torch.randn(shape, generator=g, device=dev)
 
@@ -126,7 +129,8 @@ def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
         optimizer.step()
 
     seconds = median_seconds({"update": update, "bare": bare}, updates)
-    sizes = f"batch {shape[0]}x{shape[1]}, overshooting {cfg.overshooting_distance}"
+    sizes = (f"batch {shape[0]}x{shape[1]}, {cfg.frame_size}x{cfg.frame_size} depth {cfg.depth}, "
+             f"overshooting {cfg.overshooting_distance}")
     frames = shape[0] * shape[1]
     return dict(what=f"update ({label})", sizes=sizes, seconds=seconds["update"], updates_per_s=1 / seconds["update"],
                 updates_per_hour=3600 / seconds["update"], frames_per_s=frames / seconds["update"],
@@ -145,11 +149,11 @@ def main() -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     load_before = os.getloadavg()[0]
-    thesis, quick = PlaNetConfig(), for_profile(PlaNetConfig, "quick")
+    thesis, quick = PlaNetConfig(), for_profile(PlaNetConfig, "quick", **ATARI_CHANGES["boxing"]["quick"])
     torch.manual_seed(args.seed)
     model = build_model(thesis, N_ACTIONS).eval()
     results = planning_rows(model, thesis, "thesis", args.repeats, args.seed)
-    results += planning_rows(model, quick, "quick", args.repeats, args.seed)
+    results += planning_rows(build_model(quick, N_ACTIONS).eval(), quick, "quick", args.repeats, args.seed)
     results.append(update_row(thesis, "thesis", args.updates, args.seed))
     results.append(update_row(PlaNetConfig(overshooting_distance=0), "thesis, no overshooting",
                               args.updates, args.seed))

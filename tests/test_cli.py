@@ -46,3 +46,25 @@ def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, cap
     levels.write_text("#####\n#@$x#\n#####\n")
     assert main(["solve-sokoban", str(levels), "--profile", "smoke", "--seed", "3"]) == 2
     assert "level 0: row 2 column 4 holds 'x'" in capsys.readouterr().err
+
+
+def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, monkeypatch):
+    import json
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path / "data"))
+    assert main(["reproduce", "planet-boxing-study", "--profile", "smoke"]) == 0
+    assert "beats both baselines" in capsys.readouterr().out
+    study = json.loads((tmp_path / "data/results/planet-boxing-study/smoke-seed0/metrics.json").read_text())
+    assert sorted(study["runs"]) == sorted(f"{v}-seed{s}" for v in ("unchanged", "kl-scale", "free-nats") for s in (0, 1))
+    errors = study["runs"]["free-nats-seed0"]["errors"]
+    assert len(errors["model"]) == 4 and errors["repeat last"][0] < errors["repeat last"][-1]  # the truth moves on
+    assert recording_rows(study["files"]["recording"])["/truth"] == 8
+
+    assert main(["reproduce", "planet-boxing-agent", "--profile", "smoke", "--variant", "x"]) == 2
+    assert "has no variants" in capsys.readouterr().err
+    assert main(["reproduce", "planet-boxing-agent", "--profile", "smoke"]) == 0
+    assert "over 2 bouts" in capsys.readouterr().out
+    agent = json.loads((tmp_path / "data/results/planet-boxing-agent/smoke-seed0/metrics.json").read_text())
+    assert agent["updates"] > study["updates"] and agent["env_steps"] == 80
+    assert agent["difference"]["difference"] == agent["agent"]["full"]["mean"] - agent["random"]["full"]["mean"]
+    assert all(first == full for first, full in zip(agent["agent"]["first_returns"], agent["agent"]["returns"]))

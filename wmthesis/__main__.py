@@ -100,12 +100,14 @@ def cmd_reproduce(args) -> int:
     from wmthesis.experiments import reproduce
 
     metrics = reproduce(args.experiment, args.profile, args.seed, args.variant)
-    score = metrics["score"]
-    summary = metrics.get("summary") or (f"score {score['mean']:.1f} +- {score['std']:.1f} "
-                                         f"over {score['episodes']} episodes")
+    summary = metrics.get("headline") or metrics.get("summary")
+    if summary is None:
+        score = metrics["score"]
+        summary = f"score {score['mean']:.1f} +- {score['std']:.1f} over {score['episodes']} episodes"
     print(f"{args.experiment} ({metrics['profile']}, seed {args.seed}): {summary}; "
           f"wall time {metrics['wall_seconds']:.0f} s")
-    print("results:", *metrics["files"]["figures"], metrics["files"]["recording"], sep="\n  ")
+    files = metrics["files"]
+    print("results:", *files["figures"], *([files["recording"]] if "recording" in files else []), sep="\n  ")
     return 0
 
 

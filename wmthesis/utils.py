@@ -230,7 +230,7 @@ def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None) -> l
             on_done(index, results[-1])
         return results
     context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_set_threads,
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=set_threads,
                                                 initargs=(1,)) as executor:
         futures = {executor.submit(fn, *args): index for index, (fn, *args) in enumerate(calls)}
         for future in tqdm(concurrent.futures.as_completed(futures), total=len(futures), desc="runs",
@@ -239,5 +239,6 @@ def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None) -> l
         return [future.result() for future in futures]
 
 
-def _set_threads(threads: int) -> None:
+def set_threads(threads: int) -> None:
+    """torch's intra-op threads in this process (a pool's initializer)."""
     torch.set_num_threads(threads)

@@ -2,7 +2,8 @@
 
 One module per experiment: :mod:`~wmthesis.experiments.sokoban_world_models` (5.3),
 :mod:`~wmthesis.experiments.world_models` (Boxing, 5.4.1), :mod:`~wmthesis.experiments.alphazero`
-(5.4.2), :mod:`~wmthesis.experiments.planet` (5.5, 5.6) and
+(5.4.2), :mod:`~wmthesis.experiments.planet` (5.5, 5.6), :mod:`~wmthesis.experiments.planet_boxing`
+(5.6.1-5.6.4 measured: the model study and the agent) and
 :mod:`~wmthesis.experiments.sokoban_search` (beyond the thesis: Sokoban solved by search in a
 learned model); :mod:`~wmthesis.experiments.results`
 holds what they share to write their results.
@@ -21,15 +22,17 @@ from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, ALPHAZERO
                                             boxing_wm_alphazero)
 from wmthesis.experiments.planet import (ATARI_CHANGES, PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP,
                                          PLANET_REFERENCE, SOKOBAN_CHANGES, planet_experiment, planet_variants)
+from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
 from wmthesis.experiments.sokoban_search import SOKOBAN_SEARCH_REFERENCE, sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,
                                                        sokoban_wm_configs, sokoban_world_models)
 from wmthesis.experiments.world_models import BOXING_REFERENCE, DREAM_CHANGES, boxing_dream, boxing_world_models
-from wmthesis.utils import check_choice
+from wmthesis.utils import check_choice, set_threads
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
-               "sokoban-search")
+               "planet-boxing-study", "planet-boxing-agent", "sokoban-search")
+NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent")
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
@@ -40,7 +43,7 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     refuse one.
     """
     check_choice("experiment", name, EXPERIMENTS)
-    if name in ("sokoban-wm", "boxing-wm", "sokoban-search") and variant is not None:
+    if name in NO_VARIANTS and variant is not None:
         raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
     if name == "sokoban-wm":
         return sokoban_world_models(profile, seed, progress)
@@ -48,6 +51,10 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
         return sokoban_search(profile, seed, progress)
     if name == "boxing-wm":
         return boxing_world_models(profile, seed, progress)
+    if name == "planet-boxing-study":
+        return planet_boxing_study(profile, seed, progress)
+    if name == "planet-boxing-agent":
+        return planet_boxing_agent(profile, seed, progress)
     if name == "boxing-wm-alphazero":
         return boxing_wm_alphazero(profile, seed, variant, progress)
     if name in PLANET_GAMES:
@@ -74,16 +81,10 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
         return {run: reproduce(run[0], profile, seed, variant=run[1], progress=False) for run in runs}
     threads = max(1, (os.cpu_count() or 1) // workers)
     with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                                initializer=_set_threads, initargs=(threads,)) as executor:
+                                                initializer=set_threads, initargs=(threads,)) as executor:
         futures = {run: executor.submit(reproduce, run[0], profile, seed, variant=run[1], progress=False)
                    for run in runs}
         return {run: future.result() for run, future in futures.items()}
-
-
-def _set_threads(threads: int) -> None:
-    import torch
-
-    torch.set_num_threads(threads)
 
 
 __all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", "SOKOBAN_SEARCH_REFERENCE",
@@ -91,5 +92,5 @@ __all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", "SOKOB
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE", "SOKOBAN_WM_REFERENCE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES", "BOXING_REFERENCE",
            "boxing_wm_alphazero", "ALPHAZERO_REFERENCE", "ALPHAZERO_DIAGNOSIS_DEPTH", "RECORDING_STEPS",
-           "planet_experiment", "planet_variants", "PLANET_GAMES", "PLANET_REFERENCE", "ATARI_CHANGES",
+           "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "PLANET_GAMES", "PLANET_REFERENCE", "ATARI_CHANGES",
            "SOKOBAN_CHANGES", "PLANET_EVAL_EPISODES", "PLANET_OPEN_LOOP"]

@@ -21,29 +21,28 @@ from wmthesis.core import Callback
 from wmthesis.experiments.planet import ATARI_CHANGES, PLANET_REFERENCE
 from wmthesis.experiments.results import _read_json, _run_header
 from wmthesis.utils import atomic_path, data_dir, derive_seeds, hold, parallel_calls, releasing_holds
-from wmthesis.viz import save_figure
+from wmthesis.viz import record_frames, save_figure
 
 GAME = "boxing"
 TUNED = "free-nats"
 # Per profile: study seeds, held-out bouts, open-loop sequences, context and horizon; the
-# agent's budget of agent steps (seed bouts included) and its evaluation bouts.
+# agent's evaluation bouts (its budget is the config's ``env_steps``, seed bouts included).
 STUDY = {
     "smoke": dict(seeds=2, held_out=2, sequences=4, context=4, horizon=4),
     "quick": dict(seeds=2, held_out=3, sequences=48, context=5, horizon=15),
     "thesis": dict(seeds=2, held_out=5, sequences=64, context=5, horizon=15),
 }
-AGENT = {"smoke": dict(env_steps=64, bouts=2), "quick": dict(env_steps=26_000, bouts=10),
-         "thesis": dict(env_steps=1_000_000, bouts=10)}
+AGENT = {"smoke": dict(bouts=2), "quick": dict(bouts=10), "thesis": dict(bouts=10)}
 FIRST_STEPS = 500  # 2,000 frames at action repeat 4: the author's episode cap
 
 
-def boxing_config(profile: str, variant: str | None = None) -> PlaNetConfig:
-    """The profile's PlaNet config for Boxing with ``variant``, stopping after the seed bouts
-    and the updates on them (``env_steps`` = 0): the study's runs."""
+def boxing_config(profile: str, variant: str | None = None, study: bool = True) -> PlaNetConfig:
+    """The profile's PlaNet config for Boxing with ``variant``; for the ``study``, stopping
+    after the seed bouts and the updates on them (``env_steps`` = 0)."""
     from wmthesis.planet.train import with_variant
 
-    config = for_profile(PlaNetConfig, profile, **ATARI_CHANGES[profile])
-    return with_variant(dataclasses.replace(config, env_steps=0), variant)
+    config = with_variant(for_profile(PlaNetConfig, profile, **ATARI_CHANGES["boxing"][profile]), variant)
+    return dataclasses.replace(config, env_steps=0) if study else config
 
 
 def _train_study_run(run_dir: Path, config: PlaNetConfig, seed: int) -> dict:
@@ -88,13 +87,21 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
                save_figure(study_pictures_figure({_label(scores[v][0]): scores[v][0]["rollout"] for v in STUDY_VARIANTS},
                                                  columns=sizes["context"] + min(sizes["horizon"], 10)),
                            out / "study_pictures.png")]
+    rollouts = {v: scores[v][0]["rollout"] for v in STUDY_VARIANTS}
+    recording = record_frames(out / "open_loop.rrd", {"truth": rollouts[TUNED]["truth"][0],
+                                                      **{v: r["prediction"][0] for v, r in rollouts.items()}})
+    tuned, h5 = summary[TUNED], min(5, sizes["horizon"])
+    headline = (f"tuned error on moving pixels +1 {tuned['model'][1]['mean']:.4f}, +{h5} {tuned['model'][h5]['mean']:.4f} "
+                f"(repeat last {tuned['repeat last'][1]:.4f}, {tuned['repeat last'][h5]:.4f}; unchanged "
+                f"{summary['unchanged']['model'][1]['mean']:.4f}, {summary['unchanged']['model'][h5]['mean']:.4f}); "
+                f"beats both baselines: {tuned['beats_baselines']}")
     metrics = {**_run_header("planet-boxing-study", profile, seed, time.time() - started, env=GAME),
-               "seeds": seeds, "updates": config.pretrain_updates, "seed_episodes": config.seed_episodes,
+               "headline": headline, "seeds": seeds, "updates": config.pretrain_updates, "seed_episodes": config.seed_episodes,
                "summary": summary,
                "runs": {f"{v}-seed{s}": {key: scores[v][i][key] for key in ("errors", "diagnostics", "updates",
                                                                               "kl_scale", "free_nats")}
                         for v in STUDY_VARIANTS for i, s in enumerate(seeds)},
-               "files": {"figures": [str(f) for f in figures]}}
+               "files": {"figures": [str(f) for f in figures], "recording": str(recording)}}
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1))
     return metrics
@@ -155,7 +162,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     _train_study_run(study, boxing_config(profile, TUNED), seed)
     work = hold(data_dir(profile, "planet-boxing-agent", f"seed{seed}"))
     out = data_dir("results", "planet-boxing-agent", f"{profile}-seed{seed}")
-    config = dataclasses.replace(boxing_config(profile, TUNED), env_steps=sizes["env_steps"])
+    config = boxing_config(profile, TUNED, study=False)
     run = train_planet(GAME, config, work, seed=seed, progress=progress, start_from=study)
     cached = _read_json(out / "metrics.json")
     if cached is not None and cached.get("updates") == run["updates"] and len(cached["agent"]["returns"]) == sizes["bouts"]:
@@ -174,8 +181,11 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     figure = save_figure(learning_curve_figure({"PlaNet, KL scale 0.03, free nats 12": meta["curve"]},
                                                references=references, title="PlaNet on Boxing: test score"),
                          out / "learning_curve.png")
+    full = scores["agent"]["full"]
+    headline = (f"score {full['mean']:.1f} +- {full['std']:.1f} over {full['episodes']} bouts (random play "
+                f"{scores['random']['full']['mean']:.1f}); first {FIRST_STEPS} steps {scores['agent']['first']['mean']:.1f}")
     metrics = {**_run_header("planet-boxing-agent", profile, seed, run["seconds"] + time.time() - started, env=GAME),
-               "env_steps": run["env_steps"], "updates": run["updates"], "episodes": run["episodes"],
+               "headline": headline, "env_steps": run["env_steps"], "updates": run["updates"], "episodes": run["episodes"],
                **scores, "difference": score_difference(scores["agent"]["returns"], scores["random"]["returns"]),
                "difference_first": score_difference(scores["agent"]["first_returns"], scores["random"]["first_returns"]),
                "bouts": bouts, "curve": meta["curve"], "reference": PLANET_REFERENCE["planet-boxing"],
@@ -185,4 +195,45 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     return metrics
 
 
-__all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "STUDY", "AGENT", "FIRST_STEPS"]
+__all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
+
+
+# ---------------------------------------------------------------------------- tables
+def study_table(metrics: dict) -> str:
+    """The study's summary as a markdown table: per configuration, the model's error on the
+    moving pixels at each horizon (seed mean, [min, max]) beside the baselines, and the
+    latent diagnostics."""
+    summary = metrics["summary"]
+    first = next(iter(summary.values()))
+    horizons = list(first["model"])
+    rows = ["| configuration | " + " | ".join(f"+{h}" for h in horizons)
+            + " | beats both baselines at +1..+5 | KL (nats) | free nats | posterior / prior entropy |",
+            "|---" * (len(horizons) + 5) + "|"]
+    for variant, entry in summary.items():
+        run = metrics["runs"][f"{variant}-seed{metrics['seeds'][0]}"]
+        cells = [f"{v['mean']:.4f} [{v['min']:.4f}, {v['max']:.4f}]" for v in entry["model"].values()]
+        diag = entry["diagnostics"]
+        rows.append(f"| {variant}: KL scale {run['kl_scale']:g}, free nats {run['free_nats']:g} | " + " | ".join(cells)
+                    + f" | {'yes' if entry['beats_baselines'] else 'no'} | {diag['kl']:.2f} | {run['free_nats']:g} | "
+                    f"{diag['posterior_entropy']:.1f} / {diag['prior_entropy']:.1f} |")
+    for name in ("repeat last", "mean frame"):
+        rows.append(f"| baseline: {name} | " + " | ".join(f"{first[name][h]:.4f}" for h in horizons) + " | | | | |")
+    return "\n".join(rows)
+
+
+def agent_table(metrics: dict) -> str:
+    """The agent's bouts beside random play on the same bouts and the references (markdown)."""
+    def cell(summary):
+        return f"{summary['mean']:.1f} ± {summary['std']:.1f} (n={summary['episodes']})"
+
+    diff, first = metrics["difference"], metrics["difference_first"]
+    reference = metrics["reference"]
+    return "\n".join([
+        "| player | full bout | first 500 agent steps |", "|---|---|---|",
+        f"| PlaNet (KL scale 0.03, free nats 12), {metrics['env_steps']:,} agent steps, {metrics['updates']:,} updates "
+        f"| {cell(metrics['agent']['full'])} | {cell(metrics['agent']['first'])} |",
+        f"| random play, same bouts | {cell(metrics['random']['full'])} | {cell(metrics['random']['first'])} |",
+        f"| agent - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) "
+        f"| {first['difference']:.1f} ± {first['standard_error']:.1f} (s.e.) |",
+        f"| human (standard reference) | {reference['human']} | |",
+        f"| thesis PlaNet (5.6.4) | {reference['thesis PlaNet (5.6.4)']} | |"])
