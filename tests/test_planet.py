@@ -48,7 +48,7 @@ def test_loss_matches_a_hand_computation_with_torch_distributions():
     observations, actions, rewards = random_batch()
     B, T, S, distance = 2, 5, 3, 4
     knobs = dict(kl_scale=0.5, free_nats=0.28, decoder_variance=0.3, reward_scale=2.0,
-                 overshooting_distance=distance, overshooting_scale=0.25)
+                 overshooting_distance=distance, overshooting_scale=0.25, overshooting_reward_scale=0.7)
     terms = planet_loss(model, observations, actions, rewards, generator=torch.Generator().manual_seed(7),
                         **knobs)
 
@@ -68,6 +68,7 @@ def test_loss_matches_a_hand_computation_with_torch_distributions():
     kl_loss = torch.clamp(kl, min=0.28).mean()
 
     per_distance = {d: [] for d in range(2, distance + 1)}
+    reward_per_distance = {d: [] for d in range(2, distance + 1)}
     for b in range(B):
         for i in range(T):  # open loop from the one-step prior at i, one row at a time
             belief = traj.beliefs[b:b + 1, i]
@@ -80,14 +81,18 @@ def test_loss_matches_a_hand_computation_with_torch_distributions():
                 q = D.Normal(traj.posterior.mean[b, t], traj.posterior.std[b, t])
                 kl_d = D.kl_divergence(q, D.Normal(prior.mean[0], prior.std[0])).sum()
                 per_distance[d].append(torch.clamp(kl_d, min=0.28))
+                predicted_d = D.Normal(model.reward(belief, prior.mean)[0], 1.0)
+                reward_per_distance[d].append(-predicted_d.log_prob(rewards[b, t - 1]))   # row t - 1: r_t
                 if d < distance:
                     state = prior.mean + prior.std * noise[d - 1, b, i]
     overshooting = torch.stack([torch.stack(v).mean() for v in per_distance.values()]).mean()
+    overshooting_reward = torch.stack([torch.stack(v).mean() for v in reward_per_distance.values()]).mean()
 
     for name, expected in [("observation", obs_nll), ("reward", reward_nll), ("kl", kl.mean()),
-                           ("kl_loss", kl_loss), ("overshooting", overshooting)]:
+                           ("kl_loss", kl_loss), ("overshooting", overshooting),
+                           ("overshooting_reward", overshooting_reward)]:
         assert torch.allclose(terms[name], expected, rtol=1e-5, atol=1e-5), name
-    total = obs_nll + 2.0 * reward_nll + 0.5 * (kl_loss + 0.25 * overshooting)
+    total = obs_nll + 2.0 * (reward_nll + 0.7 * overshooting_reward) + 0.5 * (kl_loss + 0.25 * overshooting)
     assert torch.allclose(terms["loss"], total, rtol=1e-6)
     assert overshooting > 0 and len(per_distance[distance]) == B * (T - distance + 1)
 

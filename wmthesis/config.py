@@ -104,6 +104,7 @@ class PlaNetConfig:
     reward_scale: float = 10.0           # the official code's default (the thesis used that code)
     overshooting_distance: int = 50      # 0 or 1: no latent overshooting
     overshooting_scale: float = 1 / 50
+    overshooting_reward_scale: float = 0.0  # beyond the thesis: the reward head on open-loop beliefs too
     lr: float = 1e-3
     adam_eps: float = 1e-4
     grad_clip: float = 1000.0

@@ -1,7 +1,9 @@
-"""PlaNet for discrete actions (thesis 3.2, 4.4): RSSM, discrete CEM, training, tuning.
+"""PlaNet for discrete actions (thesis 3.2, 4.4): RSSM, discrete CEM, training, study, tuning.
 
-Read in this order: ``rssm`` (the model and its loss), ``cem`` (the planner), ``train`` (the
-agent, data collection and the training loop), ``prediction`` (open-loop rollouts),
-``figures``, ``tuning`` (the random search over KL scale x free nats with optuna). The
-encoder and decoder are World Models' VAE networks (thesis 4.4.1), imported from that wing.
+Read in this order: ``rssm`` (the model and its loss), ``networks`` (its convolutional encoder
+and decoder: World Models' VAE networks at the thesis's 64x64, thesis 4.4.1, and the same shape
+for other frame sizes), ``cem`` (the planner), ``train`` (the agent, data collection and the
+training loop), ``prediction`` (open-loop rollouts, scored on every pixel or on the moving
+pixels against two baselines), ``study`` (the model study of 5.6.1-5.6.4), ``figures``,
+``tuning`` (the random search over KL scale x free nats with optuna).
 """

@@ -24,7 +24,7 @@ Loss (:func:`planet_loss`), normalised as the official code (``compute_losses``)
 is summed over its features (pixels, latent dimensions) and averaged over batch and time;
 free nats clip each KL term from below, ``max(free_nats, KL)`` per (batch, time) element::
 
-    loss = obs_nll + reward_scale * reward_nll
+    loss = obs_nll + reward_scale * (reward_nll + overshooting_reward_scale * overshooting_reward)
            + kl_scale * (mean max(free_nats, KL[q(s_t) || p(s_t | h_t)])
                          + overshooting_scale * overshooting)
 
@@ -32,6 +32,10 @@ Latent overshooting (thesis 3.2, Fig. 34c) rolls the prior open-loop from every 
 distances d = 2..D (d = 1 is the standard KL term) and adds ``max(free_nats, KL[q(s_t) ||
 p(s_t | s_{t-d})])`` with the posterior's gradient stopped; the term is averaged over batch,
 time and distances (the official code's layout) and scaled by ``overshooting_scale`` (1/50).
+Beyond the thesis, ``overshooting_reward_scale`` (0 in the thesis; the knob of Kaixhin's PyTorch
+PlaNet) also trains the reward head on the open-loop beliefs (with the prior's mean), the states
+the planner's rollouts reach: a model trained on filtered states alone can name a reward it
+sees in a frame and still not predict one.
 
 Decoder variance (thesis 5.6.3). With ``log p(o | z) = -0.5 ||o - f(z)||^2 / sigma^2 - log Z``,
 multiplying the whole loss by ``sigma^2`` gives ``0.5 ||o - f(z)||^2 + sigma^2 * kl_scale * KL
@@ -242,38 +246,43 @@ def kl_divergence(q: Gaussian, p: Gaussian) -> torch.Tensor:
     return 0.5 * (ratio + ((q.mean - p.mean) / p.std).pow(2) - 1 - ratio.log()).sum(-1)
 
 
-def overshooting_kl(model: RSSM, trajectory: Trajectory, prev_actions: torch.Tensor,
-                    distance: int, free_nats: float, noise: torch.Tensor) -> torch.Tensor:
-    """Latent overshooting term: mean over batch, time and distances d = 2..D of
-    ``max(free_nats, KL[q(s_t) || p(s_t | s_{t-d})])`` (posteriors detached).
+def overshooting_terms(model: RSSM, trajectory: Trajectory, prev_actions: torch.Tensor, rewards: torch.Tensor,
+                       distance: int, free_nats: float, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Latent overshooting terms, each a mean over batch, time and distances d = 2..D:
+    ``max(free_nats, KL[q(s_t) || p(s_t | s_{t-d})])`` (posteriors detached), and the reward
+    NLL of ``r_t`` predicted from the open-loop belief and the prior's mean.
 
     Open-loop rollouts start from every one-step prior ``p(s_i | h_i)`` (the posterior at
     ``i - 1`` followed by ``a_{i-1}``), one per i = 0..T-1, all in one batch that shrinks by
     one start per step, so that step k (d = k) covers the starts i = 0..T-k with target
     ``t = i + k - 1``. ``noise`` (D - 1, B, T, S): ``noise[k - 1][:, i]`` is the standard
-    normal of the prior sample after step k from start i. ``D = min(distance, T)``; 0 when
-    D < 2.
+    normal of the prior sample after step k from start i. ``rewards`` (B, T): row t holds
+    ``r_{t+1}``. ``D = min(distance, T)``; zeros when D < 2.
     """
     time = prev_actions.shape[1]
     distance = min(distance, time)
     if distance < 2:
-        return trajectory.beliefs.new_zeros(())
+        zero = trajectory.beliefs.new_zeros(())
+        return zero, zero
     target = Gaussian(trajectory.posterior.mean.detach(), trajectory.posterior.std.detach())
     belief, prior = trajectory.beliefs, trajectory.prior
-    per_distance = []
+    kls, reward_nlls = [], []
     for k in range(2, distance + 1):
         starts = time - k + 1
         state = prior.mean[:, :starts] + prior.std[:, :starts] * noise[k - 2][:, :starts]
         belief, prior = bottle(model.transition, belief[:, :starts], state, prev_actions[:, k - 1:])
         kl = kl_divergence(Gaussian(target.mean[:, k - 1:], target.std[:, k - 1:]), prior)
-        per_distance.append(kl.clamp(min=free_nats).mean())
-    return torch.stack(per_distance).mean()
+        kls.append(kl.clamp(min=free_nats).mean())
+        predicted = model.reward(belief, prior.mean)
+        reward_nlls.append(gaussian_nll(rewards[:, k - 2:time - 1, None], predicted[..., None], 1.0, dims=1).mean())
+    return torch.stack(kls).mean(), torch.stack(reward_nlls).mean()
 
 
 def planet_loss(model: RSSM, observations: torch.Tensor, actions: torch.Tensor,
                 rewards: torch.Tensor, *, bits: int = 5, kl_scale: float = 1.0,
                 free_nats: float = 3.0, decoder_variance: float = 1.0, reward_scale: float = 1.0,
                 overshooting_distance: int = 0, overshooting_scale: float = 1 / 50,
+                overshooting_reward_scale: float = 0.0,
                 generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
     """The PlaNet loss on a batch of chunks (module docstring). The defaults here are a plain
     ELBO; :class:`~wmthesis.config.PlaNetConfig` holds the thesis's values.
@@ -283,7 +292,8 @@ def planet_loss(model: RSSM, observations: torch.Tensor, actions: torch.Tensor,
     ``generator`` draws, in this order, the dequantisation noise (:func:`to_float`), the
     posterior samples (:meth:`RSSM.observe`) and the overshooting noise (D - 1, B, T, S).
     Returns scalars: ``loss``, ``observation`` (Gaussian NLL), ``reward`` (NLL), ``kl``
-    (unclipped mean), ``kl_loss`` (clipped mean), ``overshooting``, ``observation_mse``
+    (unclipped mean), ``kl_loss`` (clipped mean), ``overshooting`` and ``overshooting_reward``
+    (:func:`overshooting_terms`), ``observation_mse``
     (per pixel).
     """
     frames = to_float(observations, bits, noise=generator)
@@ -297,29 +307,31 @@ def planet_loss(model: RSSM, observations: torch.Tensor, actions: torch.Tensor,
     return loss_terms(model, trajectory, frames, prev_actions, rewards, kl_scale=kl_scale,
                       free_nats=free_nats, decoder_variance=decoder_variance,
                       reward_scale=reward_scale, overshooting_distance=overshooting_distance,
-                      overshooting_scale=overshooting_scale, overshooting_noise=noise)
+                      overshooting_scale=overshooting_scale, overshooting_reward_scale=overshooting_reward_scale,
+                      overshooting_noise=noise)
 
 
 def loss_terms(model: RSSM, trajectory: Trajectory, frames: torch.Tensor, prev_actions: torch.Tensor,
                rewards: torch.Tensor, *, kl_scale: float, free_nats: float, decoder_variance: float,
                reward_scale: float, overshooting_distance: int, overshooting_scale: float,
-               overshooting_noise: torch.Tensor | None) -> dict[str, torch.Tensor]:
+               overshooting_noise: torch.Tensor | None,
+               overshooting_reward_scale: float = 0.0) -> dict[str, torch.Tensor]:
     """:func:`planet_loss` given the filtered ``trajectory`` of float ``frames``
-    (B, T, H, W, 3) and the overshooting noise (see :func:`overshooting_kl`)."""
+    (B, T, H, W, 3) and the overshooting noise (see :func:`overshooting_terms`)."""
     mean_frames = model.decode(trajectory.beliefs, trajectory.states)
     observation = gaussian_nll(frames, mean_frames, decoder_variance, dims=3).mean()
     predicted = model.reward(trajectory.beliefs[:, 1:], trajectory.states[:, 1:])
     reward = gaussian_nll(rewards[:, :-1, None], predicted[..., None], 1.0, dims=1).mean()
     kl = kl_divergence(trajectory.posterior, trajectory.prior)
     kl_loss = kl.clamp(min=free_nats).mean()
-    overshooting = trajectory.beliefs.new_zeros(())
+    overshooting = overshooting_reward = trajectory.beliefs.new_zeros(())
     if overshooting_noise is not None:
-        overshooting = overshooting_kl(model, trajectory, prev_actions, overshooting_distance,
-                                       free_nats, overshooting_noise)
-    loss = (observation + reward_scale * reward
+        overshooting, overshooting_reward = overshooting_terms(model, trajectory, prev_actions, rewards,
+                                                               overshooting_distance, free_nats, overshooting_noise)
+    loss = (observation + reward_scale * (reward + overshooting_reward_scale * overshooting_reward)
             + kl_scale * (kl_loss + overshooting_scale * overshooting))
     return {"loss": loss, "observation": observation, "reward": reward, "kl": kl.mean(),
-            "kl_loss": kl_loss, "overshooting": overshooting,
+            "kl_loss": kl_loss, "overshooting": overshooting, "overshooting_reward": overshooting_reward,
             "observation_mse": (frames - mean_frames).pow(2).mean().detach()}
 
 
@@ -331,5 +343,5 @@ def frames_out(mean_frames: torch.Tensor, bits: int = 5) -> torch.Tensor:
 
 
 __all__ = ["RSSM", "Gaussian", "Trajectory", "bottle", "one_hot_previous", "planet_loss",
-           "loss_terms", "overshooting_kl", "kl_divergence", "gaussian_nll", "frames_out",
+           "loss_terms", "overshooting_terms", "kl_divergence", "gaussian_nll", "frames_out",
            "EMBEDDING_SIZE"]

@@ -300,7 +300,8 @@ def batch_loss(model: RSSM, batch: dict[str, torch.Tensor], config: PlaNetConfig
                        kl_scale=config.kl_scale, free_nats=config.free_nats,
                        decoder_variance=config.decoder_variance, reward_scale=config.reward_scale,
                        overshooting_distance=config.overshooting_distance,
-                       overshooting_scale=config.overshooting_scale, generator=generator)
+                       overshooting_scale=config.overshooting_scale,
+                       overshooting_reward_scale=config.overshooting_reward_scale, generator=generator)
 
 
 def _copy_run(source: Path, run_dir: Path) -> None:
