@@ -39,8 +39,8 @@ import torch.nn.functional as F
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
-from wmthesis.experiments.planet import ATARI_CHANGES  # noqa: E402
+from wmthesis.config import PlaNetConfig  # noqa: E402
+from wmthesis.planet.profiles import planet_config  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
 from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
@@ -149,7 +149,7 @@ def main() -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     load_before = os.getloadavg()[0]
-    thesis, quick = PlaNetConfig(), for_profile(PlaNetConfig, "quick", **ATARI_CHANGES["boxing"]["quick"])
+    thesis, quick = PlaNetConfig(), planet_config("boxing", "quick")
     torch.manual_seed(args.seed)
     model = build_model(thesis, N_ACTIONS).eval()
     results = planning_rows(model, thesis, "thesis", args.repeats, args.seed)

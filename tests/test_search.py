@@ -186,3 +186,24 @@ def test_a_trial_racing_for_the_last_place_is_surplus(tmp_path):
     study.tell(b, state=TrialState.FAIL)
     study.tell(a, state=TrialState.FAIL)  # a's worker dies: the place is free again
     assert not _surplus(study.ask(), cfg)
+
+
+def test_trials_share_held_out_episodes_and_the_extremes_are_trained_again(tmp_path):
+    """Every trial is measured on the same held-out episodes (so the baselines' errors agree to
+    the bit); the best and the worst setting get a second seed, and the verdict is gap > spread."""
+    from wmthesis.planet.tuning import confirm_extremes
+
+    storage = f"sqlite:///{tmp_path / 'extremes.db'}"
+    study = run_search("planet-boxing", trials=2, workers=1, storage=storage, profile="smoke", objective="error")
+    rows = [json.loads((Path(row["folder"]) / "metrics.json").read_text()) for row in trial_rows(study)]
+    assert len(rows) == 2 and rows[0]["repeat_last_error"] == rows[1]["repeat_last_error"] > 0
+    assert all(row["error"] == row["horizon_errors"][row["horizon"] - 1] for row in rows)
+    result = confirm_extremes("planet-boxing", study, storage=storage, progress=False)
+    order = sorted(rows, key=lambda row: row["error"])
+    assert result["best"]["number"] == order[0]["trial"] and result["worst"]["number"] == order[-1]["trial"]
+    assert result["best"]["values"][0] == order[0]["error"] and result["seeds"] == [SMOKE.seed, SMOKE.seed + 1]
+    spread = max(abs(result[k]["values"][0] - result[k]["values"][1]) for k in ("best", "worst"))
+    assert result["spread"] == pytest.approx(spread) and result["discriminates"] == (result["gap"] > spread)
+    second = Path(trial_rows(study)[result["best"]["number"]]["folder"]) / f"seed{SMOKE.seed + 1}" / "checkpoint.pt"
+    assert second.exists()
+    assert json.loads((study_dir(study.study_name, storage) / "confirmation.json").read_text()) == result

@@ -161,8 +161,9 @@ class SearchConfig:
     """Random search over KL scale x free nats (thesis 5.6.3-5.6.5; the thesis gives no
     ranges, trial count or budget: these are ours, wide enough to hold Boxing's best values,
     3e-2 / 12 (5.6.4), and our guess for Freeway, 8e-3 / 3 (5.6.5 gives no values)). KL scale is log-uniform, free nats uniform.
-    ``objective``: ``score`` (final greedy test score, maximised), ``error`` (open-loop MSE at the
-    game's cut-off horizon, minimised) or ``both`` (a two-objective study). ``env_steps``
+    ``objective``: ``score`` (final greedy test score, maximised), ``error`` (open-loop error on
+    the moving pixels of ``held_out_episodes`` random episodes at the game's cut-off horizon,
+    minimised) or ``both`` (a two-objective study). ``env_steps``
     and ``max_episode_steps`` override the PlaNet budget and episode cap of each trial (None:
     the profile's). Heartbeats: a trial whose worker has not beaten for ``grace_period``
     seconds is marked failed."""
@@ -179,6 +180,7 @@ class SearchConfig:
     max_episode_steps: int | None = None   # caps each trial's episodes (None: the profile's PlaNet value)
     open_loop_sequences: int = 6
     open_loop_length: int = 30           # 5 context frames + 25 predicted
+    held_out_episodes: int = 3
     heartbeat_interval: int = 60
     grace_period: int = 300
 
@@ -308,6 +310,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                              update_steps=2, max_episode_steps=16, env_steps=80, horizon=3,
                              candidates=16, top_k=4, iterations=2, test_interval=1, test_episodes=1),
         "SearchConfig": dict(trials=2, workers=1, env_steps=48, open_loop_sequences=2, open_loop_length=10,
+                             held_out_episodes=1,
                              heartbeat_interval=1, grace_period=3),
         "AlphaZeroConfig": dict(simulations=4, games=4, train_every=2, epochs=2, batch_size=16, max_steps=20,
                                 noop_max=3, test_every=2, test_episodes=1, eval_episodes=2, eval_max_steps=20),
@@ -324,9 +327,11 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                                  eval_episodes=3),
         "PlaNetConfig": dict(batch_size=12, chunk_length=24, update_steps=100, env_steps=20_000,
                              candidates=100, top_k=10, iterations=3, test_interval=3, test_episodes=1),
-        # Trials of 6 seed + 2 planner episodes capped at 400 agent steps: 200 updates, ~5 CPU-min each.
-        "SearchConfig": dict(trials=5, env_steps=3_200, max_episode_steps=400, heartbeat_interval=10,
-                             grace_period=60),
+        # Trials measured by their models alone: the profile's PlaNet on the game's random seed
+        # episodes (Boxing: 50 bouts, 3,000 updates; ~8 CPU-minutes each), no planner episodes;
+        # the error on 32 held-out sequences, 5 context frames + 15 predicted.
+        "SearchConfig": dict(trials=6, objective="error", env_steps=0, open_loop_sequences=32, open_loop_length=20,
+                             heartbeat_interval=10, grace_period=600),
         # Self-play games of 400 agent steps (a bout is ~1,780), 100 per variant; full-bout evaluation.
         "AlphaZeroConfig": dict(games=100, max_steps=400, test_every=10, test_episodes=1, eval_episodes=5),
         # Two runs (grid, pixels) side by side on one core each: ~25 minutes of training, then

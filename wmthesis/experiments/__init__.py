@@ -20,14 +20,15 @@ import os
 from wmthesis.config import profile_name
 from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, ALPHAZERO_REFERENCE, RECORDING_STEPS,
                                             boxing_wm_alphazero)
-from wmthesis.experiments.planet import (ATARI_CHANGES, PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP,
-                                         PLANET_REFERENCE, SOKOBAN_CHANGES, planet_experiment, planet_variants)
+from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, PLANET_REFERENCE,
+                                         planet_experiment, planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
 from wmthesis.experiments.sokoban_search import SOKOBAN_SEARCH_REFERENCE, sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,
                                                        sokoban_wm_configs, sokoban_world_models)
 from wmthesis.experiments.world_models import BOXING_REFERENCE, DREAM_CHANGES, boxing_dream, boxing_world_models
+from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.utils import check_choice, set_threads
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",

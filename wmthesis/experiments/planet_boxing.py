@@ -16,9 +16,10 @@ import time
 from pathlib import Path
 
 
-from wmthesis.config import PlaNetConfig, for_profile, profile_name
+from wmthesis.config import PlaNetConfig, profile_name
 from wmthesis.core import Callback
-from wmthesis.experiments.planet import ATARI_CHANGES, PLANET_REFERENCE
+from wmthesis.experiments.planet import PLANET_REFERENCE
+from wmthesis.planet.profiles import planet_config
 from wmthesis.experiments.results import _read_json, _run_header
 from wmthesis.utils import atomic_path, data_dir, derive_seeds, hold, parallel_calls, releasing_holds
 from wmthesis.viz import record_frames, save_figure
@@ -41,7 +42,7 @@ def boxing_config(profile: str, variant: str | None = None, study: bool = True) 
     after the seed bouts and the updates on them (``env_steps`` = 0)."""
     from wmthesis.planet.train import with_variant
 
-    config = with_variant(for_profile(PlaNetConfig, profile, **ATARI_CHANGES["boxing"][profile]), variant)
+    config = with_variant(planet_config(GAME, profile), variant)
     return dataclasses.replace(config, env_steps=0) if study else config
 
 

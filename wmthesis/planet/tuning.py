@@ -4,6 +4,11 @@ The thesis tuned the two knobs jointly by random search and judged the runs "wit
 eye". Here each trial trains PlaNet (:func:`~wmthesis.planet.train.train_planet`) with one
 setting and is measured by its final greedy test score, its open-loop prediction error at the
 game's cut-off horizon (:data:`GAMES`), or both (:data:`OBJECTIVES`; ``SearchConfig.objective``).
+The error is measured on held-out random episodes shared by every trial of a study
+(``held-out.h5`` in its folder), on the moving pixels only
+(:func:`~wmthesis.planet.prediction.moving_error`), so a blurry mean frame cannot win.
+:func:`confirm_extremes` trains the best and the worst setting again with a second seed: the
+search discriminates when the gap between them exceeds the seed-to-seed spread.
 
 The study lives in an optuna storage: by default a SQLite file under ``data/search/``; any
 optuna RDB URL (PostgreSQL: ``postgresql+psycopg2://user@host/db``) lets workers on many
@@ -57,12 +62,13 @@ from optuna.samplers import RandomSampler
 from optuna.trial import TrialState
 from sqlalchemy.engine import make_url
 
-from wmthesis.config import PlaNetConfig, SearchConfig, for_profile, profile_name
+from wmthesis.config import SearchConfig, for_profile, profile_name
 from wmthesis.data import EpisodeStore
 from wmthesis.planet.figures import open_loop_figure
-from wmthesis.planet.prediction import evaluate_open_loop
-from wmthesis.planet.train import STORE, load_planet, train_planet
-from wmthesis.utils import atomic_path, check_choice, data_dir
+from wmthesis.planet.profiles import planet_config
+from wmthesis.planet.study import held_out_store, scene, score_run
+from wmthesis.planet.train import train_planet
+from wmthesis.utils import atomic_path, check_choice, data_dir, parallel_calls
 
 
 @dataclass(frozen=True)
@@ -93,7 +99,7 @@ CONTEXT = 5                                          # open-loop context frames 
 METRICS, FIGURE = "metrics.json", "open_loop.png"
 # Study settings that must match when a study is continued (trials, workers, heartbeats may change).
 _SETTINGS = ("seed", "objective", "kl_scale_low", "kl_scale_high", "free_nats_low", "free_nats_high",
-             "env_steps", "max_episode_steps", "open_loop_sequences", "open_loop_length")
+             "env_steps", "max_episode_steps", "open_loop_sequences", "open_loop_length", "held_out_episodes")
 
 
 # ---------------------------------------------------------------------------- sampler
@@ -232,28 +238,19 @@ def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str
         raise SurplusTrial(f"trial {trial.number}: {cfg.trials} earlier trials already finished or running")
     params = suggest(trial, cfg)
     changes = dict(params, **{key: getattr(cfg, key) for key in ("env_steps", "max_episode_steps")
-                              if getattr(cfg, key)})
-    config = for_profile(PlaNetConfig, profile, **changes)
+                              if getattr(cfg, key) is not None})
+    config = planet_config(game.env, profile, **changes)
     folder = trial_dir(trial.study, trial.number, storage)
     metrics = {"study": trial.study.study_name, "trial": trial.number, "env": game.env, **params}
     try:
-        result = train_planet(game.env, config, folder / "run", seed=cfg.seed, progress=False)
+        measured = measure(name, config, folder / "run", cfg.seed, cfg, held_out_path(trial.study, name, cfg, storage))
     except FloatingPointError as error:
         _write_json(folder / METRICS, dict(metrics, diverged=str(error)))
         trial.set_user_attr("diverged", str(error))
         raise optuna.TrialPruned(f"diverged: {error}") from error
-    model, _, _ = load_planet(folder / "run")
-    with EpisodeStore(folder / "run" / STORE) as store:
-        rollout = evaluate_open_loop(model, store, sequences=cfg.open_loop_sequences,
-                                     length=cfg.open_loop_length, context=CONTEXT, bits=config.bits,
-                                     seed=cfg.seed)
-    horizon = min(game.cutoff, len(rollout["mse"]))
-    test = result["final_test"]
-    metrics.update(score=test["mean"] if test else math.nan, score_std=test["std"] if test else math.nan,
-                   error=float(rollout["mse"][horizon - 1]), horizon=horizon,
-                   horizon_errors=[float(v) for v in rollout["mse"]], env_steps=result["env_steps"],
-                   updates=result["updates"], seconds=result["seconds"])
-    fig = open_loop_figure(rollout, sequences=min(3, cfg.open_loop_sequences),
+    rollout = measured.pop("rollout")
+    metrics.update(measured)
+    fig = open_loop_figure(rollout, sequences=min(3, cfg.open_loop_sequences), columns=min(CONTEXT + game.cutoff, 20),
                            title=f"{name} trial {trial.number}: KL scale {params['kl_scale']:.3g}, "
                                  f"free nats {params['free_nats']:.2f}")
     with atomic_path(folder / FIGURE) as tmp:
@@ -267,6 +264,77 @@ def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str
     values = {"score": (metrics["score"],), "error": (metrics["error"],),
               "both": (metrics["score"], metrics["error"])}[cfg.objective]
     return values[0] if len(values) == 1 else values
+
+
+def held_out_path(study: optuna.Study, name: str, cfg: SearchConfig, storage: str | None = None) -> Path:
+    """The study's held-out episodes (``held-out.h5`` in its folder: ``held_out_episodes``
+    random episodes seeded apart from any trial's), written on first use."""
+    path = study_dir(study.study_name, storage) / "held-out.h5"
+    if not path.exists():
+        profile = study.user_attrs["settings"]["profile"]
+        held_out_store(path, GAMES[name].env, planet_config(GAMES[name].env, profile), 20_000 + cfg.seed,
+                       cfg.held_out_episodes)
+    return path
+
+
+def measure(name: str, config, run_dir: Path, seed: int, cfg: SearchConfig, held_out: Path) -> dict:
+    """Train (or resume) one PlaNet run and measure it: ``score`` (its final greedy test, nan
+    without one), ``error`` (held-out open-loop error on the moving pixels at the game's
+    cut-off), ``horizon_errors``, the budget, and the ``rollout`` (for the figure)."""
+    game = GAMES[name]
+    result = train_planet(game.env, config, run_dir, seed=seed, progress=False)
+    with EpisodeStore(held_out) as store:
+        background, mean_frame = scene(store)
+        scored = score_run(run_dir, store, background, mean_frame, context=CONTEXT,
+                           horizon=cfg.open_loop_length - CONTEXT, sequences=cfg.open_loop_sequences, seed=cfg.seed)
+    errors = scored["errors"]["model"]
+    horizon = min(game.cutoff, len(errors))
+    test = result["final_test"]
+    return {"score": test["mean"] if test else math.nan, "score_std": test["std"] if test else math.nan,
+            "error": float(errors[horizon - 1]), "horizon": horizon, "horizon_errors": errors,
+            "repeat_last_error": scored["errors"]["repeat last"][horizon - 1],
+            "mean_frame_error": scored["errors"]["mean frame"][horizon - 1], "diagnostics": scored["diagnostics"],
+            "env_steps": result["env_steps"], "updates": result["updates"], "seconds": result["seconds"],
+            "rollout": scored["rollout"]}
+
+
+def _measure_again(name: str, row: dict, seed: int, cfg: SearchConfig, profile: str, held_out: Path) -> dict:
+    changes = {key: getattr(cfg, key) for key in ("env_steps", "max_episode_steps") if getattr(cfg, key) is not None}
+    config = planet_config(GAMES[name].env, profile, kl_scale=row["kl_scale"], free_nats=row["free_nats"], **changes)
+    measured = measure(name, config, Path(row["folder"]) / f"seed{seed}", seed, cfg, held_out)
+    measured.pop("rollout")
+    return measured
+
+
+def confirm_extremes(name: str, study: optuna.Study, *, storage: str | None = None, progress: bool = True) -> dict:
+    """Train the best and the worst completed trial's setting again with a second seed (the
+    study's seed + 1; in ``trial-NNNN/seed<S>/``, resumable) and measure them the same way.
+
+    Returns ``best`` and ``worst`` (``number``, ``kl_scale``, ``free_nats``, ``values``: the
+    measure with the study's seed and with the second), ``measure`` (``error``, or ``score``
+    for a score study), ``gap`` (between the two settings' means), ``spread`` (the larger
+    seed-to-seed difference of the two) and ``discriminates`` (gap > spread)."""
+    settings = study.user_attrs["settings"]
+    cfg = for_profile(SearchConfig, settings["profile"], **{k: settings[k] for k in _SETTINGS})
+    measure_name = "score" if cfg.objective == "score" else "error"
+    order = sorted([row for row in trial_rows(study) if row["state"] == "COMPLETE"],
+                   key=lambda row: -row[measure_name] if measure_name == "score" else row[measure_name])
+    if len(order) < 2:
+        raise ValueError(f"study {study.study_name!r}: need two completed trials to compare, got {len(order)}")
+    extremes = {"best": order[0], "worst": order[-1]}
+    held_out = held_out_path(study, name, cfg, storage)
+    again = parallel_calls([(_measure_again, name, row, cfg.seed + 1, cfg, settings["profile"], held_out)
+                            for row in extremes.values()], progress)
+    out = {"measure": measure_name, "seeds": [cfg.seed, cfg.seed + 1]}
+    for (label, row), measured in zip(extremes.items(), again):
+        out[label] = {"number": row["number"], "kl_scale": row["kl_scale"], "free_nats": row["free_nats"],
+                      "values": [row[measure_name], measured[measure_name]]}
+    means = {label: float(np.mean(out[label]["values"])) for label in extremes}
+    out["gap"] = abs(means["best"] - means["worst"])
+    out["spread"] = max(abs(np.subtract(*out[label]["values"])) for label in extremes)
+    out["discriminates"] = bool(out["gap"] > out["spread"])
+    _write_json(study_dir(study.study_name, storage) / "confirmation.json", out)
+    return out
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -315,6 +383,7 @@ def run_search(name: str, *, trials: int | None = None, workers: int | None = No
     study = open_study(name, cfg, profile, storage)     # creates it once, before the workers race
     if len(study.get_trials(deepcopy=False, states=FINISHED)) >= cfg.trials:
         return study
+    held_out_path(study, name, cfg, storage)             # likewise the held-out episodes
     if cfg.workers <= 1:
         work(name, cfg, profile, storage)
         return study
@@ -389,4 +458,5 @@ def search_figure(study: optuna.Study, game: str, measure: str = "score"):
 
 __all__ = ["GAMES", "OBJECTIVES", "Game", "TrialSeededSampler", "suggest", "planned_settings",
            "default_storage", "storage_fingerprint", "study_dir", "make_storage", "study_name", "open_study",
-           "load_study", "run_trial", "work", "run_search", "trial_rows", "ranked", "search_figure", "trial_dir"]
+           "load_study", "run_trial", "work", "run_search", "trial_rows", "ranked", "search_figure", "trial_dir",
+           "measure", "held_out_path", "confirm_extremes"]
