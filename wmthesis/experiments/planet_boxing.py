@@ -17,7 +17,7 @@ from pathlib import Path
 
 
 from wmthesis.config import PlaNetConfig, profile_name
-from wmthesis.core import Callback
+from wmthesis.data import EpisodeBuffer
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.planet.profiles import planet_config
 from wmthesis.experiments.results import _read_json, _run_header
@@ -120,7 +120,7 @@ def play_bout(env_name: str, config: PlaNetConfig, run_dir: Path | None, env_see
     from wmthesis.planet.train import PlanetMind, load_planet, make_planet_env
 
     env = make_planet_env(env_name, config)
-    rewards = []
+    record = EpisodeBuffer()
     try:
         if run_dir is None:
             mind, callbacks = RandomMind(env.action_space.n, seed=mind_seed), []
@@ -128,21 +128,11 @@ def play_bout(env_name: str, config: PlaNetConfig, run_dir: Path | None, env_see
             model, trained, _ = load_planet(run_dir)
             mind = PlanetMind.from_config(model, trained, mind_seed)
             callbacks = [mind]
-        record = _Rewards(rewards)
         loop(env, mind, policy="deterministic", callbacks=[*callbacks, record], seed=env_seed, train_mode=False)
     finally:
         env.close()
+    rewards = [float(r) for r in record.episode["rewards"]]
     return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
-
-
-class _Rewards(Callback):
-    """A loop callback that appends every step's reward to a list."""
-
-    def __init__(self, rewards: list):
-        self.rewards = rewards
-
-    def on_step_taken(self, step, transition, info):
-        self.rewards.append(float(transition.reward))
 
 
 @releasing_holds
