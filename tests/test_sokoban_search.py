@@ -10,7 +10,7 @@ from wmthesis.config import SokobanSearchConfig, for_profile
 from wmthesis.envs.levels import LevelError, board_to_text, fit_board, parse_level, parse_levels, read_levels
 from wmthesis.envs.sokoban import BOX, PLAYER, SokobanEnv, solve
 from wmthesis.sokoban_search import accuracy
-from wmthesis.sokoban_search.agent import SearchAgent, grid_env, level_seeds, random_play
+from wmthesis.sokoban_search.agent import SearchAgent, grid_env, grid_state, level_seeds, random_play
 from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.iteration import fit_model, load_run, train_search_agent
@@ -123,9 +123,67 @@ def test_the_model_expands_every_action_on_any_board_size():
     torch.manual_seed(0)
     model = SokobanModel(7, 8, [-0.1, 0.9], channels=8, blocks=1)
     for shape in ((5, 5), (8, 8), (3, 9)):
-        nxt, rewards, dones = model.expand(np.zeros((2, *shape), np.uint8))
-        assert nxt.shape == (2, 8, *shape) and rewards.shape == dones.shape == (2, 8)
+        nxt, rewards, dones, surprises = model.expand(np.zeros((2, *shape), np.uint8))
+        assert nxt.shape == (2, 8, *shape) and rewards.shape == dones.shape == surprises.shape == (2, 8)
         assert set(np.unique(rewards)) <= {np.float32(-0.1), np.float32(0.9)}
+
+
+def test_the_models_surprise_is_minus_the_log_probability_of_the_board_it_predicts():
+    torch.manual_seed(0)
+    model = SokobanModel(7, 8, [-0.1, 0.9], channels=8, blocks=1)
+    states = np.random.default_rng(0).integers(7, size=(3, 4, 5)).astype(np.uint8)
+    nxt, _, _, surprises = model.expand(states)
+    with torch.no_grad():
+        logits = model(torch.as_tensor(states))[0]  # (B, A, K, h, w)
+    boards = torch.distributions.Categorical(logits=logits.permute(0, 1, 3, 4, 2))
+    expected = -boards.log_prob(torch.as_tensor(nxt).long()).sum((2, 3))
+    assert np.allclose(surprises, expected.numpy(), atol=1e-5) and (surprises > 0).all()
+
+
+class _Liar:
+    """The true rules, except that from ``state`` the action ``action`` is said to lead to
+    ``claimed`` (with ``surprise``): a model's mistake that helps the search."""
+
+    def __init__(self, state, action, claimed, surprise=0.0, done=False):
+        self.key, self.action, self.claimed, self.surprise, self.done = state.tobytes(), action, claimed, surprise, done
+        self.calls = 0
+
+    def expand(self, states):
+        children, rewards, dones, surprises = Simulator().expand(states)
+        for i, state in enumerate(states):
+            if state.tobytes() == self.key:
+                children[i, self.action], dones[i, self.action] = self.claimed, self.done
+                surprises[i, self.action] = self.surprise
+        return children, rewards, dones, surprises
+
+
+def _walk(board, actions):
+    """The inner boards along ``actions`` under the true rules."""
+    states = [board[1:-1, 1:-1]]
+    for action in actions:
+        states.append(Simulator().step(states[-1][None], np.array([action]))[0][0])
+    return states
+
+
+def test_doubt_keeps_the_search_off_a_transition_the_model_is_unsure_of():
+    level = parse_level("########\n#@ $  .#\n########")  # push right three times
+    truth = best_first(Simulator().expand, level[1:-1, 1:-1])
+    states = _walk(level, truth.actions)
+    liar = _Liar(states[0], 2, states[-2], surprise=3.0)  # "left" puts the box next to its target
+    fooled = best_first(liar.expand, states[0], batch=1)  # one node at a time: the order is exact
+    assert fooled.actions == [2, truth.actions[-1]]  # the shortcut through the mistake
+    careful = best_first(liar.expand, states[0], batch=1, doubt=10.0)
+    assert careful.actions == truth.actions
+
+
+def test_the_agent_is_misled_by_a_models_mistake_once_not_at_every_search():
+    level = parse_level("#######\n#@ $ .#\n#######")
+    env = grid_env("sokoban-small")
+    root = grid_state(env, env.reset(options={"board": level})[0])
+    truth = best_first(Simulator().expand, root)
+    liar = _Liar(root, 2, root.copy(), done=True)  # "left" is said to solve the level
+    played = SearchAgent(liar, replans=1).play(env, board=level)
+    assert played.solved and played.searches == 2 and played.actions == [2] + truth.actions
 
 
 @pytest.mark.slow

@@ -268,7 +268,8 @@ class SokobanSearchConfig:
     cell, quantised to one of ``codes`` codes per cell by :mod:`~wmthesis.sokoban_search.cells`).
 
     Search (:mod:`~wmthesis.sokoban_search.search`): ``budget`` nodes per search, ``batch``
-    nodes per model call, priority ``g + weight * h``, at most ``replans`` searches again after
+    nodes per model call, priority ``g + weight * h`` where a step costs ``1 + doubt`` times
+    the model's surprise at its own prediction (nats), at most ``replans`` searches again after
     the real game left the plan. Evaluation: ``eval_levels`` unseen levels per variant.
     """
 
@@ -292,6 +293,7 @@ class SokobanSearchConfig:
     budget: int = 20_000
     batch: int = 64
     weight: float = 3.0
+    doubt: float = 0.0
     replans: int = 4
     eval_levels: int = 500
     seed: int = 0

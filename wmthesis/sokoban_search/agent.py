@@ -2,7 +2,9 @@
 
 The agent searches in its model for a plan to the end of the level, then plays the plan in the
 real environment while the real states match the model's; at the first difference it searches
-again from where it stands (at most ``replans`` times). Every transition it sees is kept, to
+again from where it stands (at most ``replans`` times). It remembers what it saw: in the searches
+that follow, a state and action it has played give the real outcome, not the model's
+(:class:`Remembered`), so a mistake of the model misleads it once, not at every search. Every transition it sees is kept, to
 train the model further; a solved level also labels its states with the steps that remained.
 """
 from __future__ import annotations
@@ -53,17 +55,39 @@ def grid_state(env: SokobanEnv, observation: np.ndarray) -> np.ndarray:
     return GRID.observe(env, observation)
 
 
+class Remembered:
+    """``model`` (anything with ``expand``), with the real transitions seen so far in place of
+    its predictions (and no surprise in them)."""
+
+    def __init__(self, model):
+        self.model, self.seen = model, {}
+
+    def remember(self, state: np.ndarray, action: int, following: np.ndarray, reward: float, done: bool) -> None:
+        self.seen.setdefault(state.tobytes(), {})[int(action)] = (following, reward, done)
+
+    def expand(self, states: np.ndarray):
+        children, rewards, dones, surprises = self.model.expand(states)
+        for i, state in enumerate(states):
+            for action, (following, reward, done) in self.seen.get(state.tobytes(), {}).items():
+                children[i, action], rewards[i, action], dones[i, action] = following, reward, done
+                surprises[i, action] = 0.0
+        return children, rewards, dones, surprises
+
+
 class SearchAgent:
     """Best-first search in ``model`` (a :class:`~wmthesis.sokoban_search.model.SokobanModel` or
     the :class:`~wmthesis.sokoban_search.search.Simulator`: anything with ``expand``), guided by
     ``heuristic`` (steps to go, or None: breadth first), ``budget`` nodes per search, ``batch``
-    per model call; ``inputs`` (:mod:`~wmthesis.sokoban_search.cells`: grid states or pixels)
-    turns what the env shows into the model's state, and makes envs that show it."""
+    per model call, ``weight`` on the heuristic and ``doubt`` on the model's surprise
+    (:func:`~wmthesis.sokoban_search.search.best_first`); ``inputs``
+    (:mod:`~wmthesis.sokoban_search.cells`: grid states or pixels) turns what the env shows into
+    the model's state, and makes envs that show it."""
 
     def __init__(self, model, *, inputs=GRID, heuristic=None, budget: int = 20_000,
-                 batch: int = 64, weight: float = 1.0, replans: int = 4):
+                 batch: int = 64, weight: float = 1.0, doubt: float = 0.0, replans: int = 4):
         self.model, self.inputs = model, inputs
         self.heuristic, self.budget, self.batch, self.weight, self.replans = heuristic, budget, batch, weight, replans
+        self.doubt = doubt
 
     def env(self, variant: str) -> SokobanEnv:
         """Variant ``variant`` showing what this agent sees."""
@@ -77,9 +101,10 @@ class SearchAgent:
         state = self.inputs.observe(env, observation)
         rows = {k: [] for k in ("states", "actions", "next_states", "rewards", "dones")}
         taken, expanded, generated, searches, solved, over = [], 0, 0, 0, False, False
+        model = Remembered(self.model)
         while not (solved or over) and searches <= self.replans:
-            result = best_first(self.model.expand, state, heuristic=self.heuristic, budget=self.budget,
-                                batch=self.batch, weight=self.weight)
+            result = best_first(model.expand, state, heuristic=self.heuristic, budget=self.budget,
+                                batch=self.batch, weight=self.weight, doubt=self.doubt)
             searches, expanded, generated = searches + 1, expanded + result.expanded, generated + result.generated
             if not result.found:
                 break
@@ -88,6 +113,7 @@ class SearchAgent:
                 following = self.inputs.observe(env, observation)
                 for key, value in zip(rows, (state, action, following, reward, solved)):
                     rows[key].append(value)
+                model.remember(state, action, following, reward, solved)
                 taken.append(action)
                 state = following
                 if solved or over or not np.array_equal(following, predicted):
@@ -128,4 +154,4 @@ def level_seeds(seed: int, purpose: int, n: int) -> list[int]:
     return [int(s) for s in derive_seeds(seed, 7_000_000 + purpose, n=n)]
 
 
-__all__ = ["SearchAgent", "Play", "random_play", "grid_env", "grid_state", "level_seeds"]
+__all__ = ["SearchAgent", "Remembered", "Play", "random_play", "grid_env", "grid_state", "level_seeds"]

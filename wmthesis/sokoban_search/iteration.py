@@ -6,6 +6,12 @@ A run lives in one folder: ``experience.h5`` (:class:`~wmthesis.sokoban_search.e
 and ``state.pt``, written after random play and after every round (the model's and the value's
 weights, the optimisers, the round reached and the history). Re-running resumes after the last
 finished round; rows of a round that was cut off are dropped first, so the result is the same.
+
+The value starts afresh each round, trained on every level solved so far. Carrying it over from
+round to round (as the model is) left it fitted to the early rounds' short solutions: with the
+true rules and the same search, the carried-over value of a quick run solved 80 of 100 unseen
+10x10 levels; fresh ones trained on the same solved levels, 86 to 92 (3 seeds, 1,000-2,000
+updates).
 """
 from __future__ import annotations
 
@@ -52,7 +58,7 @@ class Run:
         heuristic = self.heuristic.estimate if self.heuristic is not None else None
         return SearchAgent(model if model is not None else self.model, inputs=inputs or self.inputs,
                            heuristic=heuristic, budget=cfg.budget, batch=cfg.batch, weight=cfg.weight,
-                           replans=cfg.replans)
+                           doubt=cfg.doubt, replans=cfg.replans)
 
 
 def schedule(cfg: SokobanSearchConfig) -> list[tuple[str, int]]:
@@ -120,10 +126,9 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
             experience.add("to_go", number, states=states, labels=steps_to_go(states))
     rng = np.random.default_rng([cfg.seed, number])
     losses = fit_model(run.model, experience, cfg, cfg.round_updates, rng, f"model (round {number})", progress)
-    if experience.count("to_go"):
-        if run.heuristic is None:
-            torch.manual_seed(cfg.seed + 1)
-            run.heuristic = Heuristic(n_codes(cfg), cfg.value_channels, cfg.value_blocks).to(device())
+    if experience.count("to_go"):  # a fresh value each round (see the module's docstring)
+        torch.manual_seed(cfg.seed + number)
+        run.heuristic = Heuristic(n_codes(cfg), cfg.value_channels, cfg.value_blocks).to(device())
         value_error = fit_heuristic(run.heuristic, experience, cfg, rng, f"value (round {number})", progress)
     else:
         value_error = None

@@ -63,17 +63,20 @@ class SokobanModel(nn.Module):
     @torch.no_grad()
     def expand(self, states: np.ndarray):
         """Every action's outcome, numpy: states uint8 (B, h, w) -> next states uint8
-        (B, A, h, w) (the likeliest code per cell), rewards float32 (B, A), ends bool (B, A)."""
+        (B, A, h, w) (the likeliest code per cell), rewards float32 (B, A), ends bool (B, A), and
+        surprises float32 (B, A): -log of the predicted board's probability (the sum over cells of
+        -log of the chosen code's probability), the model's doubt about its own prediction."""
         self.eval()
         next_logits, reward_logits, done_logit = self(torch.as_tensor(states, device=self.rewards.device))
-        return (next_logits.argmax(2).to(torch.uint8).cpu().numpy(),
-                self.rewards[reward_logits.argmax(2)].cpu().numpy(), (done_logit > 0).cpu().numpy())
+        log_p, codes = next_logits.log_softmax(2).max(2)
+        return (codes.to(torch.uint8).cpu().numpy(), self.rewards[reward_logits.argmax(2)].cpu().numpy(),
+                (done_logit > 0).cpu().numpy(), (-log_p).sum((2, 3)).cpu().numpy())
 
     def step(self, states: np.ndarray, actions: np.ndarray):
         """One action per state: states uint8 (B, h, w), actions (B,) -> next states (B, h, w),
         rewards (B,), ends (B,)."""
         rows, actions = np.arange(len(states)), np.asarray(actions, dtype=np.int64)
-        return tuple(x[rows, actions] for x in self.expand(states))
+        return tuple(x[rows, actions] for x in self.expand(states)[:3])
 
     def taken(self, batch: dict):
         """The logits of the actions in ``batch``: next (B, K, h, w), reward (B, R), end (B,)."""

@@ -1,15 +1,20 @@
 """Best-first search in a model with discrete states, batched (what MCTS is to one state at a
 time, this is to a batch: one model call expands ``batch`` nodes by every action).
 
-The model is any ``expand(states) -> (next_states, rewards, dones)``: uint8 states (B, h, w) to
-every action's outcome, (B, A, h, w), (B, A) and (B, A): the learned :class:`~wmthesis.sokoban_search.model.SokobanModel`, or the true rules
-(:class:`Simulator`, the upper bound with the same search). States are hashed by their bytes, so
+The model is any ``expand(states) -> (next_states, rewards, dones, surprises)``: uint8 states
+(B, h, w) to every action's outcome, (B, A, h, w), (B, A), (B, A) and the model's doubt about
+each predicted board (B, A), ``-log p(board)``: the learned
+:class:`~wmthesis.sokoban_search.model.SokobanModel`, or the true rules (:class:`Simulator`, the
+upper bound with the same search, never in doubt). States are hashed by their bytes, so
 a state reached twice is expanded once; a discrete model makes that possible where a continuous
 latent (the thesis's LSTM state) could not.
 
-Priority ``f = g + weight * h``: ``g`` the steps from the root, ``h`` a learned estimate of the
+Priority ``f = g + weight * h``: ``g`` the cost from the root, ``h`` a learned estimate of the
 steps still to go (:class:`~wmthesis.sokoban_search.heuristic.Heuristic`); without one, the
-search is breadth first. The goal is a transition the model predicts to end the episode.
+search is breadth first. A step costs ``1 + doubt * surprise``: a search left to itself finds
+the model's rare mistakes and prefers the ones that help it (a box that vanishes is a box
+solved), so a transition the model is unsure of costs more, in proportion to its doubt. The goal
+is a transition the model predicts to end the episode.
 """
 from __future__ import annotations
 
@@ -42,42 +47,56 @@ class SearchResult:
 
 
 def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000, batch: int = 64,
-               weight: float = 1.0) -> SearchResult:
+               weight: float = 1.0, doubt: float = 0.0) -> SearchResult:
     """Search from ``root`` (uint8 (h, w)) for a transition that ``expand`` predicts to end the
     episode, expanding at most ``budget`` nodes, ``batch`` at a time (the lowest ``f`` first,
-    first-in first-out on ties). ``heuristic(states (B, h, w)) -> steps to go (B,)``."""
+    first-in first-out on ties). ``heuristic(states (B, h, w)) -> steps to go (B,)``; ``doubt``
+    the cost of one nat of the model's surprise."""
     start = time.perf_counter()
     root = np.ascontiguousarray(root, dtype=np.uint8)
-    states, parents, actions, depth = [root], [-1], [-1], [0]
-    seen = {root.tobytes()}
+    states, parents, actions, cost, estimate = [root], [-1], [-1], [0.0], [0.0]
+    index, closed = {root.tobytes(): 0}, set()
     order = itertools.count()
     frontier = [(0.0, next(order), 0)]
     expanded = generated = 0
     while frontier and expanded < budget:
-        picked = [heapq.heappop(frontier)[2] for _ in range(min(batch, len(frontier), budget - expanded))]
+        picked = []
+        while frontier and len(picked) < min(batch, budget - expanded):
+            f, _, i = heapq.heappop(frontier)
+            if i not in closed and f <= cost[i] + weight * estimate[i] + 1e-9:  # else a stale entry
+                picked.append(i)
+                closed.add(i)
+        if not picked:
+            break
         expanded += len(picked)
-        children, _, dones = expand(np.stack([states[i] for i in picked]))
+        children, _, dones, surprises = expand(np.stack([states[i] for i in picked]))
         generated += dones.size
-        fresh = []
+        fresh, improved = [], set()
         for (k, action), child in zip(np.ndindex(dones.shape), children.reshape(-1, *root.shape)):
             parent = picked[k]
             if dones[k, action]:
                 plan = _path(parents, actions, parent) + [action]
                 path_states = np.stack([states[i] for i in _nodes(parents, parent)] + [child])
                 return SearchResult(plan, path_states, expanded, generated, time.perf_counter() - start)
+            step = cost[parent] + 1.0 + doubt * float(surprises[k, action])
             key = child.tobytes()
-            if key in seen:
-                continue
-            seen.add(key)
-            states.append(child)
-            parents.append(parent)
-            actions.append(action)
-            depth.append(depth[parent] + 1)
-            fresh.append(len(states) - 1)
-        if fresh:
-            h = heuristic(np.stack([states[i] for i in fresh])) if heuristic is not None else np.zeros(len(fresh))
-            for i, estimate in zip(fresh, np.asarray(h, dtype=np.float64)):
-                heapq.heappush(frontier, (depth[i] + weight * float(estimate), next(order), i))
+            if key not in index:
+                index[key] = len(states)
+                states.append(child)
+                parents.append(parent)
+                actions.append(action)
+                cost.append(step)
+                estimate.append(0.0)
+                fresh.append(len(states) - 1)
+            elif step < cost[index[key]] - 1e-9 and index[key] not in closed:  # a cheaper way to an open node
+                j = index[key]
+                parents[j], actions[j], cost[j] = parent, action, step
+                improved.add(j)
+        if fresh and heuristic is not None:
+            for i, h in zip(fresh, np.asarray(heuristic(np.stack([states[i] for i in fresh])), dtype=np.float64)):
+                estimate[i] = float(h)
+        for i in fresh + sorted(improved - set(fresh)):
+            heapq.heappush(frontier, (cost[i] + weight * estimate[i], next(order), i))
     return SearchResult(None, None, expanded, generated, time.perf_counter() - start,
                         {"exhausted": not frontier})
 
@@ -104,11 +123,13 @@ class Simulator:
     n_actions = 8
 
     def expand(self, states: np.ndarray):
-        """Every action's outcome: (B, h, w) -> (B, A, h, w), (B, A), (B, A)."""
+        """Every action's outcome: (B, h, w) -> (B, A, h, w), (B, A), (B, A), and no surprise
+        (B, A) zeros."""
         states = np.asarray(states, dtype=np.uint8)
         b, a = len(states), self.n_actions
         children, rewards, dones = self.step(np.repeat(states, a, axis=0), np.tile(np.arange(a), b))
-        return children.reshape(b, a, *states.shape[1:]), rewards.reshape(b, a), dones.reshape(b, a)
+        return (children.reshape(b, a, *states.shape[1:]), rewards.reshape(b, a), dones.reshape(b, a),
+                np.zeros((b, a), np.float32))
 
     def step(self, states: np.ndarray, actions: np.ndarray):
         """One action per state: (B, h, w), (B,) -> (B, h, w), (B,), (B,)."""
