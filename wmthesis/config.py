@@ -293,7 +293,7 @@ class SokobanSearchConfig:
     budget: int = 20_000
     batch: int = 64
     weight: float = 3.0
-    doubt: float = 0.0
+    doubt: float = 20.0
     replans: int = 4
     eval_levels: int = 500
     seed: int = 0
