@@ -142,8 +142,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
 def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval: int, updates: int) -> list[float]:
     """``n_eval`` greedy planner episodes (seeds from (seed, 2, k), apart from training's
     tests); cached in ``evaluation.json`` for the checkpoint's number of updates."""
-    from wmthesis.planet.train import PlanetMind, make_planet_env
-    from wmthesis.core import loop
+    from wmthesis.planet.train import make_planet_env, play_greedy
 
     path = work / "evaluation.json"
     cached = _read_json(path)
@@ -154,10 +153,7 @@ def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval
     try:
         for k in range(n_eval):
             env_seed, mind_seed = derive_seeds(seed, 2, k, n=2)
-            mind = PlanetMind.from_config(model, config, int(mind_seed))
-            history = loop(env, mind, policy="deterministic",
-                           callbacks=[mind], seed=int(env_seed), train_mode=False)
-            returns.append(float(history[0]["return"]))
+            returns.append(float(sum(play_greedy(env, model, config, env_seed, mind_seed))))
     finally:
         env.close()
     with atomic_path(path) as tmp:

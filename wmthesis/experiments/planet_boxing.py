@@ -60,7 +60,7 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
     ``summary`` (:func:`~wmthesis.planet.study.summarise`), ``errors`` and ``diagnostics`` per
     run, ``files``."""
     from wmthesis.data import EpisodeStore
-    from wmthesis.planet.figures import study_error_figure, study_pictures_figure
+    from wmthesis.planet.figures import study_error_figure, study_label, study_pictures_figure
     from wmthesis.planet.study import STUDY_VARIANTS, held_out_store, scene, score_run, summarise
 
     profile = profile_name(profile)
@@ -85,7 +85,7 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
     figures = [save_figure(study_error_figure(scores, title="Boxing: open-loop error on the moving pixels "
                                                            f"(held-out bouts, {len(seeds)} seeds)"),
                            out / "study_error.png"),
-               save_figure(study_pictures_figure({_label(scores[v][0]): scores[v][0]["rollout"] for v in STUDY_VARIANTS},
+               save_figure(study_pictures_figure({study_label(scores[v][0], "\n"): scores[v][0]["rollout"] for v in STUDY_VARIANTS},
                                                  columns=sizes["context"] + min(sizes["horizon"], 10)),
                            out / "study_pictures.png")]
     rollouts = {v: scores[v][0]["rollout"] for v in STUDY_VARIANTS}
@@ -108,30 +108,25 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
     return metrics
 
 
-def _label(run: dict) -> str:
-    return f"KL {run['kl_scale']:g}\nfree nats {run['free_nats']:g}"
-
-
 # ---------------------------------------------------------------------------- the agent
 def play_bout(env_name: str, config: PlaNetConfig, run_dir: Path | None, env_seed: int, mind_seed: int) -> dict:
     """One full episode, greedy PlaNet from ``run_dir`` (random play when None): its
     ``return``, the return of its first :data:`FIRST_STEPS` steps, and its ``steps``."""
     from wmthesis.core import RandomMind, loop
-    from wmthesis.planet.train import PlanetMind, load_planet, make_planet_env
+    from wmthesis.planet.train import load_planet, make_planet_env, play_greedy
 
     env = make_planet_env(env_name, config)
-    record = EpisodeBuffer()
     try:
         if run_dir is None:
-            mind, callbacks = RandomMind(env.action_space.n, seed=mind_seed), []
+            record = EpisodeBuffer()
+            loop(env, RandomMind(env.action_space.n, seed=mind_seed), policy="deterministic", callbacks=[record],
+                 seed=env_seed, train_mode=False)
+            rewards = [float(r) for r in record.episode["rewards"]]
         else:
             model, trained, _ = load_planet(run_dir)
-            mind = PlanetMind.from_config(model, trained, mind_seed)
-            callbacks = [mind]
-        loop(env, mind, policy="deterministic", callbacks=[*callbacks, record], seed=env_seed, train_mode=False)
+            rewards = play_greedy(env, model, trained, env_seed, mind_seed)
     finally:
         env.close()
-    rewards = [float(r) for r in record.episode["rewards"]]
     return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
 
 

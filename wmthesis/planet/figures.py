@@ -95,7 +95,7 @@ def study_error_figure(scores: dict[str, list[dict]], *, title: str | None = Non
     for variant, runs in scores.items():
         errors = np.array([run["errors"]["model"] for run in runs])
         steps = np.arange(1, errors.shape[1] + 1)
-        (line,) = ax.plot(steps, errors.mean(0), marker=".", label=_study_label(runs[0]))
+        (line,) = ax.plot(steps, errors.mean(0), marker=".", label=study_label(runs[0]))
         ax.fill_between(steps, errors.min(0), errors.max(0), alpha=0.25, color=line.get_color())
     first = next(iter(scores.values()))[0]["errors"]
     for name, style in (("repeat last", "--"), ("mean frame", ":")):
@@ -110,8 +110,9 @@ def study_error_figure(scores: dict[str, list[dict]], *, title: str | None = Non
     return fig
 
 
-def _study_label(run: dict) -> str:
-    return f"KL scale {run['kl_scale']:g}, free nats {run['free_nats']:g}"
+def study_label(run: dict, separator: str = ", ") -> str:
+    """A study run's setting, e.g. "KL scale 0.03, free nats 12"."""
+    return f"KL scale {run['kl_scale']:g}{separator}free nats {run['free_nats']:g}"
 
 
 def study_pictures_figure(rollouts: dict[str, dict], *, sequence: int = 0, columns: int = 15,

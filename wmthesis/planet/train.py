@@ -178,6 +178,15 @@ class PlanetMind(Mind, Callback):
         return scores
 
 
+def play_greedy(env, model: RSSM, config: PlaNetConfig, env_seed: int, mind_seed: int) -> list[float]:
+    """One greedy planner episode in ``env`` (reset with ``env_seed``; CEM's noise from
+    ``mind_seed``): its rewards, one per agent step."""
+    mind = PlanetMind.from_config(model, config, int(mind_seed))
+    record = EpisodeBuffer()
+    loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
+    return [float(r) for r in record.episode["rewards"]]
+
+
 # ---------------------------------------------------------------------------- training
 class _RunState:
     """What a checkpoint holds besides the model and optimiser."""
@@ -348,10 +357,7 @@ def _test(env, model: RSSM, config: PlaNetConfig, seed: int, store: EpisodeStore
     model.eval()
     for k in range(config.test_episodes):
         env_seed, mind_seed = derive_seeds(seed, 1, len(store), k, n=2)
-        mind = PlanetMind.from_config(model, config, int(mind_seed))
-        history = loop(env, mind, policy="deterministic",
-                       callbacks=[mind], seed=int(env_seed), train_mode=False)
-        returns.append(history[0]["return"])
+        returns.append(float(sum(play_greedy(env, model, config, env_seed, mind_seed))))
     return {"episode": len(store) - 1, "env_steps": store.num_steps,
             "frames": store.num_steps * _repeat(store, config), "updates": run.updates,
             "returns": returns, "mean": float(np.mean(returns)), "std": float(np.std(returns))}
@@ -435,5 +441,5 @@ def _results(run_dir: Path, env_name, config, store: EpisodeStore, run: _RunStat
             "seconds": run.seconds, "curve": run.curve, "final_test": tests[-1] if tests else None}
 
 
-__all__ = ["train_planet", "train_updates", "batch_loss", "PlanetMind", "VARIANTS", "with_variant", "make_planet_env",
+__all__ = ["train_planet", "train_updates", "batch_loss", "PlanetMind", "play_greedy", "VARIANTS", "with_variant", "make_planet_env",
            "planet_frame", "PlanetFrames", "build_model", "load_planet"]
