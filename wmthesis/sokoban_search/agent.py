@@ -4,8 +4,9 @@ The agent searches in its model for a plan to the end of the level, then plays t
 real environment while the real states match the model's; at the first difference it searches
 again from where it stands (at most ``replans`` times). It remembers what it saw: in the searches
 that follow, a state and action it has played give the real outcome, not the model's
-(:class:`Remembered`), so a mistake of the model misleads it once, not at every search. Every transition it sees is kept, to
-train the model further; a solved level also labels its states with the steps that remained.
+(:class:`Remembered`), so a mistake of the model misleads it once, not at every search. Every
+transition it sees is kept, to train the model further; a solved level also labels its states
+with the steps that remained.
 """
 from __future__ import annotations
 
@@ -57,7 +58,8 @@ def grid_state(env: SokobanEnv, observation: np.ndarray) -> np.ndarray:
 
 class Remembered:
     """``model`` (anything with ``expand``), with the real transitions seen so far in place of
-    its predictions (and no surprise in them)."""
+    its predictions (and no surprise in them). ``remember(state (h, w), action, following
+    (h, w), reward, done)``; ``expand`` as the model's."""
 
     def __init__(self, model):
         self.model, self.seen = model, {}

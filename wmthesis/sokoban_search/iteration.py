@@ -10,8 +10,8 @@ finished round; rows of a round that was cut off are dropped first, so the resul
 The value starts afresh each round, trained on every level solved so far. Carrying it over from
 round to round (as the model is) left it fitted to the early rounds' short solutions: with the
 true rules and the same search, the carried-over value of a quick run solved 80 of 100 unseen
-10x10 levels; fresh ones trained on the same solved levels, 86 to 92 (3 seeds, 1,000-2,000
-updates).
+10x10 levels; fresh ones trained on the same solved levels, 86 to 92 (1,000 to 4,000 updates,
+two seeds).
 """
 from __future__ import annotations
 

@@ -98,7 +98,7 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
         for i in fresh + sorted(improved - set(fresh)):
             heapq.heappush(frontier, (cost[i] + weight * estimate[i], next(order), i))
     return SearchResult(None, None, expanded, generated, time.perf_counter() - start,
-                        {"exhausted": not frontier})
+                        {"exhausted": expanded < budget})  # the frontier ran dry first
 
 
 def _nodes(parents: list[int], node: int) -> list[int]:
