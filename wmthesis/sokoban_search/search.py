@@ -78,19 +78,19 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
                 plan = _path(parents, actions, parent) + [action]
                 path_states = np.stack([states[i] for i in _nodes(parents, parent)] + [child])
                 return SearchResult(plan, path_states, expanded, generated, time.perf_counter() - start)
-            step = cost[parent] + 1.0 + doubt * float(surprises[k, action])
+            through = cost[parent] + 1.0 + doubt * float(surprises[k, action])  # the cost of reaching child this way
             key = child.tobytes()
             if key not in index:
                 index[key] = len(states)
                 states.append(child)
                 parents.append(parent)
                 actions.append(action)
-                cost.append(step)
+                cost.append(through)
                 estimate.append(0.0)
                 fresh.append(len(states) - 1)
-            elif step < cost[index[key]] - 1e-9 and index[key] not in closed:  # a cheaper way to an open node
+            elif through < cost[index[key]] - 1e-9 and index[key] not in closed:  # a cheaper way to an open node
                 j = index[key]
-                parents[j], actions[j], cost[j] = parent, action, step
+                parents[j], actions[j], cost[j] = parent, action, through
                 improved.add(j)
         if fresh and heuristic is not None:
             for i, h in zip(fresh, np.asarray(heuristic(np.stack([states[i] for i in fresh])), dtype=np.float64)):
