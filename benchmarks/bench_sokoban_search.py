@@ -8,6 +8,9 @@ Rows:
   1, 16, 64 and 256 random boards of the ``sokoban`` (8x8 inner cells) and ``sokoban-small``
   (5x5) sizes, at the default model size (64 channels, 2 blocks, randomly initialised: speed
   does not depend on the weights). ``transitions/s`` counts board x action pairs.
+- ``model expand, seen changes``: the same with the count changes of random play on 20
+  ``sokoban-small`` levels seen (:meth:`SokobanModel.see_changes`), so that every prediction
+  is also checked against them, as in a trained model.
 - ``search``: breadth-first :func:`best_first` from ``--levels`` generated levels of each
   variant with the learned-model interface (the random model above, its end logits pinned
   negative and its skip connection off: the search never finds an end and its children are new
@@ -20,6 +23,7 @@ Runs on torch's default threads (the machine's cores). Writes ``benchmarks/resul
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 import time
 from pathlib import Path
@@ -29,7 +33,7 @@ import torch
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.sokoban_search.agent import grid_env, grid_state, level_seeds  # noqa: E402
+from wmthesis.sokoban_search.agent import grid_env, grid_state, level_seeds, random_play  # noqa: E402
 from wmthesis.sokoban_search.model import SokobanModel  # noqa: E402
 from wmthesis.sokoban_search.search import Simulator, best_first  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
@@ -38,7 +42,7 @@ SIZES = {"sokoban": (8, 8), "sokoban-small": (5, 5)}
 REWARDS = (-1.1, -0.1, 0.9, 10.9)
 
 
-def expand_rows(model: SokobanModel, rng: np.random.Generator) -> list[dict]:
+def expand_rows(model: SokobanModel, rng: np.random.Generator, name: str = "model expand") -> list[dict]:
     rows = []
     for variant, shape in SIZES.items():
         for batch in (1, 16, 64, 256):
@@ -49,7 +53,7 @@ def expand_rows(model: SokobanModel, rng: np.random.Generator) -> list[dict]:
                 model.expand(states)
                 calls += 1
             seconds = (time.perf_counter() - start) / calls
-            rows.append(dict(row="model expand", variant=variant, batch=batch, ms_per_call=1e3 * seconds,
+            rows.append(dict(row=name, variant=variant, batch=batch, ms_per_call=1e3 * seconds,
                              transitions_per_s=batch * model.n_actions / seconds))
     return rows
 
@@ -81,7 +85,12 @@ def main(argv=None) -> int:
     with torch.no_grad():  # a random model that never predicts an end and whose children differ,
         model.event_head[-1].bias.view(model.n_actions, -1)[:, -1] = -1e4  # so that a search
         model.copy.zero_()                                                 # runs its whole budget
-    rows = expand_rows(model, np.random.default_rng(args.seed)) + search_rows(model, args.levels, args.budget, args.seed)
+    checking = copy.deepcopy(model)
+    played = random_play("sokoban-small", args.seed, 20)
+    checking.see_changes(played["states"], played["next_states"])
+    rows = (expand_rows(model, np.random.default_rng(args.seed))
+            + expand_rows(checking, np.random.default_rng(args.seed), "model expand, seen changes")
+            + search_rows(model, args.levels, args.budget, args.seed))
     print_table(rows)
     write_results(args.out, machine_meta(threads=torch.get_num_threads(), levels=args.levels, budget=args.budget), rows)
     return 0

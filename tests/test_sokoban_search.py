@@ -8,7 +8,7 @@ import torch
 
 from wmthesis.config import SokobanSearchConfig, for_profile
 from wmthesis.envs.levels import LevelError, board_to_text, fit_board, parse_level, parse_levels, read_levels
-from wmthesis.envs.sokoban import BOX, PLAYER, SokobanEnv, solve
+from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, SokobanEnv, solve
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import SearchAgent, grid_env, grid_state, level_seeds, random_play
 from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
@@ -138,6 +138,28 @@ def test_the_models_surprise_is_minus_the_log_probability_of_the_board_it_predic
     boards = torch.distributions.Categorical(logits=logits.permute(0, 1, 3, 4, 2))
     expected = -boards.log_prob(torch.as_tensor(nxt).long()).sum((2, 3))
     assert np.allclose(surprises, expected.numpy(), atol=1e-5) and (surprises > 0).all()
+
+
+def test_a_prediction_whose_count_change_was_never_seen_is_blocked():
+    rows = random_play("sokoban-small", 0, 30)
+    model = SokobanModel(7, 8, [-0.1], channels=8, blocks=1)
+    model.see_changes(rows["states"], rows["next_states"])
+    larger = random_play("sokoban", 1, 10)  # count changes do not depend on the board's size
+    assert set(map(tuple, model.count_changes(torch.as_tensor(larger["states"]),
+                                              torch.as_tensor(larger["next_states"])).tolist())) \
+        <= set(map(tuple, model.changes.tolist()))
+    moved = int(np.flatnonzero((rows["states"] != rows["next_states"]).any((1, 2)))[0])
+    state, real = rows["states"][moved], rows["next_states"][moved]
+    vanished = np.where(state == PLAYER, FLOOR, state).astype(np.uint8)  # the player gone
+    claims = np.stack([vanished, real] + [state] * 6)  # what the model is made to predict per action
+
+    def forward(x):
+        logits = 20.0 * torch.nn.functional.one_hot(torch.as_tensor(claims).long(), 7).permute(0, 3, 1, 2)
+        return logits[None].float(), torch.zeros(1, 8, 1), torch.full((1, 8), 5.0)  # every action "ends"
+    model.forward = forward
+    children, _, dones, surprises = model.expand(state[None])
+    assert np.array_equal(children[0, 0], state) and not dones[0, 0] and surprises[0, 0] == 0  # blocked
+    assert np.array_equal(children[0, 1], real) and dones[0, 1]  # a change seen in real play stands
 
 
 class _Liar:

@@ -36,7 +36,7 @@ from wmthesis.training import check_same_config, gradient_step
 from wmthesis.utils import atomic_path, check_choice, device
 
 N_ACTIONS = 8
-STATE_VERSION = 1
+STATE_VERSION = 2  # 2: the model keeps the count changes it has seen
 INPUTS = ("grid", "pixels")
 
 
@@ -181,8 +181,10 @@ def _optimise(module, losses, batches, updates: int, lr: float, desc: str, progr
 
 def fit_model(model: SokobanModel, experience: Experience, cfg: SokobanSearchConfig, updates: int,
               rng: np.random.Generator, desc: str = "model", progress: bool = True) -> dict:
-    """Train ``model`` on every transition of ``experience``."""
+    """Train ``model`` on every transition of ``experience`` (and let it see their count changes)."""
     groups = experience.arrays("transitions")
+    for group in groups.values():
+        model.see_changes(group["states"], group["next_states"])
     values, counts = np.unique(np.concatenate([g["rewards"] for g in groups.values()]), return_counts=True)
     commonest = values[counts.argmax()]  # the step penalty; the rest are events worth oversampling
     batches = _batches(groups, cfg.batch_size, rng, cfg.event_fraction, lambda g: g["rewards"] != commonest)
