@@ -13,6 +13,7 @@ from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import SearchAgent, grid_env, grid_state, level_seeds, random_play
 from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
 from wmthesis.sokoban_search.experience import Experience
+from wmthesis.sokoban_search.heuristic import turned
 from wmthesis.sokoban_search.iteration import fit_model, load_run, train_search_agent
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.search import Simulator, best_first
@@ -107,6 +108,16 @@ def test_a_heuristic_cuts_the_nodes_a_search_expands():
 
     guided = best_first(Simulator().expand, level, heuristic=boxes_off_target, budget=50_000)
     assert guided.found and guided.expanded < blind.expanded
+
+
+def test_the_values_symmetries_are_the_squares_eight_and_keep_a_levels_shortest_solution():
+    env = grid_env("sokoban-small")
+    root = grid_state(env, env.reset(seed=3)[0])
+    boards = [turned(torch.as_tensor(root)[None], k, m)[0].numpy() for k in range(4) for m in (False, True)]
+    assert len({b.tobytes() for b in boards}) == 8 and np.array_equal(boards[0], root)
+    assert np.array_equal(boards[2], np.rot90(root)) and np.array_equal(boards[3], np.rot90(root).T)
+    shortest = {len(best_first(Simulator().expand, b, budget=50_000).actions) for b in boards}
+    assert len(shortest) == 1  # so the steps to go, the value's label, holds for every symmetry
 
 
 def test_the_search_stops_at_its_budget_and_says_it_found_nothing():

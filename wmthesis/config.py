@@ -262,7 +262,7 @@ class SokobanSearchConfig:
     ``event_fraction`` of transitions whose reward is not the step penalty) after random play,
     ``round_updates`` more after each round. Value (:mod:`~wmthesis.sokoban_search.heuristic`):
     ``value_channels`` x ``value_blocks``, ``value_updates`` after each round on every labelled
-    state so far.
+    state so far, shown in the board's 8 symmetries if ``value_symmetries``.
 
     Inputs: ``grid`` states (5.3.2) or ``pixels`` (5.3.1: RGB frames of ``tile_size`` pixels a
     cell, quantised to one of ``codes`` codes per cell by :mod:`~wmthesis.sokoban_search.cells`).
@@ -290,6 +290,7 @@ class SokobanSearchConfig:
     value_channels: int = 32
     value_blocks: int = 2
     value_updates: int = 1500
+    value_symmetries: bool = True
     budget: int = 20_000
     batch: int = 64
     weight: float = 3.0
@@ -339,7 +340,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         # Two runs (grid, pixels) side by side on one core each: ~25 minutes of training, then
         # 500 unseen levels of each variant for each agent and the true rules.
         "SokobanSearchConfig": dict(random_levels=1000, rounds=3, levels_per_round=250, model_updates=3000,
-                                    round_updates=1000, value_updates=1000, budget=10_000),
+                                    round_updates=500, value_updates=1000, budget=20_000),
     },
     "thesis": {},
 }

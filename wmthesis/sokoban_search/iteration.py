@@ -30,7 +30,7 @@ from wmthesis.envs.sokoban import CELL_NAMES
 from wmthesis.sokoban_search.agent import SearchAgent, level_seeds, random_play
 from wmthesis.sokoban_search.cells import GRID, CellCoder, GridInputs, PixelInputs, fit_coder, render_cells
 from wmthesis.sokoban_search.experience import Experience
-from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go
+from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.training import check_same_config, gradient_step
 from wmthesis.utils import atomic_path, check_choice, device
@@ -193,10 +193,14 @@ def fit_model(model: SokobanModel, experience: Experience, cfg: SokobanSearchCon
 
 def fit_heuristic(heuristic: Heuristic, experience: Experience, cfg: SokobanSearchConfig,
                   rng: np.random.Generator, desc: str = "value", progress: bool = True) -> float:
-    """Train the value on every labelled state; returns its mean absolute error (steps)."""
+    """Train the value on every labelled state (each batch in a random one of the board's
+    symmetries if ``cfg.value_symmetries``); returns its mean absolute error (steps)."""
     groups = {k: {"states": g["states"], "to_go": g["labels"]} for k, g in experience.arrays("to_go").items()}
-    kept = _optimise(heuristic, heuristic.losses, _batches(groups, cfg.batch_size, rng), cfg.value_updates,
-                     cfg.lr, desc, progress)
+    batches = _batches(groups, cfg.batch_size, rng)
+    if cfg.value_symmetries:
+        batches = ({**batch, "states": turned(batch["states"], int(rng.integers(4)), bool(rng.integers(2)))}
+                   for batch in batches)
+    kept = _optimise(heuristic, heuristic.losses, batches, cfg.value_updates, cfg.lr, desc, progress)
     return kept["abs_error"]
 
 
