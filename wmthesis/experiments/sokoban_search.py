@@ -30,6 +30,7 @@ SOKOBAN_SEARCH_REFERENCE = {
     "DRC (Guez et al. 2019)": "about 99% of unfiltered Boxoban, after about 1e9 environment steps",
 }
 EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
+EVAL_PARTS = 2  # each evaluation in parts (every other level), so that two processes share them evenly
 # Issue 14's targets in quick: (variant, inputs, lowest solve rate); fewer than 1M env steps.
 SOKOBAN_SEARCH_TARGETS = (("sokoban-small", "grid", 0.95), ("sokoban-small", "pixels", 0.95),
                           ("sokoban", "pixels", 0.90))
@@ -70,11 +71,12 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     runs = {name: load_run(work / name, cfg) for name, cfg in configs.items()}
     tables, model_accuracy, solutions = {}, {}, {}
     seeds = level_seeds(seed, EVAL_PURPOSE, grid_cfg.eval_levels)
-    evaluations = {(name, variant): (work / name / f"eval-{variant}.json", (work / name, configs[name], variant, seeds))
-                   for name in configs for variant in grid_cfg.variants}
-    evaluations.update({("simulator", variant): (work / f"simulator-{variant}.json",
-                                                 (work / "grid", grid_cfg, variant, seeds, True))
-                        for variant in grid_cfg.variants})
+    agents = {"grid": (work / "grid", grid_cfg, False), "pixels": (work / "pixels", configs["pixels"], False),
+              "simulator": (work / "grid", grid_cfg, True)}  # the grid run's value with the true rules
+    evaluations = {(name, variant, part): (work / f"eval-{name}-{variant}-{part}.json",
+                                           (folder, cfg, variant, seeds[part::EVAL_PARTS], simulator))
+                   for variant in reversed(grid_cfg.variants) for name, (folder, cfg, simulator) in agents.items()
+                   for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
     missing = [key for key, (path, _) in evaluations.items() if _read_json(path) is None]
 
     def keep(index: int, result: dict) -> None:  # each evaluation is saved as it finishes
@@ -83,7 +85,8 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
 
     parallel_calls([(_evaluate, *evaluations[key][1]) for key in missing], progress, keep)
     for variant in grid_cfg.variants:
-        played = {name: _read_json(evaluations[name, variant][0]) for name in ("grid", "pixels", "simulator")}
+        played = {name: _merged([_read_json(evaluations[name, variant, part][0]) for part in range(EVAL_PARTS)], seeds)
+                  for name in agents}
         tables[variant] = {"random play": _cached(work / f"random-{variant}.json", random_row, variant, seeds),
                            "thesis": {"solve_rate": THESIS_SOLVED},
                            "agent, learned model (grid)": played["grid"]["row"],
@@ -121,11 +124,17 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
 
 def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -> dict:
     """The run in ``folder`` (with the true rules in place of its model if ``simulator``) on the
-    levels: its table row and its solutions (seed, actions, ...)."""
+    levels: ``plays``, one record (seed, solved, actions, ...) per level."""
     run = load_run(folder, cfg)
     agent = run.agent(cfg, Simulator(), GRID) if simulator else run.agent(cfg)
-    plays = play_levels(agent, variant, seeds, progress=False)
-    return {"row": agent_row(plays), "solutions": [p.record() for p in plays if p.solved]}
+    return {"plays": [p.record() for p in play_levels(agent, variant, seeds, progress=False)]}
+
+
+def _merged(parts: list[dict], seeds) -> dict:
+    """An evaluation's parts together: the table row, the solutions, in the order of ``seeds``."""
+    order = {s: i for i, s in enumerate(seeds)}
+    plays = sorted((r for part in parts for r in part["plays"]), key=lambda r: order[r["seed"]])
+    return {"row": agent_row(plays), "solutions": [r for r in plays if r["solved"]]}
 
 
 def _trained(folder: Path, cfg) -> bool:

@@ -25,15 +25,15 @@ def play_levels(agent, variant: str, seeds, desc: str = "levels", progress: bool
     return [agent.play(env, int(s)) for s in tqdm(seeds, desc=desc, disable=not progress)]
 
 
-def agent_row(plays: list[Play]) -> dict:
-    """Solve rate and costs of a list of plays."""
-    solved = [p for p in plays if p.solved]
-    moves = sum(len(p.actions) for p in plays)
+def agent_row(plays: list[dict]) -> dict:
+    """Solve rate and costs of plays, recorded as :meth:`Play.record` records them."""
+    solved = [p for p in plays if p["solved"]]
+    moves = sum(p["steps"] for p in plays)
     return {"levels": len(plays), "solved": len(solved), "solve_rate": len(solved) / len(plays),
-            "steps_when_solved": float(np.mean([len(p.actions) for p in solved])) if solved else None,
-            "nodes_per_move": sum(p.expanded for p in plays) / max(moves, 1),
-            "nodes_per_level": float(np.mean([p.expanded for p in plays])),
-            "seconds_per_level": float(np.mean([p.seconds for p in plays]))}
+            "steps_when_solved": float(np.mean([p["steps"] for p in solved])) if solved else None,
+            "nodes_per_move": sum(p["expanded"] for p in plays) / max(moves, 1),
+            "nodes_per_level": float(np.mean([p["expanded"] for p in plays])),
+            "seconds_per_level": float(np.mean([p["seconds"] for p in plays]))}
 
 
 def random_row(variant: str, seeds) -> dict:

@@ -15,10 +15,11 @@ end-of-episode logit (B, A). Being convolutional with pooled heads, it runs on a
 Seen changes. A search finds a model's rare mistakes and follows them: a board with the player
 gone is a board the value never saw, and the search of a quick run spent a third of its nodes
 below such boards on the levels it failed. So the model also keeps, from the real transitions it
-is trained on, every change of the board's code counts it saw (on grid inputs, 7 of them: a move,
-a step onto a target, a push, ...), and a prediction whose change is not among them is not
-trusted: that move is blocked (the board stays as it was). This is learned from experience like
-everything else (no rule says which changes are possible) and serves any board of discrete codes.
+is trained on, every change of the board's code counts it saw (on grid inputs, 7 of them: none
+for a step on the floor, a step onto a target, a push, ...), and a prediction whose change is
+not among them is not trusted: that move is blocked (the board stays as it was). This is learned
+from experience like everything else (no rule says which changes are possible) and serves any
+board of discrete codes.
 On the 28 unseen 10x10 levels that the true rules solved and the grid model did not (quick run,
 seed 0, same value and budget), the model with its seen changes solved 26.
 """
@@ -42,7 +43,8 @@ class SokobanModel(nn.Module):
     ``4 * blocks + 3``), then per cell an MLP to the A next codes, and pooled heads for the
     rewards and ends. A learned multiple of the input's one-hot codes is added to the next
     board's logits (a skip connection, as in a residual network: most cells keep their code, so
-    the network learns the changes).
+    the network learns the changes). ``changes``: the count changes seen so far, (M, K) (none for
+    a new model; :meth:`see_changes` adds to them; a checkpoint's config carries them).
     """
 
     def __init__(self, n_codes: int, n_actions: int, rewards, channels: int = 64, blocks: int = 2, changes=()):
