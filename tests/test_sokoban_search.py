@@ -1,6 +1,7 @@
 """Sokoban solved by search in a learned model: levels as text, the search, the model, the
 experience file, resuming, saved solutions and bad input."""
 import json
+import zlib
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from wmthesis.sokoban_search.heuristic import turned
 from wmthesis.sokoban_search.iteration import fit_model, load_run, train_search_agent
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.search import Simulator, best_first
+from wmthesis.utils import half_precision
 
 # A Boxoban-style file: two levels after "; N" lines (level 0: generated, seed 1 of a 10x10 room
 # with 2 boxes; level 1: a small classic-style level, rows indented with outside floor).
@@ -144,8 +146,8 @@ def test_the_models_surprise_is_minus_the_log_probability_of_the_board_it_predic
     model = SokobanModel(7, 8, [-0.1, 0.9], channels=8, blocks=1)
     states = np.random.default_rng(0).integers(7, size=(3, 4, 5)).astype(np.uint8)
     nxt, _, _, surprises = model.expand(states)
-    with torch.no_grad():
-        logits = model(torch.as_tensor(states))[0]  # (B, A, K, h, w)
+    with torch.no_grad(), half_precision(torch.device("cpu")):  # the precision expand runs in
+        logits = model(torch.as_tensor(states))[0].float()  # (B, A, K, h, w)
     boards = torch.distributions.Categorical(logits=logits.permute(0, 1, 3, 4, 2))
     expected = -boards.log_prob(torch.as_tensor(nxt).long()).sum((2, 3))
     assert np.allclose(surprises, expected.numpy(), atol=1e-5) and (surprises > 0).all()
@@ -171,6 +173,27 @@ def test_a_prediction_whose_count_change_was_never_seen_is_blocked():
     children, _, dones, surprises = model.expand(state[None])
     assert np.array_equal(children[0, 0], state) and not dones[0, 0] and surprises[0, 0] == 0  # blocked
     assert np.array_equal(children[0, 1], real) and dones[0, 1]  # a change seen in real play stands
+
+
+def test_an_end_predicted_on_a_board_never_seen_at_an_end_is_not_trusted():
+    level = parse_level("#######\n#@ $ .#\n#######")
+    plan = best_first(Simulator().expand, level[1:-1, 1:-1])
+    states = _walk(level, plan.actions)
+    model = SokobanModel(7, 8, [-0.1], channels=8, blocks=1)
+    claims = np.stack([states[1], states[-1]] + [states[0]] * 6)  # a box still off its target; the end
+
+    def forward(x):
+        logits = 20.0 * torch.nn.functional.one_hot(torch.as_tensor(claims).long(), 7).permute(0, 3, 1, 2)
+        return logits[None].float(), torch.zeros(1, 8, 1), torch.full((1, 8), 5.0)  # every action "ends"
+    model.forward = forward
+    assert model.expand(states[0][None])[2][0, :2].all()  # nothing seen yet: the head is trusted
+    model.see_ends(np.stack([states[-1]]))
+    larger = np.full((6, 9), FLOOR, np.uint8)
+    larger[0, :5] = states[-1][0]  # the same codes on a larger board: seen too
+    model.see_ends(larger[None])
+    assert len(model.ends) == 1
+    dones = model.expand(states[0][None])[2]
+    assert not dones[0, 0] and dones[0, 1]
 
 
 class _Liar:
@@ -217,6 +240,23 @@ def test_the_agent_is_misled_by_a_models_mistake_once_not_at_every_search():
     liar = _Liar(root, 2, root.copy(), done=True)  # "left" is said to solve the level
     played = SearchAgent(liar, replans=1).play(env, board=level)
     assert played.solved and played.searches == 2 and played.actions == [2] + truth.actions
+
+
+def test_a_search_that_spends_its_budget_starts_again_with_the_next_weight():
+    level = parse_levels(LEVELS)[0]
+    env = SokobanEnv((10, 10), 2, observation="grid")
+
+    def noise(states):  # a misleading value: a fixed random number per board
+        return np.array([zlib.crc32(s.tobytes()) % 1000 / 10.0 for s in states])
+
+    breadth_first = best_first(Simulator().expand, level[1:-1, 1:-1], budget=2_000)
+    assert breadth_first.found
+    misled = SearchAgent(Simulator(), heuristic=noise, budget=2_000, weights=(1.0,)).play(env, board=level)
+    assert not misled.solved and misled.expanded == 2_000
+    again = SearchAgent(Simulator(), heuristic=noise, budget=2_000, weights=(1.0, 0.0)).play(env, board=level)
+    assert again.solved and again.searches == 1 and again.expanded == 2_000 + breadth_first.expanded
+    with pytest.raises(ValueError, match="weights"):
+        SearchAgent(Simulator(), weights=())
 
 
 @pytest.mark.slow

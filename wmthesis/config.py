@@ -269,8 +269,8 @@ class SokobanSearchConfig:
 
     Search (:mod:`~wmthesis.sokoban_search.search`): ``budget`` nodes per search, ``batch``
     nodes per model call, priority ``g + weight * h`` where a step costs ``1 + doubt`` times
-    the model's surprise at its own prediction (nats), at most ``replans`` searches again after
-    the real game left the plan. Evaluation: ``eval_levels`` unseen levels per variant.
+    the model's surprise at its own prediction (nats), each of ``weights`` in turn until one
+    finds a plan, at most ``replans`` searches again after the real game left the plan. Evaluation: ``eval_levels`` unseen levels per variant.
     """
 
     variants: tuple = ("sokoban-small", "sokoban")
@@ -293,7 +293,7 @@ class SokobanSearchConfig:
     value_symmetries: bool = True
     budget: int = 20_000
     batch: int = 64
-    weight: float = 3.0
+    weights: tuple = (3.0, 1.5)
     doubt: float = 20.0
     replans: int = 4
     eval_levels: int = 500

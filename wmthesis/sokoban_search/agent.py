@@ -80,15 +80,18 @@ class SearchAgent:
     """Best-first search in ``model`` (a :class:`~wmthesis.sokoban_search.model.SokobanModel` or
     the :class:`~wmthesis.sokoban_search.search.Simulator`: anything with ``expand``), guided by
     ``heuristic`` (steps to go, or None: breadth first), ``budget`` nodes per search, ``batch``
-    per model call, ``weight`` on the heuristic and ``doubt`` on the model's surprise
+    per model call, ``weights`` on the heuristic tried in turn (a search that spends its budget
+    without a plan starts again with the next weight) and ``doubt`` on the model's surprise
     (:func:`~wmthesis.sokoban_search.search.best_first`); ``inputs``
     (:mod:`~wmthesis.sokoban_search.cells`: grid states or pixels) turns what the env shows into
     the model's state, and makes envs that show it."""
 
     def __init__(self, model, *, inputs=GRID, heuristic=None, budget: int = 20_000,
-                 batch: int = 64, weight: float = 1.0, doubt: float = 0.0, replans: int = 4):
+                 batch: int = 64, weights: tuple = (1.0,), doubt: float = 0.0, replans: int = 4):
+        if not weights or min(weights) < 0:
+            raise ValueError(f"weights must be one or more non-negative numbers, got {weights!r}")
         self.model, self.inputs = model, inputs
-        self.heuristic, self.budget, self.batch, self.weight, self.replans = heuristic, budget, batch, weight, replans
+        self.heuristic, self.budget, self.batch, self.weights, self.replans = heuristic, budget, batch, weights, replans
         self.doubt = doubt
 
     def env(self, variant: str) -> SokobanEnv:
@@ -105,9 +108,13 @@ class SearchAgent:
         taken, expanded, generated, searches, solved, over = [], 0, 0, 0, False, False
         model = Remembered(self.model)
         while not (solved or over) and searches <= self.replans:
-            result = best_first(model.expand, state, heuristic=self.heuristic, budget=self.budget,
-                                batch=self.batch, weight=self.weight, doubt=self.doubt)
-            searches, expanded, generated = searches + 1, expanded + result.expanded, generated + result.generated
+            for weight in self.weights:
+                result = best_first(model.expand, state, heuristic=self.heuristic, budget=self.budget,
+                                    batch=self.batch, weight=weight, doubt=self.doubt)
+                expanded, generated = expanded + result.expanded, generated + result.generated
+                if result.found:
+                    break
+            searches += 1
             if not result.found:
                 break
             for action, predicted in zip(result.actions, result.states[1:]):

@@ -23,6 +23,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from wmthesis.utils import half_precision
+
 
 class Heuristic(nn.Module):
     """Steps to go (B,) from states (B, h, w) of ``n_codes`` codes."""
@@ -44,10 +46,12 @@ class Heuristic(nn.Module):
 
     @torch.no_grad()
     def estimate(self, states: np.ndarray) -> np.ndarray:
-        """Numpy in and out: uint8 (B, h, w) -> float32 (B,)."""
+        """Numpy in and out: uint8 (B, h, w) -> float32 (B,) (in bfloat16 where the hardware
+        has it: :func:`~wmthesis.utils.half_precision`)."""
         self.eval()
         dev = self.cell.weight.device
-        return self(torch.as_tensor(states, device=dev)).cpu().numpy()
+        with half_precision(dev):
+            return self(torch.as_tensor(states, device=dev)).float().cpu().numpy()
 
     def losses(self, batch: dict) -> dict:
         """Huber loss of the estimate against ``batch["to_go"]`` (B,), and its mean absolute error."""
