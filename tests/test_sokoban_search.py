@@ -255,6 +255,9 @@ def test_a_search_that_spends_its_budget_starts_again_with_the_next_weight():
     assert not misled.solved and misled.expanded == 2_000
     again = SearchAgent(Simulator(), heuristic=noise, budget=2_000, weights=(1.0, 0.0)).play(env, board=level)
     assert again.solved and again.searches == 1 and again.expanded == 2_000 + breadth_first.expanded
+    stuck = parse_level("#####\n#$  #\n#@ .#\n#####")  # every reachable board seen: no weight helps
+    alone = best_first(Simulator().expand, stuck[1:-1, 1:-1], heuristic=noise, weight=1.0)
+    assert SearchAgent(Simulator(), heuristic=noise, weights=(1.0, 0.0)).play(env, board=stuck).expanded == alone.expanded
     with pytest.raises(ValueError, match="weights"):
         SearchAgent(Simulator(), weights=())
 
