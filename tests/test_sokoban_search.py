@@ -9,7 +9,7 @@ import torch
 
 from wmthesis.config import SokobanSearchConfig, for_profile
 from wmthesis.envs.levels import LevelError, board_to_text, fit_board, parse_level, parse_levels, read_levels
-from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, SokobanEnv, solve
+from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, WALL, SokobanEnv, solve
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import SearchAgent, grid_env, grid_state, level_seeds, random_play
 from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
@@ -187,13 +187,11 @@ def test_an_end_predicted_on_a_board_never_seen_at_an_end_is_not_trusted():
         return logits[None].float(), torch.zeros(1, 8, 1), torch.full((1, 8), 5.0)  # every action "ends"
     model.forward = forward
     assert model.expand(states[0][None])[2][0, :2].all()  # nothing seen yet: the head is trusted
-    model.see_ends(np.stack([states[-1]]))
-    larger = np.full((6, 9), FLOOR, np.uint8)
-    larger[0, :5] = states[-1][0]  # the same codes on a larger board: seen too
-    model.see_ends(larger[None])
-    assert len(model.ends) == 1
+    walled = np.full((6, 9), WALL, np.uint8)
+    walled[1, 1:6] = states[-1][0]  # ends seen on boards with walls; the corridor shows none
+    model.see_ends(walled[None])
     dones = model.expand(states[0][None])[2]
-    assert not dones[0, 0] and dones[0, 1]
+    assert not dones[0, 0] and dones[0, 1]  # a box off its target: never at an end
 
 
 class _Liar:
