@@ -10,6 +10,7 @@ import torch
 from wmthesis.config import SokobanSearchConfig, for_profile
 from wmthesis.envs.levels import LevelError, board_to_text, fit_board, parse_level, parse_levels, read_levels
 from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, WALL, SokobanEnv, solve
+from wmthesis.experiments.sokoban_search import target_rows
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import SearchAgent, grid_env, grid_state, level_seeds, random_play
 from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
@@ -393,3 +394,18 @@ def test_frames_that_are_not_whole_tiles_of_the_coder_are_refused_naming_both_si
     assert coder.encode(np.zeros((1, 40, 40, 3), np.uint8)).shape == (1, 5, 5)  # any board size of whole tiles
     with pytest.raises(ValueError, match="frames of 36x40 pixels are not whole tiles of 8x8"):
         coder.encode(np.zeros((1, 36, 40, 3), np.uint8))
+
+
+def test_the_target_table_says_by_how_much_a_target_is_missed():
+    loop = {"exact": 0.9372, "sequences": 239, "player_vanished": 0.0}
+    measures = {"one_step": {"exact": 1.0, "transitions": 6000, "player_vanished": 0.0}, "open_loop": {"30": loop}}
+    metrics = {"tables": {"sokoban": {"agent, learned model (pixels)": {"solve_rate": 0.88}}},
+               "env_steps": {"pixels": 263_231}, "accuracy": {"sokoban": {"pixels": measures}},
+               "first_run_wall_seconds": 3_700}
+    verdicts = {row[0]: row[2] for row in target_rows(metrics)}
+    assert verdicts["sokoban from pixels: at least 90% solved"] == "missed by 2.0%"
+    assert verdicts["sokoban from pixels, model exact open loop +30: at least 95.0%"] == "missed by 1.28%"
+    assert verdicts["sokoban from pixels, model exact one step: at least 99.5%"] == "met"
+    assert verdicts["sokoban from pixels: no player vanishes"] == "met"
+    assert verdicts["pixels: fewer than 1,000,000 environment steps"] == "met"
+    assert verdicts["the whole experiment within 60 minutes (first run)"] == "missed by 1.7 min"

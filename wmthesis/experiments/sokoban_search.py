@@ -35,6 +35,8 @@ EVAL_PARTS = 2  # each evaluation in parts (every other level), so that two proc
 SOKOBAN_SEARCH_TARGETS = (("sokoban-small", "grid", 0.95), ("sokoban-small", "pixels", 0.95),
                           ("sokoban", "pixels", 0.90))
 MAX_ENV_STEPS = 1_000_000
+# The model's targets on unseen levels: one-step and 30-step open-loop exactness; no player vanishes.
+MODEL_TARGETS = {"one step": 0.995, "open loop +30": 0.95}
 
 
 def target_rows(metrics: dict) -> list[list]:
@@ -48,6 +50,22 @@ def target_rows(metrics: dict) -> list[list]:
     for inputs, steps in metrics["env_steps"].items():
         rows.append([f"{inputs}: fewer than {MAX_ENV_STEPS:,} environment steps", f"{steps:,}",
                      "met" if steps < MAX_ENV_STEPS else "missed"])
+    for variant, by_inputs in metrics.get("accuracy", {}).items():
+        for inputs, measures in by_inputs.items():
+            loop = {int(k): v for k, v in measures["open_loop"].items()}[30]  # int keys, or str from JSON
+            exact = {"one step": (measures["one_step"]["exact"], f"{measures['one_step']['transitions']:,} transitions"),
+                     "open loop +30": (loop["exact"], f"{loop['sequences']} plans")}
+            for name, lowest in MODEL_TARGETS.items():
+                value, over = exact[name]
+                rows.append([f"{variant} from {inputs}, model exact {name}: at least {lowest:.1%}",
+                             f"{value:.2%} ({over})", "met" if value >= lowest else f"missed by {lowest - value:.2%}"])
+            vanished = max(measures["one_step"]["player_vanished"], loop["player_vanished"])
+            rows.append([f"{variant} from {inputs}: no player vanishes", f"{vanished:.2%}",
+                         "met" if vanished == 0 else "missed"])
+    seconds = metrics.get("first_run_wall_seconds")
+    if seconds is not None:
+        rows.append(["the whole experiment within 60 minutes (first run)", f"{seconds / 60:.1f} min",
+                     "met" if seconds <= 3600 else f"missed by {seconds / 60 - 60:.1f} min"])
     return rows
 
 

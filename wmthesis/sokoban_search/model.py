@@ -29,7 +29,8 @@ agent then plays a plan that stops one push short, often with that push into a c
 model also keeps which codes the boards at the real ends of episodes show, and an end predicted
 on a board that shows a code no end ever showed (on grid inputs: a box off its target, or a
 target left open) is not trusted. Of the 73 unseen 10x10 levels that the pixel agent of a quick
-run failed, 13 failed this way (none of the grid agent's 55).
+run failed, 13 failed after such a plan (none of the grid agent's 55); with seen ends its first
+search alone solved 6 of them.
 """
 from __future__ import annotations
 
