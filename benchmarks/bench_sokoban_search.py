@@ -18,7 +18,8 @@ Rows:
   (:class:`Simulator`, which stops when it solves the level): nodes expanded per second,
   batch 64.
 
-Runs on torch's default threads (the machine's cores). Writes ``benchmarks/results/sokoban_search.json``.
+The model runs in bfloat16 where the CPU computes it natively (:func:`wmthesis.utils.half_precision`),
+as in the experiment; the JSON records which. Runs on torch's default threads (the machine's cores). Writes ``benchmarks/results/sokoban_search.json``.
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ import argparse
 import copy
 import sys
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +38,7 @@ sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve
 from wmthesis.sokoban_search.agent import grid_env, grid_state, level_seeds, random_play  # noqa: E402
 from wmthesis.sokoban_search.model import SokobanModel  # noqa: E402
 from wmthesis.sokoban_search.search import Simulator, best_first  # noqa: E402
+from wmthesis.utils import device, half_precision  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
 SIZES = {"sokoban": (8, 8), "sokoban-small": (5, 5)}
@@ -92,7 +95,10 @@ def main(argv=None) -> int:
             + expand_rows(checking, np.random.default_rng(args.seed), "model expand, seen changes")
             + search_rows(model, args.levels, args.budget, args.seed))
     print_table(rows)
-    write_results(args.out, machine_meta(threads=torch.get_num_threads(), levels=args.levels, budget=args.budget), rows)
+    precision = "float32" if isinstance(half_precision(device()), nullcontext) else "bfloat16"
+    print(f"model precision: {precision} (wmthesis.utils.half_precision)")
+    write_results(args.out, machine_meta(threads=torch.get_num_threads(), levels=args.levels, budget=args.budget,
+                                         precision=precision), rows)
     return 0
 
 

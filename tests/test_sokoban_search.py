@@ -16,7 +16,7 @@ from wmthesis.sokoban_search.agent import SearchAgent, grid_env, grid_state, lev
 from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import turned
-from wmthesis.sokoban_search.iteration import fit_model, load_run, train_search_agent
+from wmthesis.sokoban_search.iteration import _batches, fit_model, load_run, train_search_agent
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.search import Simulator, best_first
 from wmthesis.utils import half_precision
@@ -412,3 +412,17 @@ def test_the_target_table_says_by_how_much_a_target_is_missed():
     measures["open_loop"] = {30: {"sequences": 0}}  # no plan 30 steps long (a smoke run)
     verdicts = {row[0]: row[2] for row in target_rows(metrics)}
     assert verdicts["sokoban from pixels, model exact open loop +30: at least 95.0%"] == "not measured"
+
+
+def test_a_batch_draws_its_special_fractions_among_the_rows_they_mark():
+    rows = np.arange(1000)
+    groups = {"5x5": {"states": np.zeros((1000, 5, 5), np.uint8), "rewards": (rows % 100 == 0).astype(np.float32),
+                      "rounds": (rows >= 900).astype(np.int64), "index": rows}}
+    special = [(0.25, lambda g: g["rewards"] > 0), (0.5, lambda g: g["rounds"] > 0)]
+    batch = next(_batches(groups, 64, np.random.default_rng(0), special))
+    index = batch["index"].numpy()
+    assert (index[:16] % 100 == 0).all() and (index[16:48] >= 900).all()
+    uniform = next(_batches(groups, 64, np.random.default_rng(0)))["index"].numpy()
+    assert (uniform >= 900).mean() < 0.3  # without them, about a tenth
+    with pytest.raises(ValueError, match="more than 1"):
+        next(_batches(groups, 64, np.random.default_rng(0), [(0.6, special[0][1]), (0.6, special[1][1])]))

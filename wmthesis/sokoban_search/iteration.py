@@ -143,21 +143,26 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
 
 # ---------------------------------------------------------------------------- training
 
-def _batches(groups: dict, batch_size: int, rng: np.random.Generator, event_fraction: float = 0.0,
-             events=None):
+def _batches(groups: dict, batch_size: int, rng: np.random.Generator, special=()):
     """Endless batches (dicts of tensors) from ``groups`` ({"HxW": arrays}): a group picked in
-    proportion to its rows, then rows uniformly, ``event_fraction`` of them among ``events``."""
+    proportion to its rows, then rows uniformly, except that for each (fraction, marks) of
+    ``special`` that fraction of the batch is drawn among the rows ``marks(group)`` marks."""
     keys = sorted(groups)
     sizes = np.array([len(groups[k]["states"]) for k in keys], dtype=np.float64)
+    special = [(fraction, marks) for fraction, marks in special if fraction > 0]
+    if sum(fraction for fraction, _ in special) > 1:
+        raise ValueError(f"the special fractions of a batch add up to more than 1: {[f for f, _ in special]}")
     dev = device()
     while True:
         group = groups[keys[rng.choice(len(keys), p=sizes / sizes.sum())]]
         n = len(group["states"])
         picked = rng.integers(n, size=batch_size)
-        if events is not None:
-            special = np.flatnonzero(events(group))
-            k = int(round(event_fraction * batch_size)) if len(special) else 0
-            picked[:k] = rng.choice(special, size=k) if k else picked[:k]
+        start = 0
+        for fraction, marks in special:
+            rows = np.flatnonzero(marks(group))
+            k = int(round(fraction * batch_size)) if len(rows) else 0
+            picked[start:start + k] = rng.choice(rows, size=k) if k else picked[start:start + k]
+            start += k
         yield {name: torch.as_tensor(values[picked], device=dev) for name, values in group.items() if name != "rounds"}
 
 
@@ -192,7 +197,8 @@ def fit_model(model: SokobanModel, experience: Experience, cfg: SokobanSearchCon
         model.see_ends(group["next_states"][group["dones"]])
     values, counts = np.unique(np.concatenate([g["rewards"] for g in groups.values()]), return_counts=True)
     commonest = values[counts.argmax()]  # the step penalty; the rest are events worth oversampling
-    batches = _batches(groups, cfg.batch_size, rng, cfg.event_fraction, lambda g: g["rewards"] != commonest)
+    batches = _batches(groups, cfg.batch_size, rng, [(cfg.event_fraction, lambda g: g["rewards"] != commonest),
+                                                     (cfg.agent_fraction, lambda g: g["rounds"] > 0)])
     return _optimise(model, model.losses, batches, updates, cfg.lr, desc, progress)
 
 
@@ -246,8 +252,9 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
         raise ValueError(f"cannot read {path}: {error}; delete it to start over") from error
     if version != STATE_VERSION:
         raise ValueError(f"{path} has format version {version}, this code reads {STATE_VERSION}")
-    if cfg is not None:
-        check_same_config(path, saved["config"], dataclasses.asdict(cfg))
+    if cfg is not None:  # a field added after the run was saved: its default is what the run did
+        added = {f.name: f.default for f in dataclasses.fields(cfg) if f.name not in saved["config"]}
+        check_same_config(path, {**saved["config"], **added}, dataclasses.asdict(cfg))
     model = SokobanModel(**saved["model_config"]).to(device())
     model.load_state_dict(saved["model"])
     heuristic = None
