@@ -25,7 +25,8 @@ seed 0, same value and budget), the model with its seen changes solved 26.
 
 Seen ends. The end-of-episode head looks at the whole board through pooled features, and it
 can call an end too early: the search takes the first predicted end for the goal, and the
-agent then plays a plan that stops one push short, often with that push into a corner. So the
+agent plays a plan whose last push does not end the level (in the cases looked at, it pushed a
+box into a corner, where no plan is left). So the
 model also keeps which codes the boards at the real ends of episodes show, and an end predicted
 on a board that shows a code no end ever showed (on grid inputs: a box off its target, or a
 target left open) is not trusted. Of the 73 unseen 10x10 levels that the pixel agent of a quick
