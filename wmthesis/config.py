@@ -260,8 +260,8 @@ class SokobanSearchConfig:
     Model (:mod:`~wmthesis.sokoban_search.model`): ``channels`` x ``blocks`` residual layers,
     ``model_updates`` Adam updates (``lr``, cosine decay to lr / 10, batch ``batch_size`` with
     ``event_fraction`` of transitions whose reward is not the step penalty and ``agent_fraction``
-    of transitions the agent played, not random play) after random play, ``round_updates`` more
-    after each round. Value (:mod:`~wmthesis.sokoban_search.heuristic`):
+    of transitions the agent played, not random play: the states its plans pass through, where the
+    model must be exact) after random play, ``round_updates`` more after each round. Value (:mod:`~wmthesis.sokoban_search.heuristic`):
     ``value_channels`` x ``value_blocks``, ``value_updates`` after each round on every labelled
     state so far, shown in the board's 8 symmetries if ``value_symmetries``.
 
@@ -288,7 +288,7 @@ class SokobanSearchConfig:
     batch_size: int = 256
     lr: float = 2e-3
     event_fraction: float = 0.25
-    agent_fraction: float = 0.0
+    agent_fraction: float = 0.5
     value_channels: int = 32
     value_blocks: int = 2
     value_updates: int = 1500
