@@ -43,14 +43,7 @@ def horizon_error_figure(curves: dict[str, Sequence[float]], *, title: str | Non
     fig, ax = plt.subplots(figsize=(4.5, 3))
     for label, mse in curves.items():
         ax.plot(np.arange(1, len(mse) + 1), mse, marker=".", label=label)
-    ax.set_xlabel("steps predicted open-loop")
-    ax.set_ylabel("MSE per pixel")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    if title:
-        ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    return fig
+    return _horizon_axes(fig, ax, "MSE per pixel", title, legend_size=8)
 
 
 def learning_curve_figure(curves: dict[str, dict], *, references: dict[str, float] | None = None,
@@ -100,10 +93,15 @@ def study_error_figure(scores: dict[str, list[dict]], *, title: str | None = Non
     first = next(iter(scores.values()))[0]["errors"]
     for name, style in (("repeat last", "--"), ("mean frame", ":")):
         ax.plot(np.arange(1, len(first[name]) + 1), first[name], style, color="gray", label=name)
+    return _horizon_axes(fig, ax, "squared error, moving pixels", title, legend_size=7)
+
+
+def _horizon_axes(fig, ax, ylabel: str, title: str | None, legend_size: int):
+    """Label, grid, legend and title of an error-by-horizon plot; the finished figure."""
     ax.set_xlabel("steps predicted open-loop")
-    ax.set_ylabel("squared error, moving pixels")
+    ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=legend_size)
     if title:
         ax.set_title(title, fontsize=9)
     fig.tight_layout()
