@@ -97,6 +97,33 @@ def test_loss_matches_a_hand_computation_with_torch_distributions():
     assert overshooting > 0 and len(per_distance[distance]) == B * (T - distance + 1)
 
 
+def test_prior_reward_and_event_weight_match_a_hand_computation():
+    """The reward head scored on the one-step prior means too, rewarded steps weighing 4."""
+    model = tiny_rssm()
+    observations, actions, _ = random_batch()
+    rewards = torch.tensor([[0.0, 1.0, 0.0, -2.0, 5.0], [0.0, 0.0, 0.0, 1.0, 0.0]])  # the last row is never scored
+    knobs = dict(free_nats=0.0, reward_scale=3.0, overshooting_distance=0)
+    terms = planet_loss(model, observations, actions, rewards, prior_reward_scale=0.5, reward_event_weight=4.0,
+                        generator=torch.Generator().manual_seed(5), **knobs)
+
+    g = torch.Generator().manual_seed(5)
+    traj = model.observe(model.encode(to_float(observations, 5, noise=g)), one_hot_previous(actions, 3), g)
+    weights = {(b, t): 4.0 if rewards[b, t - 1] != 0 else 1.0 for b in range(2) for t in range(1, 5)}
+
+    def weighted_nll(states):
+        nll = {k: -D.Normal(model.reward(traj.beliefs[k[0], k[1]], states[k[0], k[1]]), 1.0).log_prob(rewards[k[0], k[1] - 1])
+               for k in weights}
+        return sum(weights[k] * nll[k] for k in weights) / sum(weights.values())
+
+    assert sum(weights.values()) == 8 + 3 * 3  # three rewarded steps among the scored ones
+    assert torch.allclose(terms["reward"], weighted_nll(traj.states), rtol=1e-5)
+    assert torch.allclose(terms["prior_reward"], weighted_nll(traj.prior.mean), rtol=1e-5)
+    plain = planet_loss(model, observations, actions, rewards, generator=torch.Generator().manual_seed(5), **knobs)
+    assert plain["prior_reward"] == 0 and not torch.allclose(plain["reward"], terms["reward"])
+    extra = 3.0 * (terms["reward"] + 0.5 * terms["prior_reward"]) - 3.0 * plain["reward"]
+    assert torch.allclose(terms["loss"] - plain["loss"], extra, rtol=1e-4, atol=1e-5)
+
+
 def test_lowering_the_decoder_variance_is_lowering_the_kl_scale():
     """sigma^2 * L(variance sigma^2, KL scale b, reward scale r) has the gradients of
     L(variance 1, KL scale sigma^2 b, reward scale sigma^2 r) (rssm module docstring)."""
@@ -259,6 +286,10 @@ def test_training_runs_end_to_end_and_resumes_to_the_same_state(tmp_path):
     half = train_planet("boxing", SMOKE, tmp_path / "resumed", seed=3, progress=False,
                         variant={"env_steps": 48})
     assert half["episodes"] == 3 and half["updates"] == 2
+    saved = torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=False)
+    for field in ("prior_reward_scale", "reward_event_weight"):  # a run saved before these fields existed
+        del saved["config"][field]
+    torch.save(saved, tmp_path / "resumed" / "checkpoint.pt")
     resumed = train_planet("boxing", SMOKE, tmp_path / "resumed", seed=3, progress=False)
     assert resumed["updates"] == 6
     params_a, curve_a, _ = smoke_state(tmp_path / "straight")

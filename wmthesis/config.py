@@ -105,6 +105,8 @@ class PlaNetConfig:
     overshooting_distance: int = 50      # 0 or 1: no latent overshooting
     overshooting_scale: float = 1 / 50
     overshooting_reward_scale: float = 0.0  # beyond the thesis: the reward head on open-loop beliefs too
+    prior_reward_scale: float = 0.0      # beyond the thesis: the reward head on one-step prior states too
+    reward_event_weight: float = 1.0     # beyond the thesis: steps with a reward count this many times
     lr: float = 1e-3
     adam_eps: float = 1e-4
     grad_clip: float = 1000.0

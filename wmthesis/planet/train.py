@@ -310,7 +310,9 @@ def batch_loss(model: RSSM, batch: dict[str, torch.Tensor], config: PlaNetConfig
                        decoder_variance=config.decoder_variance, reward_scale=config.reward_scale,
                        overshooting_distance=config.overshooting_distance,
                        overshooting_scale=config.overshooting_scale,
-                       overshooting_reward_scale=config.overshooting_reward_scale, generator=generator)
+                       overshooting_reward_scale=config.overshooting_reward_scale,
+                       prior_reward_scale=config.prior_reward_scale, reward_event_weight=config.reward_event_weight,
+                       generator=generator)
 
 
 def _copy_run(source: Path, run_dir: Path) -> None:
@@ -406,7 +408,9 @@ def _load_checkpoint(path: Path, model, optimizer, run: _RunState, env_name, see
     if (state["env"], state["seed"]) != (env_name, seed):
         raise ValueError(f"{path}: a run of {state['env']!r} with seed {state['seed']}, not "
                          f"{env_name!r} with seed {seed}; use another run_dir")
-    saved, wanted = state["config"], dataclasses.asdict(config)
+    # A run saved before a config field existed ran with that field's default.
+    saved = {**dataclasses.asdict(PlaNetConfig()), **state["config"]}
+    wanted = dataclasses.asdict(config)
     differ = sorted(k for k in wanted if k not in RESUMABLE_CHANGES and saved.get(k) != wanted[k])
     if differ:
         changes = ", ".join(f"{k}: {saved.get(k)!r} -> {wanted[k]!r}" for k in differ)
