@@ -66,6 +66,13 @@ def config_dict(config) -> dict:
     return dataclasses.asdict(config) if dataclasses.is_dataclass(config) else dict(config)
 
 
+def with_added_defaults(cls, saved: dict) -> dict:
+    """A config dict saved by a run, with every field of dataclass ``cls`` that it lacks (added
+    after the run was saved) set to its default: what the run did."""
+    added = {f.name: f.default for f in dataclasses.fields(cls) if f.name not in saved}
+    return {**saved, **added}
+
+
 def check_same_config(path: Path, saved: dict, wanted: dict) -> None:
     """Raise :class:`ConfigMismatch` naming the fields that differ between two configs."""
     if saved != wanted:

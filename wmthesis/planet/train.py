@@ -42,7 +42,7 @@ from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize, to_float
 from wmthesis.planet.cem import cem_belief
 from wmthesis.planet.networks import vision_networks
 from wmthesis.planet.rssm import RSSM, planet_loss
-from wmthesis.training import gradient_step
+from wmthesis.training import gradient_step, with_added_defaults
 from wmthesis.utils import atomic_path, check_choice, derive_seeds, device, seed_everything
 
 FRAME_SIZE = 64
@@ -408,9 +408,7 @@ def _load_checkpoint(path: Path, model, optimizer, run: _RunState, env_name, see
     if (state["env"], state["seed"]) != (env_name, seed):
         raise ValueError(f"{path}: a run of {state['env']!r} with seed {state['seed']}, not "
                          f"{env_name!r} with seed {seed}; use another run_dir")
-    # A run saved before a config field existed ran with that field's default.
-    saved = {**dataclasses.asdict(PlaNetConfig()), **state["config"]}
-    wanted = dataclasses.asdict(config)
+    saved, wanted = with_added_defaults(PlaNetConfig, state["config"]), dataclasses.asdict(config)
     differ = sorted(k for k in wanted if k not in RESUMABLE_CHANGES and saved.get(k) != wanted[k])
     if differ:
         changes = ", ".join(f"{k}: {saved.get(k)!r} -> {wanted[k]!r}" for k in differ)

@@ -32,7 +32,7 @@ from wmthesis.sokoban_search.cells import GRID, CellCoder, GridInputs, PixelInpu
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
 from wmthesis.sokoban_search.model import SokobanModel
-from wmthesis.training import check_same_config, gradient_step
+from wmthesis.training import check_same_config, gradient_step, with_added_defaults
 from wmthesis.utils import atomic_path, check_choice, device, half_precision
 
 N_ACTIONS = 8
@@ -252,9 +252,8 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
         raise ValueError(f"cannot read {path}: {error}; delete it to start over") from error
     if version != STATE_VERSION:
         raise ValueError(f"{path} has format version {version}, this code reads {STATE_VERSION}")
-    if cfg is not None:  # a field added after the run was saved: its default is what the run did
-        added = {f.name: f.default for f in dataclasses.fields(cfg) if f.name not in saved["config"]}
-        check_same_config(path, {**saved["config"], **added}, dataclasses.asdict(cfg))
+    if cfg is not None:
+        check_same_config(path, with_added_defaults(type(cfg), saved["config"]), dataclasses.asdict(cfg))
     model = SokobanModel(**saved["model_config"]).to(device())
     model.load_state_dict(saved["model"])
     heuristic = None
