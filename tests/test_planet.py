@@ -122,6 +122,9 @@ def test_prior_reward_and_event_weight_match_a_hand_computation():
     assert plain["prior_reward"] == 0 and not torch.allclose(plain["reward"], terms["reward"])
     extra = 3.0 * (terms["reward"] + 0.5 * terms["prior_reward"]) - 3.0 * plain["reward"]
     assert torch.allclose(terms["loss"] - plain["loss"], extra, rtol=1e-4, atol=1e-5)
+    for bad in (dict(reward_event_weight=0.0), dict(prior_reward_scale=-1.0)):  # a weight sum of 0: NaN
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            planet_loss(model, observations, actions, rewards, **bad, **knobs)
 
 
 def test_lowering_the_decoder_variance_is_lowering_the_kl_scale():

@@ -340,6 +340,9 @@ def loss_terms(model: RSSM, trajectory: Trajectory, frames: torch.Tensor, prev_a
                reward_event_weight: float = 1.0) -> dict[str, torch.Tensor]:
     """:func:`planet_loss` given the filtered ``trajectory`` of float ``frames``
     (B, T, H, W, 3) and the overshooting noise (see :func:`overshooting_terms`)."""
+    if reward_event_weight <= 0 or prior_reward_scale < 0:
+        raise ValueError(f"reward_event_weight must be > 0 and prior_reward_scale >= 0, got "
+                         f"{reward_event_weight} and {prior_reward_scale}")
     mean_frames = model.decode(trajectory.beliefs, trajectory.states)
     observation = gaussian_nll(frames, mean_frames, decoder_variance, dims=3).mean()
     reward = reward_nll(model, trajectory.beliefs, trajectory.states, rewards, reward_event_weight)
