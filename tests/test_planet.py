@@ -46,8 +46,10 @@ def random_batch(batch=2, time=5, n_actions=3, seed=0):
 def test_loss_matches_a_hand_computation_with_torch_distributions():
     model = tiny_rssm()
     observations, actions, rewards = random_batch()
+    rewards = torch.where(rewards.abs() < 0.6, 0.0, rewards)  # some rewarded steps, weighing 3, among plain ones
+    assert (rewards[:, :-1] == 0).any() and (rewards[:, :-1] != 0).any()
     B, T, S, distance = 2, 5, 3, 4
-    knobs = dict(kl_scale=0.5, free_nats=0.28, decoder_variance=0.3, reward_scale=2.0,
+    knobs = dict(kl_scale=0.5, free_nats=0.28, decoder_variance=0.3, reward_scale=2.0, reward_event_weight=3.0,
                  overshooting_distance=distance, overshooting_scale=0.25, overshooting_reward_scale=0.7)
     terms = planet_loss(model, observations, actions, rewards, generator=torch.Generator().manual_seed(7),
                         **knobs)
@@ -61,8 +63,12 @@ def test_loss_matches_a_hand_computation_with_torch_distributions():
 
     decoded = D.Normal(model.decode(traj.beliefs, traj.states), math.sqrt(0.3))
     obs_nll = -decoded.log_prob(frames).sum((2, 3, 4)).mean()
+    def weighted_mean(nlls, targets):
+        weights = [3.0 if r != 0 else 1.0 for r in targets]
+        return sum(w * n for w, n in zip(weights, nlls)) / sum(weights)
+
     predicted = D.Normal(model.reward(traj.beliefs[:, 1:], traj.states[:, 1:]), 1.0)
-    reward_nll = -predicted.log_prob(rewards[:, :-1]).mean()
+    reward_nll = weighted_mean(-predicted.log_prob(rewards[:, :-1]).flatten(), rewards[:, :-1].flatten())
     kl = D.kl_divergence(D.Normal(*traj.posterior), D.Normal(*traj.prior)).sum(-1)
     assert (kl < 0.28).any() and (kl > 0.28).any(), "free nats should clip some KL terms and not others"
     kl_loss = torch.clamp(kl, min=0.28).mean()
@@ -82,11 +88,11 @@ def test_loss_matches_a_hand_computation_with_torch_distributions():
                 kl_d = D.kl_divergence(q, D.Normal(prior.mean[0], prior.std[0])).sum()
                 per_distance[d].append(torch.clamp(kl_d, min=0.28))
                 predicted_d = D.Normal(model.reward(belief, prior.mean)[0], 1.0)
-                reward_per_distance[d].append(-predicted_d.log_prob(rewards[b, t - 1]))   # row t - 1: r_t
+                reward_per_distance[d].append((-predicted_d.log_prob(rewards[b, t - 1]), rewards[b, t - 1]))  # r_t
                 if d < distance:
                     state = prior.mean + prior.std * noise[d - 1, b, i]
     overshooting = torch.stack([torch.stack(v).mean() for v in per_distance.values()]).mean()
-    overshooting_reward = torch.stack([torch.stack(v).mean() for v in reward_per_distance.values()]).mean()
+    overshooting_reward = torch.stack([weighted_mean(*zip(*v)) for v in reward_per_distance.values()]).mean()
 
     for name, expected in [("observation", obs_nll), ("reward", reward_nll), ("kl", kl.mean()),
                            ("kl_loss", kl_loss), ("overshooting", overshooting),

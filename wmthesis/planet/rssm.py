@@ -40,7 +40,7 @@ sees in a frame and still not predict one. Two more knobs beyond the thesis, for
 reward is rare (2.9% of random Boxing steps): ``prior_reward_scale`` trains the reward head on
 the one-step prior states ``(h_t, mean of p(s_t | h_t))`` as well, the planner's first imagined
 step, and ``reward_event_weight`` makes each step with a non-zero reward count that many times
-in the weighted mean of both reward terms (1: the plain mean).
+in the weighted mean of every reward term, the open-loop one included (1: the plain mean).
 
 Decoder variance (thesis 5.6.3). With ``log p(o | z) = -0.5 ||o - f(z)||^2 / sigma^2 - log Z``,
 multiplying the whole loss by ``sigma^2`` gives ``0.5 ||o - f(z)||^2 + sigma^2 * kl_scale * KL
@@ -257,18 +257,24 @@ def reward_nll(model: RSSM, beliefs: torch.Tensor, states: torch.Tensor, rewards
     against ``rewards`` (B, T) whose row t holds ``r_{t+1}`` (so t = 1..T-1 are scored): a
     weighted mean over batch and time where a step with a non-zero reward weighs ``event_weight``
     and any other step 1."""
-    target = rewards[:, :-1]
-    predicted = model.reward(beliefs[:, 1:], states[:, 1:])
+    return _weighted_reward_nll(model.reward(beliefs[:, 1:], states[:, 1:]), rewards[:, :-1], event_weight)
+
+
+def _weighted_reward_nll(predicted: torch.Tensor, target: torch.Tensor, event_weight: float) -> torch.Tensor:
+    """Unit-variance Gaussian NLL of ``target`` (B, T') under ``predicted`` (B, T'), a mean in which
+    a non-zero target weighs ``event_weight`` and a zero one 1."""
     nll = gaussian_nll(target[..., None], predicted[..., None], 1.0, dims=1)
     weight = torch.where(target != 0, event_weight, 1.0)
     return (weight * nll).sum() / weight.sum()
 
 
 def overshooting_terms(model: RSSM, trajectory: Trajectory, prev_actions: torch.Tensor, rewards: torch.Tensor,
-                       distance: int, free_nats: float, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Latent overshooting terms, each a mean over batch, time and distances d = 2..D:
-    ``max(free_nats, KL[q(s_t) || p(s_t | s_{t-d})])`` (posteriors detached), and the reward
-    NLL of ``r_t`` predicted from the open-loop belief and the prior's mean.
+                       distance: int, free_nats: float, noise: torch.Tensor,
+                       event_weight: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Latent overshooting terms, each a mean over distances d = 2..D of a mean over batch and
+    time: ``max(free_nats, KL[q(s_t) || p(s_t | s_{t-d})])`` (posteriors detached), and the
+    reward NLL of ``r_t`` predicted from the open-loop belief and the prior's mean, where a
+    non-zero ``r_t`` weighs ``event_weight`` (:func:`reward_nll`'s weighting).
 
     Open-loop rollouts start from every one-step prior ``p(s_i | h_i)`` (the posterior at
     ``i - 1`` followed by ``a_{i-1}``), one per i = 0..T-1, all in one batch that shrinks by
@@ -291,8 +297,8 @@ def overshooting_terms(model: RSSM, trajectory: Trajectory, prev_actions: torch.
         belief, prior = bottle(model.transition, belief[:, :starts], state, prev_actions[:, k - 1:])
         kl = kl_divergence(Gaussian(target.mean[:, k - 1:], target.std[:, k - 1:]), prior)
         kls.append(kl.clamp(min=free_nats).mean())
-        predicted = model.reward(belief, prior.mean)
-        reward_nlls.append(gaussian_nll(rewards[:, k - 2:time - 1, None], predicted[..., None], 1.0, dims=1).mean())
+        reward_nlls.append(_weighted_reward_nll(model.reward(belief, prior.mean), rewards[:, k - 2:time - 1],
+                                                event_weight))
     return torch.stack(kls).mean(), torch.stack(reward_nlls).mean()
 
 
@@ -354,7 +360,8 @@ def loss_terms(model: RSSM, trajectory: Trajectory, frames: torch.Tensor, prev_a
     overshooting = overshooting_reward = trajectory.beliefs.new_zeros(())
     if overshooting_noise is not None:
         overshooting, overshooting_reward = overshooting_terms(model, trajectory, prev_actions, rewards,
-                                                               overshooting_distance, free_nats, overshooting_noise)
+                                                               overshooting_distance, free_nats, overshooting_noise,
+                                                               reward_event_weight)
     loss = (observation + reward_scale * (reward + prior_reward_scale * prior_reward
                                           + overshooting_reward_scale * overshooting_reward)
             + kl_scale * (kl_loss + overshooting_scale * overshooting))
