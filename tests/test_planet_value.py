@@ -1,0 +1,103 @@
+"""The latent action value (planet.value): its targets by hand, its features as the RSSM's own
+transition, and a known answer: in a game where action 1 pays one step later than it is taken
+plus one, the value agent learns to take it, and a run resumes where it stopped."""
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from wmthesis.config import LatentValueConfig, for_profile
+from wmthesis.data import EpisodeStore, play_random_episode
+from wmthesis.planet.rssm import RSSM
+from wmthesis.planet.value import (ValueMind, after_action, episode_features, load_value, play_value, reward_sums,
+                                   train_value)
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
+
+
+class DelayedPunch(gym.Env):
+    """A blank 64x64 screen; action 1 (of 3) scores 1 two steps after it is taken, like a
+    Boxing punch; 24 steps an episode."""
+
+    observation_space = gym.spaces.Box(0, 255, (64, 64, 3), np.uint8)
+    action_space = gym.spaces.Discrete(3)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.history, self.t = [0, 0], 0
+        return np.zeros((64, 64, 3), np.uint8), {}
+
+    def step(self, action):
+        self.history.append(int(action))
+        self.t += 1
+        reward = float(self.history[-3] == 1)
+        return np.zeros((64, 64, 3), np.uint8), reward, False, self.t >= 24, {}
+
+
+def frozen_rssm() -> RSSM:
+    torch.manual_seed(0)
+    return RSSM(3, belief_size=16, state_size=4, hidden_size=16, reward_hidden_size=8).eval()
+
+
+def test_reward_sums_by_hand():
+    rewards = np.array([1, 0, 0, -1, 0, 2], np.float32)
+    assert reward_sums(rewards, 3).tolist() == [1, -1, -1, 1, 2, 2]
+    assert reward_sums(rewards, 1).tolist() == rewards.tolist()
+    with pytest.raises(ValueError, match="reward_steps"):
+        reward_sums(rewards, 0)
+
+
+def test_features_are_the_transition_after_each_action_and_depend_on_it():
+    model = frozen_rssm()
+    belief, state = torch.randn(3, 16), torch.randn(3, 4)
+    with torch.no_grad():
+        features = after_action(model, belief, state, torch.arange(3))
+        expected_belief, prior = model.transition(belief, state, torch.eye(3))
+    assert torch.equal(features, torch.cat([expected_belief, prior.mean], -1))
+    assert not torch.allclose(features[0], features[1])
+    episode = play_random_episode(DelayedPunch(), 0, 0)
+    assert episode_features(model, episode, 5, 0).shape == (24, 20)
+
+
+def test_value_agent_learns_the_delayed_punch_and_resumes(tmp_path):
+    model, env = frozen_rssm(), DelayedPunch()
+    with EpisodeStore(tmp_path / "source.h5", "a", obs_shape=(64, 64, 3)) as store:
+        for index in range(20):
+            store.append_episode(**play_random_episode(env, 0, index))
+    config = LatentValueConfig(hidden_size=32, fit_updates=300, batch_size=64, rounds=1, bouts_per_round=2,
+                               test_bouts=2)
+    first = train_value(model, 5, env, dataclasses.replace(config, rounds=0), tmp_path / "run", tmp_path / "source.h5",
+                        seed=0, progress=False)
+    assert len(first["curve"]) == 1
+    result = train_value(model, 5, env, config, tmp_path / "run", tmp_path / "source.h5", seed=0, progress=False)
+    curve = result["curve"]
+    assert [c["round"] for c in curve] == [0, 1] and curve[0] == first["curve"][0]  # round 0 kept, not redone
+    assert curve[1]["episodes"] == 2
+    # Always punching scores 22 of 24 steps; random play scores about a third of that.
+    assert all(r == 22 for r in curve[-1]["returns"])
+    value = load_value(tmp_path / "run", model)
+    scores = ValueMind(model, value).plan(np.zeros((64, 64, 3), np.uint8))
+    assert scores.argmax() == 1 and scores[1] - max(scores[0], scores[2]) > 0.5
+
+
+class PreferTwo(torch.nn.Module):
+    """A value that prefers action 2 in every state."""
+
+    def forward(self, features):
+        return features.new_tensor([0.0, 0.0, 1.0])
+
+
+def test_epsilon_greedy_play_explores():
+    model, env = frozen_rssm(), DelayedPunch()
+    greedy = play_value(env, model, PreferTwo(), 5, 0, 0)["actions"]
+    noisy = play_value(env, model, PreferTwo(), 5, 0, 0, epsilon=0.5)["actions"]
+    assert set(greedy.tolist()) == {2} and len(set(noisy.tolist())) == 3
+
+
+def test_profiles_and_missing_value(tmp_path):
+    smoke = for_profile(LatentValueConfig, "smoke")
+    assert smoke.rounds < LatentValueConfig().rounds and smoke.fit_updates < LatentValueConfig().fit_updates
+    with pytest.raises(FileNotFoundError, match="train_value"):
+        load_value(tmp_path, frozen_rssm())

@@ -1,0 +1,203 @@
+"""A short-horizon action value on a trained RSSM's latent (beyond the thesis).
+
+CEM's imagined returns need the reward model to tell which action lands a reward. In Boxing
+a punch thrown at step t scores at t + 2, and a model trained on 32x32 frames ranks the action
+that landed a hit barely above the others (session 13's measurements in issue 13). This wing
+keeps the trained RSSM frozen and learns, on its features, the reward that an action brings
+over the next few steps:
+
+    Q(h_t, s_t, a) = value(h_{t+1}, mean of p(s_{t+1} | h_{t+1})),   h_{t+1} = f(h_t, s_t, a)
+    target: r_t + r_{t+1} + ... + r_{t+n-1}   (n = ``reward_steps``, within the episode)
+
+where ``r_t`` is the reward of taking ``a_t``. The features are the one-step prior of the
+planner's first imagined step, so the action enters through the RSSM's own transition. The
+agent (:class:`ValueMind`) filters ``(h_t, s_t)`` with the posterior mean and takes the argmax
+of Q over all actions: one transition per action, no CEM. It learns like a fitted-Q iteration
+on its own play: the value is fitted on the PlaNet run's episodes, then each round adds
+``bouts_per_round`` epsilon-greedy bouts of the value agent to its own store and refits on all.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+from tqdm.auto import tqdm
+
+from wmthesis.config import LatentValueConfig
+from wmthesis.core import Callback, Mind, loop
+from wmthesis.data import EpisodeBuffer, EpisodeStore
+from wmthesis.envs.preprocessing import to_float
+from wmthesis.planet.rssm import RSSM, one_hot_previous
+from wmthesis.utils import atomic_path, derive_seeds
+
+STORE, CHECKPOINT = "episodes.h5", "value.pt"
+
+
+def reward_sums(rewards: np.ndarray, steps: int) -> np.ndarray:
+    """(T,) -> (T,): ``r_t + ... + r_{t+steps-1}`` of one episode, cut at its end."""
+    if steps < 1:
+        raise ValueError(f"reward_steps must be >= 1, got {steps}")
+    padded = np.concatenate([np.asarray(rewards, np.float32), np.zeros(steps - 1, np.float32)])
+    return np.convolve(padded, np.ones(steps, np.float32), mode="valid")
+
+
+def after_action(model: RSSM, belief: torch.Tensor, state: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    """Features of taking ``actions`` (...,) long from ``(h_t, s_t)``, (..., H) and (..., S):
+    ``(h_{t+1}, mean of p(s_{t+1} | h_{t+1}))``, (..., H + S)."""
+    belief, prior = model.transition(belief, state, F.one_hot(actions, model.n_actions).float())
+    return torch.cat([belief, prior.mean], -1)
+
+
+class LatentValue(nn.Module):
+    """The value head: features (..., H + S) -> Q (...,)."""
+
+    def __init__(self, features: int, hidden: int):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(features, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                                 nn.Linear(hidden, 1))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.net(features).squeeze(-1)
+
+
+@torch.inference_mode()
+def episode_features(model: RSSM, episode: dict[str, np.ndarray], bits: int, seed: int) -> torch.Tensor:
+    """Features of each taken action of a stored episode (observations (T, H, W, 3) uint8,
+    actions (T,)), filtering with the posterior as in training: (T, H + S)."""
+    generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
+    frames = to_float(torch.as_tensor(episode["observations"], device=generator.device)[None], bits, noise=generator)
+    actions = torch.as_tensor(episode["actions"], device=generator.device)
+    trajectory = model.observe(model.encode(frames), one_hot_previous(actions[None], model.n_actions), generator)
+    return after_action(model, trajectory.beliefs[0], trajectory.posterior.mean[0], actions)
+
+
+class ValueMind(Mind, Callback):
+    """The value agent for :func:`~wmthesis.core.loop`, passed as the mind and among the
+    callbacks (it resets on ``on_episode_start`` and records the action taken). :meth:`plan`
+    filters ``(h_t, s_t)`` with the frame (posterior mean) and returns Q of every action."""
+
+    def __init__(self, model: RSSM, value: LatentValue, bits: int = 5, seed: int = 0):
+        self.model, self.value, self.bits = model, value, bits
+        self.generator = torch.Generator(next(model.parameters()).device).manual_seed(int(seed))
+        self.actions = torch.arange(model.n_actions, device=self.generator.device)
+        self.reset()
+
+    def reset(self) -> None:
+        self.belief, self.state = self.model.initial(1)
+        self.prev_action = self.belief.new_zeros(1, self.model.n_actions)
+
+    def on_episode_start(self, episode, train_mode):
+        self.reset()
+
+    def on_step_taken(self, step, transition, info):
+        self.prev_action = F.one_hot(self.actions[transition.action:transition.action + 1], self.model.n_actions).float()
+
+    @torch.inference_mode()
+    def plan(self, frame: np.ndarray, train_mode: bool = True, debug_mode: bool = False) -> np.ndarray:
+        x = to_float(torch.as_tensor(frame, device=self.belief.device), self.bits, noise=self.generator)
+        self.belief, _ = self.model.transition(self.belief, self.state, self.prev_action)
+        self.state = self.model.posterior(self.belief, self.model.encode(x[None])).mean
+        count = self.model.n_actions
+        features = after_action(self.model, self.belief.expand(count, -1), self.state.expand(count, -1), self.actions)
+        return self.value(features).cpu().numpy()
+
+
+def fit_value(value: LatentValue, features: torch.Tensor, targets: torch.Tensor,
+              config: LatentValueConfig, seed: int) -> float:
+    """``config.fit_updates`` Adam steps of mean squared error on random batches of
+    (features (N, F), targets (N,)); returns the last batch's loss."""
+    optimizer = torch.optim.Adam(value.parameters(), lr=config.lr)
+    rng = np.random.default_rng(seed)
+    loss = torch.zeros(())
+    for _ in range(config.fit_updates):
+        batch = torch.as_tensor(rng.integers(len(targets), size=config.batch_size), device=targets.device)
+        loss = F.mse_loss(value(features[batch]), targets[batch])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    return float(loss.detach())
+
+
+def _dataset(model: RSSM, stores: list[Path], config: LatentValueConfig, bits: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Features (N, H + S) and reward-sum targets (N,) of every episode in ``stores``."""
+    features, targets = [], []
+    for path in stores:
+        with EpisodeStore(path, "r") as store:
+            for index in range(len(store)):
+                episode = store.episode(index)
+                features.append(episode_features(model, episode, bits, index))
+                targets.append(torch.as_tensor(reward_sums(episode["rewards"], config.reward_steps)))
+    return torch.cat(features), torch.cat(targets).to(features[0].device)
+
+
+def play_value(env, model: RSSM, value: LatentValue, bits: int, env_seed: int, mind_seed: int,
+               epsilon: float = 0.0) -> dict[str, np.ndarray]:
+    """One episode of the value agent, greedy (``epsilon`` 0) or epsilon-greedy: the arrays of
+    :meth:`~wmthesis.data.EpisodeStore.append_episode`."""
+    mind, record = ValueMind(model, value, bits, mind_seed), EpisodeBuffer()
+    policy = "epsilon-greedy" if epsilon else "deterministic"
+    loop(env, mind, policy=policy, policy_options={"epsilon": epsilon} if epsilon else None,
+         callbacks=[mind, record], seed=int(env_seed), train_mode=False)
+    return record.episode
+
+
+def test_seeds(seed: int, k: int) -> tuple[int, int]:
+    """The (environment, mind) seeds of greedy test bout ``k``: those of the PlaNet agent's
+    evaluation bouts (:func:`~wmthesis.experiments.planet_boxing.planet_boxing_agent`)."""
+    env_seed, mind_seed = derive_seeds(seed, 3, k, n=2)
+    return int(env_seed), int(mind_seed)
+
+
+def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir, source, *,
+                seed: int, progress: bool = True) -> dict:
+    """Fit the value on the episodes in the store ``source`` (the PlaNet run's), test it, then
+    ``config.rounds`` times: play ``bouts_per_round`` epsilon-greedy bouts into
+    ``run_dir/episodes.h5``, refit on all episodes, test. Each test is ``test_bouts`` greedy
+    bouts on :func:`test_seeds`. Resumable: the value and the tests are saved after each round,
+    each bout as it ends. Returns ``curve`` (one entry per round: ``round``, ``episodes``,
+    ``returns``, ``mean``, ``std``, ``loss``) and ``run_dir``."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    device = next(model.parameters()).device
+    value = LatentValue(model.belief_size + model.state_size, config.hidden_size).to(device)
+    saved = run_dir / CHECKPOINT
+    state = torch.load(saved, map_location=device, weights_only=False) if saved.exists() else {"curve": []}
+    if "value" in state:
+        value.load_state_dict(state["value"])
+    curve = state["curve"]
+    for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
+        with EpisodeStore(run_dir / STORE, "a", preprocessing="planet", seed=seed,
+                          obs_shape=env.observation_space.shape) as own:
+            for index in range(len(own), round_ * config.bouts_per_round):
+                env_seed, mind_seed = (int(v) for v in derive_seeds(seed, 4, index, n=2))
+                own.append_episode(**play_value(env, model, value, bits, env_seed, mind_seed, config.epsilon))
+            episodes = len(own)
+        features, targets = _dataset(model, [Path(source), run_dir / STORE], config, bits)
+        loss = fit_value(value, features, targets, config, seed=int(derive_seeds(seed, 5, round_)[0]))
+        returns = [float(play_value(env, model, value, bits, *test_seeds(seed, k))["rewards"].sum())
+                   for k in range(config.test_bouts)]
+        curve.append({"round": round_, "episodes": episodes, "returns": returns, "mean": float(np.mean(returns)),
+                      "std": float(np.std(returns)), "loss": loss})
+        with atomic_path(saved) as tmp:
+            torch.save({"value": value.state_dict(), "curve": curve, "config": dataclasses.asdict(config)}, tmp)
+    return {"curve": curve, "run_dir": str(run_dir)}
+
+
+def load_value(run_dir, model: RSSM) -> LatentValue:
+    """The fitted value of a :func:`train_value` run for ``model``."""
+    path = Path(run_dir) / CHECKPOINT
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no fitted value (run train_value first)")
+    state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
+    config = LatentValueConfig(**state["config"])
+    value = LatentValue(model.belief_size + model.state_size, config.hidden_size).to(next(model.parameters()).device)
+    value.load_state_dict(state["value"])
+    return value.eval()
+
+
+__all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
+           "reward_sums", "test_seeds", "train_value"]
