@@ -68,3 +68,12 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert agent["updates"] > study["updates"] and agent["env_steps"] == 80
     assert agent["difference"]["difference"] == agent["agent"]["full"]["mean"] - agent["random"]["full"]["mean"]
     assert all(first == full for first, full in zip(agent["agent"]["first_returns"], agent["agent"]["returns"]))
+
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke"]) == 0  # the agent's model, frozen
+    assert "PlaNet's CEM" in capsys.readouterr().out
+    value = json.loads((tmp_path / "data/results/planet-boxing-value/smoke-seed0/metrics.json").read_text())
+    assert [c["round"] for c in value["curve"]] == [0, 1] and value["curve"][1]["episodes"] == 1
+    assert len(value["returns"]) == 2 and value["returns"] == value["curve"][-1]["returns"]
+    assert value["difference"]["difference"] == value["value"]["mean"] - agent["random"]["full"]["mean"]
+    with EpisodeStore(tmp_path / "data/smoke/planet-boxing-value/seed0/episodes.h5") as own:
+        assert len(own) == 3 and own.num_steps == 48  # 2 random bouts, 1 of its own, 16 steps each in smoke

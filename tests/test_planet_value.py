@@ -63,21 +63,19 @@ def test_features_are_the_transition_after_each_action_and_depend_on_it():
 
 def test_value_agent_learns_the_delayed_punch_and_resumes(tmp_path):
     model, env = frozen_rssm(), DelayedPunch()
-    with EpisodeStore(tmp_path / "source.h5", "a", obs_shape=(64, 64, 3)) as store:
-        for index in range(20):
-            store.append_episode(**play_random_episode(env, 0, index))
-    config = LatentValueConfig(hidden_size=32, fit_updates=300, batch_size=64, rounds=1, bouts_per_round=2,
-                               test_bouts=2)
-    first = train_value(model, 5, env, dataclasses.replace(config, rounds=0), tmp_path / "run", tmp_path / "source.h5",
-                        seed=0, progress=False)
-    assert len(first["curve"]) == 1
-    result = train_value(model, 5, env, config, tmp_path / "run", tmp_path / "source.h5", seed=0, progress=False)
+    config = LatentValueConfig(hidden_size=32, random_bouts=20, fit_updates=300, batch_size=64, rounds=1,
+                               bouts_per_round=2, test_bouts=2)
+    first = train_value(model, 5, env, dataclasses.replace(config, rounds=0), tmp_path, seed=0, progress=False)
+    assert len(first["curve"]) == 1 and first["curve"][0]["episodes"] == 0
+    result = train_value(model, 5, env, config, tmp_path, seed=0, progress=False)
     curve = result["curve"]
     assert [c["round"] for c in curve] == [0, 1] and curve[0] == first["curve"][0]  # round 0 kept, not redone
-    assert curve[1]["episodes"] == 2
-    # Always punching scores 22 of 24 steps; random play scores about a third of that.
-    assert all(r == 22 for r in curve[-1]["returns"])
-    value = load_value(tmp_path / "run", model)
+    with EpisodeStore(tmp_path / "episodes.h5") as store:
+        assert len(store) == 22 and curve[1]["episodes"] == 2
+        random_returns = [store.episode(i)["rewards"].sum() for i in range(20)]
+    # Always punching scores 22 of 24 steps; random play about a third of that.
+    assert all(r == 22 for r in curve[-1]["returns"]) and max(random_returns) < 15
+    value = load_value(tmp_path, model)
     scores = ValueMind(model, value).plan(np.zeros((64, 64, 3), np.uint8))
     assert scores.argmax() == 1 and scores[1] - max(scores[0], scores[2]) > 0.5
 

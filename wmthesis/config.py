@@ -132,14 +132,15 @@ class LatentValueConfig:
     """A short-horizon action value on a trained PlaNet model's latent (beyond the thesis;
     :mod:`~wmthesis.planet.value`): Q of an action = the sum of the next ``reward_steps``
     rewards, a two-layer head of ``hidden_size`` on the RSSM's features after the action.
-    Fitted with ``fit_updates`` Adam steps (``batch_size``, ``lr``) on the PlaNet run's episodes,
-    then ``rounds`` times on those and ``bouts_per_round`` more epsilon-greedy bouts of its own;
+    Fitted with ``fit_updates`` Adam steps (``batch_size``, ``lr``) on ``random_bouts`` random
+    bouts, then ``rounds`` times on those and ``bouts_per_round`` more epsilon-greedy bouts of its own;
     ``test_bouts`` greedy bouts after each fit. The defaults are the sizes measured on Boxing
     (issue 13, session 14): a punch lands two steps after it is thrown, so three rewards.
     """
 
     reward_steps: int = 3
     hidden_size: int = 256
+    random_bouts: int = 100
     fit_updates: int = 6000
     batch_size: int = 256
     lr: float = 1e-3
@@ -338,8 +339,8 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                              batch_size=4, chunk_length=8, overshooting_distance=3, seed_episodes=2,
                              update_steps=2, max_episode_steps=16, env_steps=80, horizon=3,
                              candidates=16, top_k=4, iterations=2, test_interval=1, test_episodes=1),
-        "LatentValueConfig": dict(hidden_size=16, fit_updates=5, batch_size=16, rounds=1, bouts_per_round=1,
-                                  test_bouts=2),
+        "LatentValueConfig": dict(hidden_size=16, random_bouts=2, fit_updates=5, batch_size=16, rounds=1,
+                                  bouts_per_round=1, test_bouts=2),
         "SearchConfig": dict(trials=2, workers=1, env_steps=48, open_loop_sequences=2, open_loop_length=10,
                              held_out_episodes=1,
                              heartbeat_interval=1, grace_period=3),

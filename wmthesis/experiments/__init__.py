@@ -22,7 +22,7 @@ from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, ALPHAZERO
                                             boxing_wm_alphazero)
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, PLANET_REFERENCE,
                                          planet_experiment, planet_variants)
-from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
+from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study, planet_boxing_value
 from wmthesis.experiments.sokoban_search import SOKOBAN_SEARCH_REFERENCE, sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,
@@ -32,8 +32,9 @@ from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.utils import check_choice, set_threads
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
-               "planet-boxing-study", "planet-boxing-agent", "sokoban-search")
-NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent")
+               "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "sokoban-search")
+NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent",
+               "planet-boxing-value")
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
@@ -56,6 +57,8 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
         return planet_boxing_study(profile, seed, progress)
     if name == "planet-boxing-agent":
         return planet_boxing_agent(profile, seed, progress)
+    if name == "planet-boxing-value":
+        return planet_boxing_value(profile, seed, progress)
     if name == "boxing-wm-alphazero":
         return boxing_wm_alphazero(profile, seed, variant, progress)
     if name in PLANET_GAMES:
@@ -93,5 +96,6 @@ __all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", "SOKOB
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE", "SOKOBAN_WM_REFERENCE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES", "BOXING_REFERENCE",
            "boxing_wm_alphazero", "ALPHAZERO_REFERENCE", "ALPHAZERO_DIAGNOSIS_DEPTH", "RECORDING_STEPS",
-           "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "PLANET_GAMES", "PLANET_REFERENCE", "ATARI_CHANGES",
+           "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "planet_boxing_value",
+           "PLANET_GAMES", "PLANET_REFERENCE", "ATARI_CHANGES",
            "SOKOBAN_CHANGES", "PLANET_EVAL_EPISODES", "PLANET_OPEN_LOOP"]

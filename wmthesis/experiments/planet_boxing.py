@@ -181,7 +181,72 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     return metrics
 
 
-__all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
+# ---------------------------------------------------------------------------- beyond the thesis
+@releasing_holds
+def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+    """The PlaNet agent's model (:func:`planet_boxing_agent`, trained first if need be) frozen,
+    and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
+    its own; after each round, greedy bouts on the agent's evaluation bouts, so the last round
+    compares with random play and with the CEM planner on the same bouts. Returns the metrics:
+    ``value`` and ``random`` (scores over full bouts), ``difference``
+    (:func:`~wmthesis.metrics.score_difference`), ``planet`` (the CEM agent's), the ``curve``
+    (one entry per round) and ``files``."""
+    from wmthesis.config import LatentValueConfig, for_profile
+    from wmthesis.metrics import score_difference, score_summary
+    from wmthesis.planet.figures import learning_curve_figure
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import train_value
+
+    profile = profile_name(profile)
+    started = time.time()
+    agent = planet_boxing_agent(profile, seed, progress)
+    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
+    work = hold(data_dir(profile, "planet-boxing-value", f"seed{seed}"))
+    out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}")
+    model, planet, _ = load_planet(planet_run)
+    config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"])
+    env = make_planet_env(GAME, planet)
+    try:
+        run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress)
+    finally:
+        env.close()
+    returns = run["curve"][-1]["returns"]
+    references = {"random play": agent["random"]["full"]["mean"], "PlaNet (CEM)": agent["agent"]["full"]["mean"],
+                  "human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
+    figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
+                                               references=references, x="episodes",
+                                               title="Boxing: the value agent after each round"),
+                         out / "value_curve.png")
+    value = score_summary(returns)
+    metrics = {**_run_header("planet-boxing-value", profile, seed, time.time() - started, env=GAME),
+               "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} bouts "
+                           f"(random play {agent['random']['full']['mean']:.1f}, PlaNet's CEM "
+                           f"{agent['agent']['full']['mean']:.1f})",
+               "value": value, "returns": returns, "random": agent["random"]["full"],
+               "difference": score_difference(returns, agent["random"]["returns"]), "planet": agent["agent"]["full"],
+               "bouts": agent["bouts"], "curve": run["curve"], "config": dataclasses.asdict(config),
+               "files": {"figures": [str(figure)]}}
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1))
+    return metrics
+
+
+def value_table(metrics: dict) -> str:
+    """The value agent's last round beside random play and the CEM planner on the same bouts (markdown)."""
+    def cell(summary):
+        return f"{summary['mean']:.1f} ± {summary['std']:.1f} (n={summary['episodes']})"
+
+    diff, last = metrics["difference"], metrics["curve"][-1]
+    return "\n".join([
+        "| player | full bout |", "|---|---|",
+        f"| latent value on the PlaNet model, {last['episodes']} bouts of its own | {cell(metrics['value'])} |",
+        f"| PlaNet (CEM planner), same model | {cell(metrics['planet'])} |",
+        f"| random play, same bouts | {cell(metrics['random'])} |",
+        f"| value - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) |",
+        f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
+
+
+__all__ = ["planet_boxing_study", "planet_boxing_agent", "planet_boxing_value", "value_table", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
 
 
 # ---------------------------------------------------------------------------- tables

@@ -2,7 +2,7 @@
 
 CEM's imagined returns need the reward model to tell which action lands a reward. In Boxing
 a punch thrown at step t scores at t + 2, and a model trained on 32x32 frames ranks the action
-that landed a hit barely above the others (session 13's measurements in issue 13). This wing
+that landed a hit barely above the others (session 13's measurements in issue 13). This module
 keeps the trained RSSM frozen and learns, on its features, the reward that an action brings
 over the next few steps:
 
@@ -13,8 +13,8 @@ where ``r_t`` is the reward of taking ``a_t``. The features are the one-step pri
 planner's first imagined step, so the action enters through the RSSM's own transition. The
 agent (:class:`ValueMind`) filters ``(h_t, s_t)`` with the posterior mean and takes the argmax
 of Q over all actions: one transition per action, no CEM. It learns like a fitted-Q iteration
-on its own play: the value is fitted on the PlaNet run's episodes, then each round adds
-``bouts_per_round`` epsilon-greedy bouts of the value agent to its own store and refits on all.
+on its own play: the value is fitted on random bouts, then each round adds ``bouts_per_round``
+epsilon-greedy bouts of the value agent to its store and refits on all of it.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 
 from wmthesis.config import LatentValueConfig
 from wmthesis.core import Callback, Mind, loop
-from wmthesis.data import EpisodeBuffer, EpisodeStore
+from wmthesis.data import EpisodeBuffer, EpisodeStore, play_random_episode
 from wmthesis.envs.preprocessing import to_float
 from wmthesis.planet.rssm import RSSM, one_hot_previous
 from wmthesis.utils import atomic_path, derive_seeds
@@ -122,15 +122,14 @@ def fit_value(value: LatentValue, features: torch.Tensor, targets: torch.Tensor,
     return float(loss.detach())
 
 
-def _dataset(model: RSSM, stores: list[Path], config: LatentValueConfig, bits: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Features (N, H + S) and reward-sum targets (N,) of every episode in ``stores``."""
+def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Features (N, H + S) and reward-sum targets (N,) of every episode in the store at ``path``."""
     features, targets = [], []
-    for path in stores:
-        with EpisodeStore(path, "r") as store:
-            for index in range(len(store)):
-                episode = store.episode(index)
-                features.append(episode_features(model, episode, bits, index))
-                targets.append(torch.as_tensor(reward_sums(episode["rewards"], config.reward_steps)))
+    with EpisodeStore(path, "r") as store:
+        for index in range(len(store)):
+            episode = store.episode(index)
+            features.append(episode_features(model, episode, bits, index))
+            targets.append(torch.as_tensor(reward_sums(episode["rewards"], config.reward_steps)))
     return torch.cat(features), torch.cat(targets).to(features[0].device)
 
 
@@ -152,16 +151,15 @@ def test_seeds(seed: int, k: int) -> tuple[int, int]:
     return int(env_seed), int(mind_seed)
 
 
-def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir, source, *,
-                seed: int, progress: bool = True) -> dict:
-    """Fit the value on the episodes in the store ``source`` (the PlaNet run's), test it, then
-    ``config.rounds`` times: play ``bouts_per_round`` epsilon-greedy bouts into
-    ``run_dir/episodes.h5``, refit on all episodes, test. Each test is ``test_bouts`` greedy
-    bouts on :func:`test_seeds`. Resumable: the value and the tests are saved after each round,
-    each bout as it ends. Returns ``curve`` (one entry per round: ``round``, ``episodes``,
-    ``returns``, ``mean``, ``std``, ``loss``) and ``run_dir``."""
+def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir, *, seed: int,
+                progress: bool = True) -> dict:
+    """Play ``random_bouts`` random bouts into ``run_dir/episodes.h5``, fit the value on them and
+    test it; then ``config.rounds`` times: ``bouts_per_round`` epsilon-greedy bouts of the value
+    agent into the same store, refit on all of it, test. Each test is ``test_bouts`` greedy bouts
+    on :func:`test_seeds`. Resumable: every bout is stored as it ends, the value and the tests
+    after each round. Returns ``curve`` (one entry per round: ``round``, ``episodes`` (of its
+    own), ``returns``, ``mean``, ``std``, ``loss``) and ``run_dir``."""
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
     device = next(model.parameters()).device
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size).to(device)
     saved = run_dir / CHECKPOINT
@@ -171,12 +169,14 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     curve = state["curve"]
     for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
         with EpisodeStore(run_dir / STORE, "a", preprocessing="planet", seed=seed,
-                          obs_shape=env.observation_space.shape) as own:
-            for index in range(len(own), round_ * config.bouts_per_round):
+                          obs_shape=env.observation_space.shape) as store:
+            for index in range(len(store), config.random_bouts):
+                store.append_episode(**play_random_episode(env, seed, index))
+            for index in range(len(store), config.random_bouts + round_ * config.bouts_per_round):
                 env_seed, mind_seed = (int(v) for v in derive_seeds(seed, 4, index, n=2))
-                own.append_episode(**play_value(env, model, value, bits, env_seed, mind_seed, config.epsilon))
-            episodes = len(own)
-        features, targets = _dataset(model, [Path(source), run_dir / STORE], config, bits)
+                store.append_episode(**play_value(env, model, value, bits, env_seed, mind_seed, config.epsilon))
+            episodes = len(store) - config.random_bouts
+        features, targets = _dataset(model, run_dir / STORE, config, bits)
         loss = fit_value(value, features, targets, config, seed=int(derive_seeds(seed, 5, round_)[0]))
         returns = [float(play_value(env, model, value, bits, *test_seeds(seed, k))["rewards"].sum())
                    for k in range(config.test_bouts)]
