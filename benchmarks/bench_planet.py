@@ -10,7 +10,9 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
 - ``cem_plan``: one plan at the thesis sizes (H 12, J 1000, K 100, I 10); ``ratio`` is its time
   over the bare forward pass (target <= 1.2).
 - ``agent step``: :class:`~wmthesis.planet.train.PlanetMind` ``plan``: encode one frame,
-  update the belief, then the CEM.
+  update the belief, then the CEM; and beside it the latent value agent's step
+  (:class:`~wmthesis.planet.value.ValueMind`: encode, update, one transition per action and the
+  value head; beyond the thesis), with its speed-up over the CEM step.
 - The same two at the ``quick`` profile's planner sizes.
 - ``update``: one training step through :func:`~wmthesis.training.gradient_step` (loss, NaN
   guard, backward, clipping, Adam) on 50 chunks of 50 steps of 64x64 frames, with latent
@@ -39,11 +41,12 @@ import torch.nn.functional as F
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.config import PlaNetConfig  # noqa: E402
+from wmthesis.config import LatentValueConfig, PlaNetConfig  # noqa: E402
 from wmthesis.planet.profiles import planet_config  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
 from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
+from wmthesis.planet.value import LatentValue, ValueMind  # noqa: E402
 from wmthesis.training import gradient_step  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
@@ -85,18 +88,23 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
             rollout(batch)
 
     mind = PlanetMind.from_config(model, cfg, seed)
+    value = LatentValue(cfg.belief_size + cfg.state_size, LatentValueConfig().hidden_size).to(dev)
+    value_mind = ValueMind(model, value, cfg.bits, seed)
     size = cfg.frame_size
     frame = np.random.default_rng(seed).integers(0, 32, (size, size, 3), dtype=np.uint8) * 8
     with torch.inference_mode():
         seconds = median_seconds({"bare": bare, "cem": lambda: cem_plan(rollout, N_ACTIONS, *sizes, g),
-                                  "step": lambda: mind.plan(frame)}, repeats)
-    bare_s, cem_s, step_s = seconds["bare"], seconds["cem"], seconds["step"]
+                                  "step": lambda: mind.plan(frame), "value": lambda: value_mind.plan(frame)},
+                                 repeats)
+    bare_s, cem_s, step_s, value_s = seconds["bare"], seconds["cem"], seconds["step"], seconds["value"]
     steps = cfg.iterations * cfg.horizon * cfg.candidates
     name = f"H{cfg.horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}"
     return [dict(what=f"bare forward, {steps:,} latent steps ({label})", sizes=name, seconds=bare_s,
                  latent_steps_per_s=steps / bare_s),
             dict(what=f"cem_plan ({label})", sizes=name, seconds=cem_s, ratio=cem_s / bare_s),
-            dict(what=f"agent step: encode + CEM ({label})", sizes=name, seconds=step_s, ratio=step_s / bare_s)]
+            dict(what=f"agent step: encode + CEM ({label})", sizes=name, seconds=step_s, ratio=step_s / bare_s),
+            dict(what=f"agent step: encode + latent value ({label})", sizes=f"{N_ACTIONS} actions", seconds=value_s,
+                 speedup_vs_cem=step_s / value_s)]
 
 
 def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
@@ -160,7 +168,7 @@ def main() -> int:
     results.append(update_row(quick, "quick", args.updates, args.seed))
 
     print_table(results, ["what", "sizes", "seconds", "ratio", "updates_per_s", "updates_per_hour", "frames_per_s",
-                          "vs_bare", "latent_steps_per_s"])
+                          "vs_bare", "latent_steps_per_s", "speedup_vs_cem"])
     meta = machine_meta(seed=args.seed, repeats=args.repeats, updates=args.updates, threads=torch.get_num_threads(),
                         device=str(next(model.parameters()).device), cpus=os.cpu_count(),
                         load_average_before=load_before, load_average_after=os.getloadavg()[0])
