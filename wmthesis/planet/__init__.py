@@ -5,5 +5,7 @@ and decoder: World Models' VAE networks at the thesis's 64x64, thesis 4.4.1, and
 for other frame sizes), ``cem`` (the planner), ``train`` (the agent, data collection and the
 training loop), ``prediction`` (open-loop rollouts, scored on every pixel or on the moving
 pixels against two baselines), ``study`` (the model study of 5.6.1-5.6.4), ``figures``,
-``tuning`` (the random search over KL scale x free nats with optuna).
+``tuning`` (the random search over KL scale x free nats with optuna), and beyond the thesis
+``value`` (a short-horizon action value on a trained model's latent: a Boxing agent where CEM's
+imagined returns cannot see which action lands a punch).
 """
