@@ -121,30 +121,21 @@ def make_optimizer(model: RSSM, config: PlaNetConfig) -> torch.optim.Adam:
 
 
 # ---------------------------------------------------------------------------- agent
-class PlanetMind(Mind, Callback):
-    """The PlaNet agent for :func:`~wmthesis.core.loop`: filter the belief, plan with CEM.
+class BeliefFilter(Mind, Callback):
+    """An agent's belief ``(h_t, s_t)`` under an RSSM, filtered along the episode, for
+    :func:`~wmthesis.core.loop`: the part that PlaNet's planner and the latent value agent
+    (:class:`~wmthesis.planet.value.ValueMind`) share.
 
-    Pass it as the mind AND among the callbacks: ``on_episode_start`` resets the belief and
-    ``on_step_taken`` records the action taken (the policy may differ from the plan). Each
-    :meth:`plan` first updates ``(h, s)`` with the observation (5-bit frame, dequantisation
-    noise as in training) and the previous action, then returns the scores of the final CEM
-    belief for the first step (argmax = the plan's action). :meth:`reset` does the episode
-    reset by hand.
+    Pass a subclass as the mind AND among the callbacks: ``on_episode_start`` resets the belief
+    and ``on_step_taken`` records the action taken (the policy may differ from the plan).
+    :meth:`reset` does the episode reset by hand.
     """
 
-    def __init__(self, model: RSSM, *, horizon: int, candidates: int, top_k: int,
-                 iterations: int, bits: int = 5, generator: torch.Generator | None = None):
+    def __init__(self, model: RSSM, bits: int = 5, generator: torch.Generator | None = None):
         self.model, self.bits = model, bits
-        self.sizes = dict(horizon=horizon, candidates=candidates, top_k=top_k, iterations=iterations)
         weight = next(model.parameters())
         self.generator = generator if generator is not None else torch.Generator(weight.device).manual_seed(0)
         self.reset()
-
-    @classmethod
-    def from_config(cls, model: RSSM, config: PlaNetConfig, seed: int = 0) -> "PlanetMind":
-        generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
-        return cls(model, horizon=config.horizon, candidates=config.candidates, top_k=config.top_k,
-                   iterations=config.iterations, bits=config.bits, generator=generator)
 
     def reset(self) -> None:
         """Start of an episode: zero belief, state and previous action."""
@@ -159,12 +150,32 @@ class PlanetMind(Mind, Callback):
                                      self.model.n_actions).float()
 
     @torch.inference_mode()
-    def observe(self, frame: np.ndarray) -> None:
-        """Advance ``(h, s)`` with a (64, 64, 3) uint8 frame and the previous action."""
+    def observe(self, frame: np.ndarray, sample: bool = True) -> None:
+        """Advance ``(h, s)`` with a (size, size, 3) uint8 frame (``bits`` bits, dequantisation
+        noise as in training) and the previous action; ``s`` is the posterior's sample, or its
+        mean when not ``sample``."""
         x = to_float(torch.as_tensor(frame, device=self.belief.device), self.bits, noise=self.generator)
         self.belief, _ = self.model.transition(self.belief, self.state, self.prev_action)
         posterior = self.model.posterior(self.belief, self.model.encode(x[None]))
-        self.state = posterior.sample(self.generator)
+        self.state = posterior.sample(self.generator) if sample else posterior.mean
+
+
+class PlanetMind(BeliefFilter):
+    """The PlaNet agent: filter the belief (:class:`BeliefFilter`), plan with CEM. Each
+    :meth:`plan` first updates ``(h, s)`` with the observation and the previous action, then
+    returns the scores of the final CEM belief for the first step (argmax = the plan's action).
+    """
+
+    def __init__(self, model: RSSM, *, horizon: int, candidates: int, top_k: int,
+                 iterations: int, bits: int = 5, generator: torch.Generator | None = None):
+        self.sizes = dict(horizon=horizon, candidates=candidates, top_k=top_k, iterations=iterations)
+        super().__init__(model, bits, generator)
+
+    @classmethod
+    def from_config(cls, model: RSSM, config: PlaNetConfig, seed: int = 0) -> "PlanetMind":
+        generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
+        return cls(model, horizon=config.horizon, candidates=config.candidates, top_k=config.top_k,
+                   iterations=config.iterations, bits=config.bits, generator=generator)
 
     @torch.inference_mode()
     def plan(self, state, train_mode: bool = True, debug_mode: bool = False):

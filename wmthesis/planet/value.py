@@ -25,13 +25,14 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from wmthesis.config import LatentValueConfig
-from wmthesis.core import Callback, Mind, loop
+from wmthesis.core import loop
 from wmthesis.data import EpisodeBuffer, EpisodeStore, play_random_episode
 from wmthesis.envs.preprocessing import to_float
 from wmthesis.planet.rssm import RSSM, one_hot_previous
+from wmthesis.planet.train import BeliefFilter
 from wmthesis.utils import atomic_path, derive_seeds
 
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
@@ -75,32 +76,19 @@ def episode_features(model: RSSM, episode: dict[str, np.ndarray], bits: int, see
     return after_action(model, trajectory.beliefs[0], trajectory.posterior.mean[0], actions)
 
 
-class ValueMind(Mind, Callback):
+class ValueMind(BeliefFilter):
     """The value agent for :func:`~wmthesis.core.loop`, passed as the mind and among the
-    callbacks (it resets on ``on_episode_start`` and records the action taken). :meth:`plan`
-    filters ``(h_t, s_t)`` with the frame (posterior mean) and returns Q of every action."""
+    callbacks (:class:`~wmthesis.planet.train.BeliefFilter`). :meth:`plan` filters
+    ``(h_t, s_t)`` with the frame (the posterior's mean) and returns Q of every action."""
 
     def __init__(self, model: RSSM, value: LatentValue, bits: int = 5, seed: int = 0):
-        self.model, self.value, self.bits = model, value, bits
-        self.generator = torch.Generator(next(model.parameters()).device).manual_seed(int(seed))
+        super().__init__(model, bits, torch.Generator(next(model.parameters()).device).manual_seed(int(seed)))
+        self.value = value
         self.actions = torch.arange(model.n_actions, device=self.generator.device)
-        self.reset()
-
-    def reset(self) -> None:
-        self.belief, self.state = self.model.initial(1)
-        self.prev_action = self.belief.new_zeros(1, self.model.n_actions)
-
-    def on_episode_start(self, episode, train_mode):
-        self.reset()
-
-    def on_step_taken(self, step, transition, info):
-        self.prev_action = F.one_hot(self.actions[transition.action:transition.action + 1], self.model.n_actions).float()
 
     @torch.inference_mode()
     def plan(self, frame: np.ndarray, train_mode: bool = True, debug_mode: bool = False) -> np.ndarray:
-        x = to_float(torch.as_tensor(frame, device=self.belief.device), self.bits, noise=self.generator)
-        self.belief, _ = self.model.transition(self.belief, self.state, self.prev_action)
-        self.state = self.model.posterior(self.belief, self.model.encode(x[None])).mean
+        self.observe(frame, sample=False)
         count = self.model.n_actions
         features = after_action(self.model, self.belief.expand(count, -1), self.state.expand(count, -1), self.actions)
         return self.value(features).cpu().numpy()
