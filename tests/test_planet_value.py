@@ -75,6 +75,8 @@ def test_value_agent_learns_the_delayed_punch_and_resumes(tmp_path):
         random_returns = [store.episode(i)["rewards"].sum() for i in range(20)]
     # Always punching scores 22 of 24 steps; random play about a third of that.
     assert all(r == 22 for r in curve[-1]["returns"]) and max(random_returns) < 15
+    with pytest.raises(ValueError, match="hidden_size: 32 -> 16"):  # a changed config is not resumed
+        train_value(model, 5, env, dataclasses.replace(config, hidden_size=16), tmp_path, seed=0, progress=False)
     value = load_value(tmp_path, model)
     scores = ValueMind(model, value).plan(np.zeros((64, 64, 3), np.uint8))
     assert scores.argmax() == 1 and scores[1] - max(scores[0], scores[2]) > 0.5

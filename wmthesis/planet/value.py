@@ -132,7 +132,7 @@ def play_value(env, model: RSSM, value: LatentValue, bits: int, env_seed: int, m
     return record.episode
 
 
-def test_seeds(seed: int, k: int) -> tuple[int, int]:
+def evaluation_seeds(seed: int, k: int) -> tuple[int, int]:
     """The (environment, mind) seeds of greedy test bout ``k``: those of the PlaNet agent's
     evaluation bouts (:func:`~wmthesis.experiments.planet_boxing.planet_boxing_agent`)."""
     env_seed, mind_seed = derive_seeds(seed, 3, k, n=2)
@@ -144,7 +144,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     """Play ``random_bouts`` random bouts into ``run_dir/episodes.h5``, fit the value on them and
     test it; then ``config.rounds`` times: ``bouts_per_round`` epsilon-greedy bouts of the value
     agent into the same store, refit on all of it, test. Each test is ``test_bouts`` greedy bouts
-    on :func:`test_seeds`. Resumable: every bout is stored as it ends, the value and the tests
+    on :func:`evaluation_seeds`. Resumable: every bout is stored as it ends, the value and the tests
     after each round. Returns ``curve`` (one entry per round: ``round``, ``episodes`` (of its
     own), ``returns``, ``mean``, ``std``, ``loss``) and ``run_dir``."""
     run_dir = Path(run_dir)
@@ -153,6 +153,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     saved = run_dir / CHECKPOINT
     state = torch.load(saved, map_location=device, weights_only=False) if saved.exists() else {"curve": []}
     if "value" in state:
+        _check_resumable(state["config"], config, saved)
         value.load_state_dict(state["value"])
     curve = state["curve"]
     for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
@@ -166,13 +167,22 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
             episodes = len(store) - config.random_bouts
         features, targets = _dataset(model, run_dir / STORE, config, bits)
         loss = fit_value(value, features, targets, config, seed=int(derive_seeds(seed, 5, round_)[0]))
-        returns = [float(play_value(env, model, value, bits, *test_seeds(seed, k))["rewards"].sum())
+        returns = [float(play_value(env, model, value, bits, *evaluation_seeds(seed, k))["rewards"].sum())
                    for k in range(config.test_bouts)]
         curve.append({"round": round_, "episodes": episodes, "returns": returns, "mean": float(np.mean(returns)),
                       "std": float(np.std(returns)), "loss": loss})
         with atomic_path(saved) as tmp:
             torch.save({"value": value.state_dict(), "curve": curve, "config": dataclasses.asdict(config)}, tmp)
     return {"curve": curve, "run_dir": str(run_dir)}
+
+
+def _check_resumable(saved: dict, config: LatentValueConfig, path: Path) -> None:
+    """A run goes on only with the config it was started with; ``rounds`` may grow."""
+    changed = sorted(k for k, v in dataclasses.asdict(config).items() if k != "rounds" and saved.get(k) != v)
+    if changed:
+        raise ValueError(f"{path} was fitted with another LatentValueConfig ("
+                         + ", ".join(f"{k}: {saved.get(k)} -> {getattr(config, k)}" for k in changed)
+                         + "); use a new run folder, or the same config (only rounds may change)")
 
 
 def load_value(run_dir, model: RSSM) -> LatentValue:
@@ -188,4 +198,4 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
 
 
 __all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
-           "reward_sums", "test_seeds", "train_value"]
+           "reward_sums", "evaluation_seeds", "train_value"]
