@@ -231,17 +231,19 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     return metrics
 
 
+def _score_cell(summary: dict) -> str:
+    """A :func:`~wmthesis.metrics.score_summary` as a table cell: mean ± std (n)."""
+    return f"{summary['mean']:.1f} ± {summary['std']:.1f} (n={summary['episodes']})"
+
+
 def value_table(metrics: dict) -> str:
     """The value agent's last round beside random play and the CEM planner on the same bouts (markdown)."""
-    def cell(summary):
-        return f"{summary['mean']:.1f} ± {summary['std']:.1f} (n={summary['episodes']})"
-
     diff, last = metrics["difference"], metrics["curve"][-1]
     return "\n".join([
         "| player | full bout |", "|---|---|",
-        f"| latent value on the PlaNet model, {last['episodes']} bouts of its own | {cell(metrics['value'])} |",
-        f"| PlaNet (CEM planner), same model | {cell(metrics['planet'])} |",
-        f"| random play, same bouts | {cell(metrics['random'])} |",
+        f"| latent value on the PlaNet model, {last['episodes']} bouts of its own | {_score_cell(metrics['value'])} |",
+        f"| PlaNet (CEM planner), same model | {_score_cell(metrics['planet'])} |",
+        f"| random play, same bouts | {_score_cell(metrics['random'])} |",
         f"| value - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) |",
         f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
 
@@ -274,16 +276,13 @@ def study_table(metrics: dict) -> str:
 
 def agent_table(metrics: dict) -> str:
     """The agent's bouts beside random play on the same bouts and the references (markdown)."""
-    def cell(summary):
-        return f"{summary['mean']:.1f} ± {summary['std']:.1f} (n={summary['episodes']})"
-
     diff, first = metrics["difference"], metrics["difference_first"]
     reference = metrics["reference"]
     return "\n".join([
         "| player | full bout | first 500 agent steps |", "|---|---|---|",
         f"| PlaNet (KL scale 0.03, free nats 12), {metrics['env_steps']:,} agent steps, {metrics['updates']:,} updates "
-        f"| {cell(metrics['agent']['full'])} | {cell(metrics['agent']['first'])} |",
-        f"| random play, same bouts | {cell(metrics['random']['full'])} | {cell(metrics['random']['first'])} |",
+        f"| {_score_cell(metrics['agent']['full'])} | {_score_cell(metrics['agent']['first'])} |",
+        f"| random play, same bouts | {_score_cell(metrics['random']['full'])} | {_score_cell(metrics['random']['first'])} |",
         f"| agent - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) "
         f"| {first['difference']:.1f} ± {first['standard_error']:.1f} (s.e.) |",
         f"| human (standard reference) | {reference['human']} | |",
