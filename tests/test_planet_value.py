@@ -11,8 +11,8 @@ import torch
 from wmthesis.config import LatentValueConfig, for_profile
 from wmthesis.data import EpisodeStore, play_random_episode
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.value import (ValueMind, after_action, episode_features, load_value, play_value, reward_sums,
-                                   train_value)
+from wmthesis.planet.value import (LatentValue, ValueMind, after_action, episode_features, fit_value, load_value,
+                                   play_value, reward_sums, train_value)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
@@ -101,3 +101,20 @@ def test_profiles_and_missing_value(tmp_path):
     assert smoke.rounds < LatentValueConfig().rounds and smoke.fit_updates < LatentValueConfig().fit_updates
     with pytest.raises(FileNotFoundError, match="train_value"):
         load_value(tmp_path, frozen_rssm())
+
+
+def test_an_ensemble_averages_its_heads_and_fits_each():
+    torch.manual_seed(0)
+    value = LatentValue(6, 32, heads=3)
+    features = torch.randn(512, 6)
+    targets = 2 * features[:, 0] - features[:, 3]
+    assert torch.allclose(value(features), value.each(features).mean(-1))
+    before = value.each(features)
+    assert not torch.allclose(before[:, 0], before[:, 1])  # each head starts on its own
+    config = LatentValueConfig(fit_updates=400, batch_size=64, lr=3e-3)
+    loss = fit_value(value, features, targets, config, seed=0)
+    with torch.no_grad():
+        errors = ((value.each(features) - targets[:, None]) ** 2).mean(0)
+    assert loss < 0.05 and (errors < 0.05).all()  # every head learnt the target, not just their mean
+    with pytest.raises(ValueError, match="heads"):
+        LatentValue(6, 32, heads=0)

@@ -131,7 +131,8 @@ class PlaNetConfig:
 class LatentValueConfig:
     """A short-horizon action value on a trained PlaNet model's latent (beyond the thesis;
     :mod:`~wmthesis.planet.value`): Q of an action = the sum of the next ``reward_steps``
-    rewards, a two-layer head of ``hidden_size`` on the RSSM's features after the action.
+    rewards, the mean of ``heads`` two-layer heads of ``hidden_size`` (an ensemble, each head on
+    its own batches) on the RSSM's features after the action.
     Fitted with ``fit_updates`` Adam steps (``batch_size``, ``lr``) on ``random_bouts`` random
     bouts, then ``rounds`` times on those and ``bouts_per_round`` more epsilon-greedy bouts of its own;
     ``test_bouts`` greedy bouts after each fit. The defaults are the sizes measured on Boxing
@@ -140,6 +141,7 @@ class LatentValueConfig:
 
     reward_steps: int = 3
     hidden_size: int = 256
+    heads: int = 1
     random_bouts: int = 100
     fit_updates: int = 6000
     batch_size: int = 256

@@ -54,15 +54,21 @@ def after_action(model: RSSM, belief: torch.Tensor, state: torch.Tensor, actions
 
 
 class LatentValue(nn.Module):
-    """The value head: features (..., H + S) -> Q (...,)."""
+    """An ensemble of ``heads`` two-layer heads of width ``hidden``: features (..., F) -> Q (...,),
+    the mean of the heads (:meth:`each` gives them apart, (..., heads))."""
 
-    def __init__(self, features: int, hidden: int):
+    def __init__(self, features: int, hidden: int, heads: int = 1):
         super().__init__()
-        self.net = nn.Sequential(nn.Linear(features, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
-                                 nn.Linear(hidden, 1))
+        if heads < 1:
+            raise ValueError(f"heads must be >= 1, got {heads}")
+        self.heads = nn.ModuleList(nn.Sequential(nn.Linear(features, hidden), nn.ReLU(), nn.Linear(hidden, hidden),
+                                                 nn.ReLU(), nn.Linear(hidden, 1)) for _ in range(heads))
+
+    def each(self, features: torch.Tensor) -> torch.Tensor:
+        return torch.cat([head(features) for head in self.heads], -1)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        return self.net(features).squeeze(-1)
+        return self.each(features).mean(-1)
 
 
 @torch.inference_mode()
@@ -96,14 +102,16 @@ class ValueMind(BeliefFilter):
 
 def fit_value(value: LatentValue, features: torch.Tensor, targets: torch.Tensor,
               config: LatentValueConfig, seed: int) -> float:
-    """``config.fit_updates`` Adam steps of mean squared error on random batches of
-    (features (N, F), targets (N,)); returns the last batch's loss."""
+    """``config.fit_updates`` Adam steps of mean squared error on (features (N, F), targets (N,)),
+    each head on its own random batches; returns the last step's loss, averaged over the heads."""
     optimizer = torch.optim.Adam(value.parameters(), lr=config.lr)
     rng = np.random.default_rng(seed)
     loss = torch.zeros(())
     for _ in range(config.fit_updates):
-        batch = torch.as_tensor(rng.integers(len(targets), size=config.batch_size), device=targets.device)
-        loss = F.mse_loss(value(features[batch]), targets[batch])
+        batches = torch.as_tensor(rng.integers(len(targets), size=(len(value.heads), config.batch_size)),
+                                  device=targets.device)
+        loss = sum(F.mse_loss(head(features[batch]).squeeze(-1), targets[batch])
+                   for head, batch in zip(value.heads, batches)) / len(value.heads)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -149,7 +157,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     own), ``returns``, ``mean``, ``std``, ``loss``) and ``run_dir``."""
     run_dir = Path(run_dir)
     device = next(model.parameters()).device
-    value = LatentValue(model.belief_size + model.state_size, config.hidden_size).to(device)
+    value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(device)
     saved = run_dir / CHECKPOINT
     state = torch.load(saved, map_location=device, weights_only=False) if saved.exists() else {"curve": []}
     if "value" in state:
@@ -192,7 +200,7 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
         raise FileNotFoundError(f"{path}: no fitted value (run train_value first)")
     state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
     config = LatentValueConfig(**state["config"])
-    value = LatentValue(model.belief_size + model.state_size, config.hidden_size).to(next(model.parameters()).device)
+    value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(next(model.parameters()).device)
     value.load_state_dict(state["value"])
     return value.eval()
 
