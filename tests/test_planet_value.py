@@ -11,8 +11,9 @@ import torch
 from wmthesis.config import LatentValueConfig, for_profile
 from wmthesis.data import EpisodeStore, play_random_episode
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.value import (LatentValue, ValueMind, after_action, episode_features, fit_value, load_value,
-                                   play_value, reward_sums, train_value)
+from wmthesis.planet.value import (LatentValue, ValueMind, after_action, best_round, episode_features,
+                                   evaluation_seeds, fit_value, load_value, play_value, reward_sums, train_value,
+                                   validation_seeds)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
@@ -118,3 +119,22 @@ def test_an_ensemble_averages_its_heads_and_fits_each():
     assert loss < 0.05 and (errors < 0.05).all()  # every head learnt the target, not just their mean
     with pytest.raises(ValueError, match="heads"):
         LatentValue(6, 32, heads=0)
+
+
+def test_best_round_is_chosen_on_validation_and_kept(tmp_path):
+    assert best_round([{"round": 0, "validation_mean": 1.0}, {"round": 1, "validation_mean": 3.0},
+                       {"round": 2, "validation_mean": 3.0}, {"round": 3, "validation_mean": 2.0}]) == 1
+    # Values fitted with one step differ from round to round; the kept one is the validation's best.
+    model, env = frozen_rssm(), DelayedPunch()
+    config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=1, batch_size=8, lr=0.03, rounds=3,
+                               bouts_per_round=1, validation_bouts=2, test_bouts=2)
+    curve = train_value(model, 5, env, config, tmp_path, seed=0, progress=False)["curve"]
+    best = best_round(curve)
+    assert all(len(entry["validation"]) == 2 for entry in curve)
+    assert best != curve[-1]["round"] and curve[best]["validation"] != curve[-1]["validation"]
+    value = load_value(tmp_path, model)  # the best round's value, not the last
+    assert [play_value(env, model, value, 5, *validation_seeds(0, k))["rewards"].sum() for k in range(2)] \
+        == curve[best]["validation"]
+    assert [play_value(env, model, value, 5, *evaluation_seeds(0, k))["rewards"].sum() for k in range(2)] \
+        == curve[best]["returns"]
+    assert validation_seeds(0, 0) != evaluation_seeds(0, 0)

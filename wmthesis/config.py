@@ -135,20 +135,22 @@ class LatentValueConfig:
     its own batches) on the RSSM's features after the action.
     Fitted with ``fit_updates`` Adam steps (``batch_size``, ``lr``) on ``random_bouts`` random
     bouts, then ``rounds`` times on those and ``bouts_per_round`` more epsilon-greedy bouts of its own;
-    ``test_bouts`` greedy bouts after each fit. The defaults are the sizes measured on Boxing
+    ``validation_bouts`` greedy bouts after each fit choose the round whose value is kept (on bouts
+    of their own), ``test_bouts`` greedy bouts score each round. The defaults are the sizes measured on Boxing
     (issue 13, session 14): a punch lands two steps after it is thrown, so three rewards.
     """
 
     reward_steps: int = 3
     hidden_size: int = 256
-    heads: int = 1
+    heads: int = 5
     random_bouts: int = 100
     fit_updates: int = 6000
     batch_size: int = 256
     lr: float = 1e-3
-    rounds: int = 3
+    rounds: int = 5
     bouts_per_round: int = 20
     epsilon: float = 0.3
+    validation_bouts: int = 5
     test_bouts: int = 10
 
 
@@ -342,7 +344,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                              update_steps=2, max_episode_steps=16, env_steps=80, horizon=3,
                              candidates=16, top_k=4, iterations=2, test_interval=1, test_episodes=1),
         "LatentValueConfig": dict(hidden_size=16, random_bouts=2, fit_updates=5, batch_size=16, rounds=1,
-                                  bouts_per_round=1, test_bouts=2),
+                                  bouts_per_round=1, validation_bouts=1, test_bouts=2),
         "SearchConfig": dict(trials=2, workers=1, env_steps=48, open_loop_sequences=2, open_loop_length=10,
                              held_out_episodes=1,
                              heartbeat_interval=1, grace_period=3),

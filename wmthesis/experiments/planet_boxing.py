@@ -186,8 +186,9 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
 def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """The PlaNet agent's model (:func:`planet_boxing_agent`, trained first if need be) frozen,
     and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
-    its own; after each round, greedy bouts on the agent's evaluation bouts, so the last round
-    compares with random play and with the CEM planner on the same bouts. Returns the metrics:
+    its own; after each round, greedy bouts on the agent's evaluation bouts. The round chosen on
+    validation bouts of its own (:func:`~wmthesis.planet.value.best_round`) compares with random
+    play and with the CEM planner on the evaluation bouts. Returns the metrics:
     ``value`` and ``random`` (scores over full bouts), ``difference``
     (:func:`~wmthesis.metrics.score_difference`), ``planet`` (the CEM agent's), the ``curve``
     (one entry per round) and ``files``."""
@@ -210,7 +211,8 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
         run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress)
     finally:
         env.close()
-    returns = run["curve"][-1]["returns"]
+    chosen = run["curve"][run["best_round"]]
+    returns = chosen["returns"]
     references = {"random play": agent["random"]["full"]["mean"], "PlaNet (CEM)": agent["agent"]["full"]["mean"],
                   "human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
     figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
@@ -220,11 +222,13 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     value = score_summary(returns)
     metrics = {**_run_header("planet-boxing-value", profile, seed, time.time() - started, env=GAME),
                "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} bouts "
+                           f"(the value of round {chosen['round']}, chosen on {len(chosen['validation'])} validation bouts) "
                            f"(random play {agent['random']['full']['mean']:.1f}, PlaNet's CEM "
                            f"{agent['agent']['full']['mean']:.1f})",
                "value": value, "returns": returns, "random": agent["random"]["full"],
                "difference": score_difference(returns, agent["random"]["returns"]), "planet": agent["agent"]["full"],
-               "bouts": agent["bouts"], "curve": run["curve"], "config": dataclasses.asdict(config),
+               "bouts": agent["bouts"], "curve": run["curve"], "best_round": run["best_round"],
+               "config": dataclasses.asdict(config),
                "files": {"figures": [str(figure)]}}
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1))
@@ -238,10 +242,11 @@ def _score_cell(summary: dict) -> str:
 
 def value_table(metrics: dict) -> str:
     """The value agent's last round beside random play and the CEM planner on the same bouts (markdown)."""
-    diff, last = metrics["difference"], metrics["curve"][-1]
+    diff, chosen = metrics["difference"], metrics["curve"][metrics["best_round"]]
     return "\n".join([
         "| player | full bout |", "|---|---|",
-        f"| latent value on the PlaNet model, {last['episodes']} bouts of its own | {_score_cell(metrics['value'])} |",
+        f"| latent value on the PlaNet model (round {chosen['round']}, {chosen['episodes']} bouts of its own; "
+        f"chosen on {len(chosen['validation'])} validation bouts) | {_score_cell(metrics['value'])} |",
         f"| PlaNet (CEM planner), same model | {_score_cell(metrics['planet'])} |",
         f"| random play, same bouts | {_score_cell(metrics['random'])} |",
         f"| value - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) |",

@@ -147,14 +147,28 @@ def evaluation_seeds(seed: int, k: int) -> tuple[int, int]:
     return int(env_seed), int(mind_seed)
 
 
+def validation_seeds(seed: int, k: int) -> tuple[int, int]:
+    """The (environment, mind) seeds of greedy validation bout ``k``, apart from the test bouts
+    and from the bouts it learns on: the bouts that choose among the rounds' values."""
+    env_seed, mind_seed = derive_seeds(seed, 6, k, n=2)
+    return int(env_seed), int(mind_seed)
+
+
+def _greedy_returns(env, model: RSSM, value: LatentValue, bits: int, seeds) -> list[float]:
+    return [float(play_value(env, model, value, bits, *pair)["rewards"].sum()) for pair in seeds]
+
+
 def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir, *, seed: int,
                 progress: bool = True) -> dict:
-    """Play ``random_bouts`` random bouts into ``run_dir/episodes.h5``, fit the value on them and
-    test it; then ``config.rounds`` times: ``bouts_per_round`` epsilon-greedy bouts of the value
-    agent into the same store, refit on all of it, test. Each test is ``test_bouts`` greedy bouts
-    on :func:`evaluation_seeds`. Resumable: every bout is stored as it ends, the value and the tests
-    after each round. Returns ``curve`` (one entry per round: ``round``, ``episodes`` (of its
-    own), ``returns``, ``mean``, ``std``, ``loss``) and ``run_dir``."""
+    """Play ``random_bouts`` random bouts into ``run_dir/episodes.h5``, fit the value on them;
+    then ``config.rounds`` times: ``bouts_per_round`` epsilon-greedy bouts of the value agent
+    into the same store, refit on all of it. After each fit the value plays ``validation_bouts``
+    greedy bouts (:func:`validation_seeds`) and ``test_bouts`` (:func:`evaluation_seeds`); the
+    value of the round with the best validation mean is kept as the agent (fitted Q swings from
+    round to round as its own bouts change the data), chosen without looking at the test bouts.
+    Resumable: every bout is stored as it ends, the values and the scores after each round.
+    Returns ``curve`` (one entry per round: ``round``, ``episodes`` (of its own), ``validation``,
+    ``returns`` (the test bouts), ``mean``, ``std``, ``loss``), ``best_round`` and ``run_dir``."""
     run_dir = Path(run_dir)
     device = next(model.parameters()).device
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(device)
@@ -175,13 +189,23 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
             episodes = len(store) - config.random_bouts
         features, targets = _dataset(model, run_dir / STORE, config, bits)
         loss = fit_value(value, features, targets, config, seed=int(derive_seeds(seed, 5, round_)[0]))
-        returns = [float(play_value(env, model, value, bits, *evaluation_seeds(seed, k))["rewards"].sum())
-                   for k in range(config.test_bouts)]
-        curve.append({"round": round_, "episodes": episodes, "returns": returns, "mean": float(np.mean(returns)),
-                      "std": float(np.std(returns)), "loss": loss})
+        validation = _greedy_returns(env, model, value, bits,
+                                     [validation_seeds(seed, k) for k in range(config.validation_bouts)])
+        returns = _greedy_returns(env, model, value, bits, [evaluation_seeds(seed, k) for k in range(config.test_bouts)])
+        curve.append({"round": round_, "episodes": episodes, "validation": validation,
+                      "validation_mean": float(np.mean(validation)), "returns": returns,
+                      "mean": float(np.mean(returns)), "std": float(np.std(returns)), "loss": loss})
+        if best_round(curve) == round_:
+            state["best"] = {key: v.clone() for key, v in value.state_dict().items()}
         with atomic_path(saved) as tmp:
-            torch.save({"value": value.state_dict(), "curve": curve, "config": dataclasses.asdict(config)}, tmp)
-    return {"curve": curve, "run_dir": str(run_dir)}
+            torch.save({"value": value.state_dict(), "best": state["best"], "curve": curve,
+                        "config": dataclasses.asdict(config)}, tmp)
+    return {"curve": curve, "best_round": best_round(curve), "run_dir": str(run_dir)}
+
+
+def best_round(curve: list[dict]) -> int:
+    """The round whose value scored best on the validation bouts (the earliest of ties)."""
+    return max(curve, key=lambda entry: (entry["validation_mean"], -entry["round"]))["round"]
 
 
 def _check_resumable(saved: dict, config: LatentValueConfig, path: Path) -> None:
@@ -194,16 +218,16 @@ def _check_resumable(saved: dict, config: LatentValueConfig, path: Path) -> None
 
 
 def load_value(run_dir, model: RSSM) -> LatentValue:
-    """The fitted value of a :func:`train_value` run for ``model``."""
+    """The chosen value of a :func:`train_value` run (its :func:`best_round`) for ``model``."""
     path = Path(run_dir) / CHECKPOINT
     if not path.exists():
         raise FileNotFoundError(f"{path}: no fitted value (run train_value first)")
     state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
     config = LatentValueConfig(**state["config"])
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(next(model.parameters()).device)
-    value.load_state_dict(state["value"])
+    value.load_state_dict(state["best"])
     return value.eval()
 
 
 __all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
-           "reward_sums", "evaluation_seeds", "train_value"]
+           "reward_sums", "evaluation_seeds", "validation_seeds", "best_round", "train_value"]
