@@ -73,7 +73,9 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert "PlaNet's CEM" in capsys.readouterr().out
     value = json.loads((tmp_path / "data/results/planet-boxing-value/smoke-seed0/metrics.json").read_text())
     assert [c["round"] for c in value["curve"]] == [0, 1] and value["curve"][1]["episodes"] == 1
-    assert len(value["returns"]) == 2 and value["returns"] == value["curve"][-1]["returns"]
+    chosen = max(value["curve"], key=lambda c: (c["validation_mean"], -c["round"]))  # validation, not test
+    assert value["best_round"] == chosen["round"] and len(value["returns"]) == 2
+    assert value["returns"] == chosen["returns"] and len(chosen["validation"]) == 1
     assert value["difference"]["difference"] == value["value"]["mean"] - agent["random"]["full"]["mean"]
     with EpisodeStore(tmp_path / "data/smoke/planet-boxing-value/seed0/episodes.h5") as own:
         assert len(own) == 3 and own.num_steps == 48  # 2 random bouts, 1 of its own, 16 steps each in smoke
