@@ -88,7 +88,8 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
             rollout(batch)
 
     mind = PlanetMind.from_config(model, cfg, seed)
-    value = LatentValue(cfg.belief_size + cfg.state_size, LatentValueConfig().hidden_size).to(dev)
+    value_cfg = LatentValueConfig()
+    value = LatentValue(cfg.belief_size + cfg.state_size, value_cfg.hidden_size, value_cfg.heads).to(dev)
     value_mind = ValueMind(model, value, cfg.bits, seed)
     size = cfg.frame_size
     frame = np.random.default_rng(seed).integers(0, 32, (size, size, 3), dtype=np.uint8) * 8
