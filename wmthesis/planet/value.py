@@ -14,7 +14,9 @@ planner's first imagined step, so the action enters through the RSSM's own trans
 agent (:class:`ValueMind`) filters ``(h_t, s_t)`` with the posterior mean and takes the argmax
 of Q over all actions: one transition per action, no CEM. It learns like a fitted-Q iteration
 on its own play: the value is fitted on random bouts, then each round adds ``bouts_per_round``
-epsilon-greedy bouts of the value agent to its store and refits on all of it.
+epsilon-greedy bouts of the value agent to its store and refits on all of it. Fitted Q swings
+from round to round (its own bouts change its data), so the agent is the round whose value
+scored best on greedy validation bouts of their own; Q is the mean of an ensemble of heads.
 """
 from __future__ import annotations
 
