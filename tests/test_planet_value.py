@@ -102,6 +102,9 @@ def test_profiles_and_missing_value(tmp_path):
     assert smoke.rounds < LatentValueConfig().rounds and smoke.fit_updates < LatentValueConfig().fit_updates
     with pytest.raises(FileNotFoundError, match="train_value"):
         load_value(tmp_path, frozen_rssm())
+    torch.save({"value": {}, "curve": [], "config": {}}, tmp_path / "value.pt")  # a run of session 14's format
+    with pytest.raises(ValueError, match="before values were chosen"):
+        load_value(tmp_path, frozen_rssm())
 
 
 def test_an_ensemble_averages_its_heads_and_fits_each():

@@ -225,6 +225,9 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no fitted value (run train_value first)")
     state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
+    if "best" not in state:
+        raise ValueError(f"{path} was fitted before values were chosen on validation bouts; "
+                         "run train_value again in a new folder")
     config = LatentValueConfig(**state["config"])
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(next(model.parameters()).device)
     value.load_state_dict(state["best"])
