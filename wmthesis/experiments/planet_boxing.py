@@ -241,7 +241,7 @@ def _score_cell(summary: dict) -> str:
 
 
 def value_table(metrics: dict) -> str:
-    """The value agent's last round beside random play and the CEM planner on the same bouts (markdown)."""
+    """The value agent's chosen round beside random play and the CEM planner on the same bouts (markdown)."""
     diff, chosen = metrics["difference"], metrics["curve"][metrics["best_round"]]
     return "\n".join([
         "| player | full bout |", "|---|---|",

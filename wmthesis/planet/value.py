@@ -120,15 +120,18 @@ def fit_value(value: LatentValue, features: torch.Tensor, targets: torch.Tensor,
     return float(loss.detach())
 
 
-def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Features (N, H + S) and reward-sum targets (N,) of every episode in the store at ``path``."""
-    features, targets = [], []
+def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int,
+             cache: list[tuple[torch.Tensor, torch.Tensor]]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Features (N, H + S) and reward-sum targets (N,) of every episode in the store at ``path``;
+    ``cache`` holds those of the episodes already read (the model is frozen), so each round
+    computes only its new bouts."""
     with EpisodeStore(path, "r") as store:
-        for index in range(len(store)):
+        for index in range(len(cache), len(store)):
             episode = store.episode(index)
-            features.append(episode_features(model, episode, bits, index))
-            targets.append(torch.as_tensor(reward_sums(episode["rewards"], config.reward_steps)))
-    return torch.cat(features), torch.cat(targets).to(features[0].device)
+            features = episode_features(model, episode, bits, index)
+            cache.append((features, torch.as_tensor(reward_sums(episode["rewards"], config.reward_steps),
+                                                    device=features.device)))
+    return torch.cat([f for f, _ in cache]), torch.cat([t for _, t in cache])
 
 
 def play_value(env, model: RSSM, value: LatentValue, bits: int, env_seed: int, mind_seed: int,
@@ -179,7 +182,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     if "value" in state:
         _check_resumable(state["config"], config, saved)
         value.load_state_dict(state["value"])
-    curve = state["curve"]
+    curve, cache = state["curve"], []
     for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
         with EpisodeStore(run_dir / STORE, "a", preprocessing="planet", seed=seed,
                           obs_shape=env.observation_space.shape) as store:
@@ -189,7 +192,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
                 env_seed, mind_seed = (int(v) for v in derive_seeds(seed, 4, index, n=2))
                 store.append_episode(**play_value(env, model, value, bits, env_seed, mind_seed, config.epsilon))
             episodes = len(store) - config.random_bouts
-        features, targets = _dataset(model, run_dir / STORE, config, bits)
+        features, targets = _dataset(model, run_dir / STORE, config, bits, cache)
         loss = fit_value(value, features, targets, config, seed=int(derive_seeds(seed, 5, round_)[0]))
         validation = _greedy_returns(env, model, value, bits,
                                      [validation_seeds(seed, k) for k in range(config.validation_bouts)])
