@@ -13,6 +13,13 @@
     search planet-boxing|planet-freeway --trials N [--workers K] [--storage URL] [--profile P]
         Random search over KL scale x free nats (optuna); re-running continues the study, and
         any optuna storage URL (e.g. PostgreSQL) lets workers on many machines share it.
+    sweep EXPERIMENT[:VARIANT] ... --seeds 0-4 [--profile P] [--address ADDR] [--cpus C]
+        Every (experiment, variant, seed) as a Ray task, on a Ray of this machine's own or a
+        cluster's (--address auto | HOST:PORT | ray://HOST:10001); runs only what is missing;
+        then the summary.
+    summary [--results DIR]
+        One table over every run's metrics.json: seeds, mean, std, 95% interval, published
+        numbers; data/results/summary.{md,json,csv,png}.
 """
 from __future__ import annotations
 
@@ -157,6 +164,49 @@ def cmd_search(args) -> int:
     return 0
 
 
+def cmd_sweep(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from wmthesis.config import profile_name
+    from wmthesis.experiments.summary import markdown_table, write_summary
+    from wmthesis.experiments.sweep import check_address, parse_runs, parse_seeds, sweep
+
+    runs = parse_runs(args.runs, parse_seeds(args.seeds))
+    if args.address is not None:
+        check_address(args.address)
+    profile = profile_name(args.profile)
+    print(f"sweep ({profile}): {len(runs)} runs: " + ", ".join(map(str, runs)))
+    try:
+        outcome = sweep(runs, profile, args.address, cpus=args.cpus, gpus=args.gpus, retries=args.retries)
+    except KeyboardInterrupt:
+        print("sweep interrupted: the finished runs are kept; run it again to run only what is missing",
+              file=sys.stderr)
+        return 130
+    for run, result in outcome.items():
+        detail = result.get("error") or result.get("path")
+        print(f"  {run}: {result['status']} ({detail})")
+    print(markdown_table(write_summary()))
+    failed = [run for run, result in outcome.items() if result["status"] == "failed"]
+    if failed:
+        print(f"{len(failed)} of {len(runs)} runs failed: " + ", ".join(map(str, failed)), file=sys.stderr)
+    return 1 if failed else 0
+
+
+def cmd_summary(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from wmthesis.experiments.summary import markdown_table, write_summary
+
+    folder = Path(args.results) if args.results else None
+    if folder is not None and not folder.is_dir():
+        raise ValueError(f"--results {args.results}: no such folder")
+    rows = write_summary(folder)
+    print(markdown_table(rows))
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m wmthesis", description=__doc__,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -207,6 +257,23 @@ def parser() -> argparse.ArgumentParser:
     search.add_argument("--objective", choices=("score", "error", "both"))
     search.add_argument("--seed", type=at_least(0), help="study seed (the sampler's and every trial's)")
     search.set_defaults(run=cmd_search)
+
+    sweep = commands.add_parser("sweep", help="seeds of experiments as Ray tasks, then the summary (resumable)")
+    sweep.add_argument("runs", nargs="+", metavar="EXPERIMENT[:VARIANT]",
+                       help=f"experiments, a variant after a colon (e.g. planet-freeway:freeway-tuned); "
+                            f"one of {', '.join(EXPERIMENTS)}")
+    sweep.add_argument("--seeds", required=True, help="seeds: a range 0-4, a list 0,2,7, or one seed")
+    sweep.add_argument("--profile", choices=PROFILES)
+    sweep.add_argument("--address", help="a Ray cluster to join: auto, HOST:PORT or ray://HOST:10001 "
+                                         "(default: start a Ray of this machine's own)")
+    sweep.add_argument("--cpus", type=at_least(1), default=1, help="CPUs (torch threads) per run (default 1)")
+    sweep.add_argument("--gpus", type=float, help="GPUs per run (default: 1 where the cluster has one, else 0)")
+    sweep.add_argument("--retries", type=at_least(0), default=3, help="restarts of a run whose worker died")
+    sweep.set_defaults(run=cmd_sweep)
+
+    summary = commands.add_parser("summary", help="one table over every run: seeds, mean, std, 95%% interval")
+    summary.add_argument("--results", help="the folder of results (default: data/results)")
+    summary.set_defaults(run=cmd_summary)
     return top
 
 

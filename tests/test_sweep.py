@@ -1,0 +1,192 @@
+"""Seed sweeps on Ray and the results table: runs as Ray tasks (a local Ray), a run that raises
+is reported while the others finish, a killed worker's run is retried and resumes, re-running
+runs only what is missing; the summary's arithmetic against a hand computation; bad input."""
+import json
+import math
+import os
+import signal
+import sys
+import threading
+import time
+
+import pytest
+
+from wmthesis.__main__ import main
+from wmthesis.experiments import reproduce
+from wmthesis.experiments.summary import aggregate, read_runs, write_summary
+from wmthesis.experiments.sweep import SweepRun, finished, parse_runs, parse_seeds, start_ray, sweep
+
+
+# ---------------------------------------------------------------------------- without Ray
+def test_seeds_and_runs_are_parsed_and_bad_ones_refused():
+    assert parse_seeds("0-4") == [0, 1, 2, 3, 4] and parse_seeds("0,2,7") == [0, 2, 7] and parse_seeds("3") == [3]
+    assert parse_seeds("0-2,1") == [0, 1, 2]
+    for bad in ("3-1", "x", "1-", "-1", ""):
+        with pytest.raises(ValueError, match="--seeds"):
+            parse_seeds(bad)
+    runs = parse_runs(["boxing-wm", "planet-freeway:long-horizon"], [0, 1])
+    assert runs == [SweepRun("boxing-wm", None, 0), SweepRun("boxing-wm", None, 1),
+                    SweepRun("planet-freeway", "long-horizon", 0), SweepRun("planet-freeway", "long-horizon", 1)]
+    with pytest.raises(ValueError, match="valid: freeway-tuned, long-horizon"):
+        parse_runs(["planet-freeway:nope"], [0])
+    with pytest.raises(ValueError, match="has no variants"):
+        parse_runs(["boxing-wm:x"], [0])
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["nope", "--seeds", "0"], "unknown experiment 'nope'; valid: sokoban-wm"),
+    (["boxing-wm", "--seeds", "3-1"], "the range 3-1 is empty"),
+    (["boxing-wm", "--seeds", "x"], "'x' is not a seed or a range"),
+    (["boxing-wm-alphazero:nope", "--seeds", "0"], "valid: unchanged, improved"),
+    (["boxing-wm", "--seeds", "0", "--address", "127.0.0.1:1"], "no Ray cluster answers there"),
+    (["boxing-wm", "--seeds", "0", "--address", "somewhere"], "expected auto, HOST:PORT"),
+])
+def test_bad_sweeps_stop_with_one_line_before_anything_starts(argv, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    assert main(["sweep", *argv, "--profile", "smoke"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "results").exists() and not (tmp_path / "smoke").exists()
+
+
+def _write_run(folder, experiment, seed, score, profile="quick", **extra):
+    path = folder / "results" / experiment / f"{profile}-seed{seed}" / extra.get("variant", "") / "metrics.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"experiment": experiment, "profile": profile, "seed": seed, "wall_seconds": 60.0 * seed,
+                                "score": {"mean": score}, **extra}))
+    return path
+
+
+def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    for seed, score in enumerate([10.0, 14.0, 21.0]):
+        _write_run(tmp_path, "boxing-wm", seed, score)
+    _write_run(tmp_path, "planet-freeway", 0, 23.0, variant="freeway-tuned")
+    value = _write_run(tmp_path, "planet-boxing-value", 4, 0.0)  # its headline is the value's score, not "score"
+    value.write_text(json.dumps({**json.loads(value.read_text()), "value": {"mean": 26.8}}))
+    rows = write_summary()
+    by_name = {row["experiment"]: row for row in rows}
+    box = by_name["boxing-wm"]
+    # by hand: mean 15, sample variance ((-5)^2 + (-1)^2 + 6^2) / 2 = 31, t_{0.975, 2} = 4.302652729911275
+    assert (box["n"], box["mean"], box["seeds"]) == (3, 15.0, [0, 1, 2])
+    assert box["std"] == pytest.approx(math.sqrt(31.0))
+    half = 4.302652729911275 * math.sqrt(31.0) / math.sqrt(3)
+    assert (box["ci_low"], box["ci_high"]) == (pytest.approx(15.0 - half), pytest.approx(15.0 + half))
+    assert box["wall_seconds"] == [0.0, 60.0, 120.0]
+    assert any(p["value"] == "above 18 on average across 5 runs" and p["source"] == "thesis 5.4.1"
+               for p in box["published"])
+    one = by_name["planet-freeway"]
+    assert (one["variant"], one["n"], one["mean"], one["std"], one["ci_low"]) == ("freeway-tuned", 1, 23.0, None, None)
+    assert by_name["planet-boxing-value"]["mean"] == 26.8
+    table = (tmp_path / "results" / "summary.md").read_text()
+    assert "| boxing-wm |  | quick | 3 | 15.0 | 5.6 | [1.2, 28.8] | 0: 10.0, 1: 14.0, 2: 21.0 |" in table
+    assert "human 12.1 (iris results/data/HUMAN.json)" in table and "Student-t" in table
+    csv_lines = (tmp_path / "results" / "summary.csv").read_text().splitlines()
+    assert csv_lines[0].startswith("experiment,variant,profile,n,mean,std,ci_low,ci_high")
+    assert csv_lines[1].startswith("boxing-wm,,quick,3,15.0,")
+    assert json.loads((tmp_path / "results" / "summary.json").read_text())["rows"][0]["n"] == 3
+    assert (tmp_path / "results" / "summary.png").stat().st_size > 5000
+    assert aggregate([2.0, 2.0])["ci_low"] == 2.0  # no spread, no width
+
+
+def test_the_summary_skips_corrupt_and_foreign_files_naming_them(tmp_path):
+    good = _write_run(tmp_path, "boxing-wm", 0, 5.0)
+    corrupt = tmp_path / "results" / "boxing-wm" / "quick-seed1" / "metrics.json"
+    corrupt.parent.mkdir(parents=True)
+    corrupt.write_text('{"experiment": "boxing-wm", "profile": "qu')
+    foreign = tmp_path / "results" / "other" / "metrics.json"
+    foreign.parent.mkdir(parents=True)
+    foreign.write_text(json.dumps({"loss": 0.1}))
+    alien = _write_run(tmp_path, "someone-elses", 0, 1.0)
+    with pytest.warns(UserWarning) as caught:
+        runs = read_runs(tmp_path / "results")
+    assert [(r.experiment, r.seed, r.score, r.path) for r in runs] == [("boxing-wm", 0, 5.0, str(good))]
+    warned = " ".join(str(w.message) for w in caught)
+    assert all(f"{path}: skipped" in warned for path in (corrupt, foreign, alien))
+
+
+# ---------------------------------------------------------------------------- on a local Ray
+@pytest.fixture(scope="module")
+def local_ray(tmp_path_factory):
+    """One Ray of this machine's own for the module, its workers writing to a data folder of the module's."""
+    import ray
+    from ray import cloudpickle
+
+    folder = tmp_path_factory.mktemp("sweep-data")
+    before = os.environ.get("WMTHESIS_DATA")
+    os.environ["WMTHESIS_DATA"] = str(folder)
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the test's runners travel to the workers
+    assert start_ray(None, cpus=2)
+    yield folder
+    ray.shutdown()
+    cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    os.environ.pop("WMTHESIS_DATA") if before is None else os.environ.update(WMTHESIS_DATA=before)
+
+
+def test_a_smoke_sweep_runs_each_seed_as_a_task_and_resumes_with_nothing_to_do(local_ray, capsys):
+    assert main(["sweep", "boxing-wm", "planet-freeway", "--seeds", "0-1", "--profile", "smoke"]) == 0
+    out = capsys.readouterr().out
+    assert out.count(": done (") == 4
+    summary = json.loads((local_ray / "results" / "summary.json").read_text())
+    rows = {(row["experiment"], row["variant"]): row for row in summary["rows"]}
+    assert set(rows) == {("boxing-wm", None), ("planet-freeway", "freeway-tuned")}
+    for (experiment, variant), row in rows.items():
+        assert row["n"] == 2 and row["seeds"] == [0, 1]
+        files = [finished(SweepRun(experiment, variant, seed), "smoke") for seed in (0, 1)]
+        scores = [json.loads(f.read_text())["score"]["mean"] for f in files]
+        assert row["scores"] == scores and row["mean"] == pytest.approx(sum(scores) / 2)
+    again = sweep(parse_runs(["boxing-wm", "planet-freeway"], [0, 1]), "smoke", runner=_must_not_run)
+    assert {o["status"] for o in again.values()} == {"finished before"}
+
+
+def _must_not_run(*args, **kwargs):
+    raise AssertionError("a finished run ran again")
+
+
+def _fails_on_seed_7(name, profile, seed, variant=None, progress=True):
+    if seed == 7:
+        raise RuntimeError("a deliberate fault in seed 7")
+    return reproduce(name, profile, seed, variant=variant, progress=progress)
+
+
+def test_a_run_that_raises_is_reported_and_the_others_finish(local_ray):
+    outcome = sweep([SweepRun("planet-freeway", None, 7), SweepRun("planet-freeway", None, 8)], "smoke",
+                    runner=_fails_on_seed_7, progress=False)
+    failed, done = outcome[SweepRun("planet-freeway", None, 7)], outcome[SweepRun("planet-freeway", None, 8)]
+    assert failed["status"] == "failed" and "RuntimeError: a deliberate fault in seed 7" in failed["error"]
+    assert done["status"] == "done" and json.loads(open(done["path"]).read())["seed"] == 8
+    assert finished(SweepRun("planet-freeway", None, 7), "smoke") is None
+
+
+def _killed_once(name, profile, seed, variant=None, progress=True):
+    """The first attempt kills its own worker (SIGKILL) once the vision has a checkpoint; a retry
+    runs with random-rollout collection forbidden (its store must be kept, not collected again)."""
+    import wmthesis.data
+    from wmthesis.utils import data_dir
+
+    work = data_dir(profile, name, f"seed{seed}")
+    log = data_dir() / "attempts.txt"
+    attempts = log.read_text().split() if log.exists() else []
+    log.write_text(" ".join([*attempts, "attempt"]))
+    if not attempts:
+        def kill_when_vision_checkpointed():
+            while not (work / "vision.pt").exists():
+                time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGKILL)
+        threading.Thread(target=kill_when_vision_checkpointed, daemon=True).start()
+    else:
+        rollouts = wmthesis.data._rollouts
+
+        def no_new_episodes(env_name, options, seed, todo, workers):
+            assert len(todo) == 0, f"the retry collected {len(todo)} episodes again"
+            return rollouts(env_name, options, seed, todo, workers)
+        wmthesis.data._rollouts = no_new_episodes
+    return reproduce(name, profile, seed, variant=variant, progress=progress)
+
+
+def test_a_killed_worker_is_retried_and_its_run_resumes(local_ray):
+    run = SweepRun("boxing-wm", None, 5)
+    outcome = sweep([run], "smoke", runner=_killed_once, progress=False)
+    assert outcome[run]["status"] == "done", outcome[run]
+    assert (local_ray / "attempts.txt").read_text().split() == ["attempt", "attempt"]
+    assert json.loads(finished(run, "smoke").read_text())["seed"] == 5

@@ -1,0 +1,213 @@
+"""One results table over every run: ``python -m wmthesis summary``.
+
+Reads each ``metrics.json`` under ``data/results/`` (whatever wrote it: ``reproduce``, a notebook
+or a ``sweep``), takes each run's headline score, and for every experiment, variant and profile
+reports the number of seeds, their mean and sample standard deviation, and a 95% confidence
+interval of the mean over seeds: Student's t interval, ``mean +- t_{0.975, n-1} s / sqrt(n)``
+(``scipy.stats.t``), exact for normally distributed seed scores and the honest width for the few
+seeds a CPU affords (a bootstrap over 3 seeds would be far too narrow). Beside each row: the
+thesis's figure and published baselines, each with its source. Writes
+``data/results/summary.{md,json,csv}`` and ``summary.png`` (every seed as a point, the mean and
+its interval).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import warnings
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from scipy import stats
+
+from wmthesis.utils import atomic_path, data_dir
+
+CONFIDENCE = 0.95
+INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
+
+_BOXING = [("random", 0.1, "iris results/data/RANDOM.json"), ("human", 12.1, "iris results/data/HUMAN.json")]
+_ATARI_100K_BOXING = [("SimPLe (Atari 100k)", 7.8, "iris results/data/SIMPLE.json"),
+                      ("IRIS (Atari 100k)", 70.1, "eloialonso/iris results/data/IRIS.json"),
+                      ("DreamerV3 (Atari 100k)", 78.0, "danijar/dreamerv3 scores")]
+# Experiment -> the published numbers shown beside its rows: (name, value or words, source).
+PUBLISHED = {
+    "boxing-wm": [*_BOXING, ("thesis World Models", "above 18 on average across 5 runs", "thesis 5.4.1")],
+    "boxing-wm-alphazero": [*_BOXING, ("thesis World Models + AlphaZero", "did not train to properly plan",
+                                       "thesis 5.4.2")],
+    "planet-boxing": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
+    "planet-boxing-agent": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
+    "planet-boxing-value": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
+    "planet-freeway": [("random", 0.0, "iris results/data/RANDOM.json"), ("human", 29.6, "iris results/data/HUMAN.json"),
+                       ("thesis PlaNet", 0.0, "thesis 5.6.5"),
+                       ("SimPLe (Atari 100k)", 16.7, "iris results/data/SIMPLE.json"),
+                       ("IRIS (Atari 100k)", 31.1, "eloialonso/iris results/data/IRIS.json"),
+                       ("DIAMOND (Atari 100k)", 33.3, "eloialonso/diamond results/data/DIAMOND.json"),
+                       ("DreamerV3 (Atari 100k)", 0.0, "danijar/dreamerv3 scores")],
+    "sokoban-search": [("thesis", "0 levels solved", "thesis 5.3"),
+                       ("DRC(3,3), 2e9 steps, Boxoban unfiltered test", 99.3,
+                        "AlignmentResearch/learned-planner plot/data/drc33_*_success_across_thinking_steps.csv"),
+                       ("Thinker, 5e7 frames, Boxoban unfiltered train", 94.5, "Chung et al. 2023, Table 1")],
+    "sokoban-wm": [("thesis World Models", "0 levels solved", "thesis 5.3")],
+    "planet-sokoban": [],
+}
+# Experiment -> what its headline score is.
+MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels",
+           "planet-boxing-value": "full-bout score, the value's chosen round",
+           "planet-boxing-agent": "full-bout score, CEM planner"}
+DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
+
+
+class Run(NamedTuple):
+    """One run's headline: which experiment, variant (None: it has none), profile and seed, its
+    score, wall time and file."""
+    experiment: str
+    variant: str | None
+    profile: str
+    seed: int
+    score: float
+    wall_seconds: float | None
+    path: str
+
+
+def run_scores(metrics: dict) -> dict[str | None, float]:
+    """A run's headline score per variant it ran (``{None: score}`` for experiments without
+    variants; AlphaZero's file may hold several). Empty for runs without a score (the PlaNet
+    model study reports errors). Raises KeyError or TypeError on a file of another shape."""
+    name = metrics["experiment"]
+    if name == "boxing-wm-alphazero":
+        return {v: float(metrics["scores"][f"AlphaZero {v}"]["mean"]) for v in metrics["variants"]}
+    if name == "planet-boxing-study":
+        return {}
+    if name == "planet-boxing-value":
+        return {None: float(metrics["value"]["mean"])}
+    if name == "planet-boxing-agent":
+        return {None: float(metrics["agent"]["full"]["mean"])}
+    if name == "sokoban-search":
+        return {None: 100.0 * float(metrics["score"]["mean"])}
+    return {metrics.get("variant"): float(metrics["score"]["mean"])}
+
+
+def read_runs(folder: str | Path | None = None) -> list[Run]:
+    """Every run under ``folder`` (default ``data/results``), one :class:`Run` per variant in a
+    ``metrics.json``. A file that is not JSON or not a run's metrics is skipped with a warning
+    naming it; when two files hold the same run, the newer one counts."""
+    from wmthesis.experiments import EXPERIMENTS
+
+    folder = Path(folder) if folder is not None else data_dir("results")
+    runs: dict[tuple, Run] = {}
+    for path in sorted(folder.rglob("metrics.json"), key=lambda p: p.stat().st_mtime):
+        try:
+            metrics = json.loads(path.read_text())
+            if metrics["experiment"] not in EXPERIMENTS:
+                raise ValueError(f"unknown experiment {metrics['experiment']!r}")
+            header = (str(metrics["profile"]), int(metrics["seed"]), metrics.get("wall_seconds"))
+            scores = run_scores(metrics)
+        except (ValueError, KeyError, TypeError) as error:
+            warnings.warn(f"{path}: skipped, not a run's metrics ({type(error).__name__}: {error})", stacklevel=2)
+            continue
+        for variant, score in scores.items():
+            run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path))
+            runs[run[:4]] = run
+    return sorted(runs.values(), key=lambda r: (r.experiment, str(r.variant), r.profile, r.seed))
+
+
+def aggregate(scores) -> dict:
+    """Seeds' scores (n,) -> n, mean, sample std and the 95% t interval of the mean (None for one seed)."""
+    scores = np.asarray(scores, np.float64)
+    n, mean = len(scores), float(scores.mean())
+    if n < 2:
+        return {"n": n, "mean": mean, "std": None, "ci_low": None, "ci_high": None}
+    std = float(scores.std(ddof=1))
+    half = float(stats.t.ppf(0.5 + CONFIDENCE / 2, n - 1)) * std / np.sqrt(n)
+    return {"n": n, "mean": mean, "std": std, "ci_low": mean - half, "ci_high": mean + half}
+
+
+def summarise(runs: list[Run]) -> list[dict]:
+    """One row per experiment, variant and profile: the aggregate over its seeds, the seeds'
+    scores and wall times, what the score measures and the published numbers beside it."""
+    groups: dict[tuple, list[Run]] = {}
+    for run in runs:
+        groups.setdefault((run.experiment, run.variant, run.profile), []).append(run)
+    return [{"experiment": experiment, "variant": variant, "profile": profile,
+             "measure": MEASURE.get(experiment, DEFAULT_MEASURE), **aggregate([r.score for r in group]),
+             "seeds": [r.seed for r in group], "scores": [r.score for r in group],
+             "wall_seconds": [r.wall_seconds for r in group],
+             "published": [{"name": n, "value": v, "source": s} for n, v, s in PUBLISHED.get(experiment, [])]}
+            for (experiment, variant, profile), group in groups.items()]
+
+
+def _number(value, digits: int = 1) -> str:
+    return "" if value is None else f"{value:.{digits}f}"
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """The summary as a markdown table, the interval named under it."""
+    lines = ["| experiment | variant | profile | n | mean | std | 95% CI | seeds: scores | published (source) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        interval = "one seed" if row["ci_low"] is None else f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]"
+        seeds = ", ".join(f"{s}: {v:.1f}" for s, v in zip(row["seeds"], row["scores"]))
+        published = "; ".join(f"{p['name']} {p['value']} ({p['source']})" for p in row["published"])
+        lines.append(f"| {row['experiment']} | {row['variant'] or ''} | {row['profile']} | {row['n']} | "
+                     f"{row['mean']:.1f} | {_number(row['std'])} | {interval} | {seeds} | {published} |")
+    return "\n".join(lines + ["", f"Interval: {INTERVAL}. A row with n = 1 stands on one seed."])
+
+
+def _csv(rows: list[dict]) -> str:
+    fields = ["experiment", "variant", "profile", "n", "mean", "std", "ci_low", "ci_high", "measure", "seeds", "scores"]
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fields, extrasaction="ignore")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({**row, "variant": row["variant"] or "", "seeds": " ".join(map(str, row["seeds"])),
+                         "scores": " ".join(f"{v:g}" for v in row["scores"])})
+    return out.getvalue()
+
+
+def summary_figure(rows: list[dict]):
+    """Each row's seeds as points, with its mean and 95% interval (one panel per experiment,
+    since their scores are on different scales)."""
+    import matplotlib.pyplot as plt
+
+    experiments = list(dict.fromkeys(row["experiment"] for row in rows))
+    fig, axes = plt.subplots(len(experiments), 1, figsize=(7, 1.2 + 1.0 * len(rows)), squeeze=False)
+    for ax, experiment in zip(axes[:, 0], experiments):
+        mine = [row for row in rows if row["experiment"] == experiment]
+        for y, row in enumerate(mine):
+            ax.scatter(row["scores"], np.full(row["n"], y), color="tab:blue", alpha=0.6, zorder=3)
+            if row["ci_low"] is not None:
+                ax.plot([row["ci_low"], row["ci_high"]], [y, y], color="black", lw=2)
+            ax.scatter([row["mean"]], [y], marker="|", s=300, color="black", zorder=4)
+        for name, value, _ in PUBLISHED.get(experiment, []):
+            if isinstance(value, (int, float)):
+                ax.axvline(value, ls=":", lw=1, color="gray")
+                ax.annotate(name, (value, len(mine) - 0.5), fontsize=6, rotation=90, va="top", color="gray")
+        ax.set_yticks(range(len(mine)), [f"{r['variant'] or 'default'} ({r['profile']}, n={r['n']})" for r in mine])
+        ax.set_ylim(-0.5, len(mine) - 0.5)
+        ax.set_title(f"{experiment}: {MEASURE.get(experiment, DEFAULT_MEASURE)}", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def write_summary(folder: str | Path | None = None) -> list[dict]:
+    """Read every run under ``folder`` (default ``data/results``), write ``summary.md``,
+    ``summary.json``, ``summary.csv`` and ``summary.png`` there, and return the rows."""
+    from wmthesis.viz import save_figure
+
+    folder = Path(folder) if folder is not None else data_dir("results")
+    rows = summarise(read_runs(folder))
+    outputs = {"md": markdown_table(rows) + "\n",
+               "json": json.dumps({"interval": INTERVAL, "rows": rows}, indent=1),
+               "csv": _csv(rows)}
+    for suffix, text in outputs.items():
+        with atomic_path(folder / f"summary.{suffix}") as tmp:
+            tmp.write_text(text)
+    if rows:
+        save_figure(summary_figure(rows), folder / "summary.png")
+    return rows
+
+
+__all__ = ["Run", "run_scores", "read_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
+           "write_summary", "PUBLISHED", "INTERVAL"]

@@ -1,0 +1,245 @@
+"""Seeds of experiments as Ray tasks: ``python -m wmthesis sweep EXPERIMENT[:VARIANT] ... --seeds 0-4``.
+
+Each ``(experiment, variant, seed)`` is one task: :func:`~wmthesis.experiments.reproduce` in a
+Ray worker, asking for ``cpus`` CPUs (its torch threads) and a GPU where the cluster has one.
+By default the sweep starts a Ray of its own on this machine; ``address`` joins a cluster
+(``"auto"``, ``"HOST:6379"`` or ``"ray://HOST:10001"``).
+
+Runs are independent and resumable: a run whose worker dies is retried (``retries`` times) and
+resumes from its checkpoints (every experiment skips the work whose artifact exists); a run that
+raises is reported with its error while the others go on. The driver writes each run's
+``metrics.json`` into its own ``data/results/`` as the run returns, so the summary needs no
+shared filesystem; to resume a run on another node, the data folder must be on shared storage.
+A run whose ``metrics.json`` is already there is not run again, so re-running a sweep (after
+Ctrl-C, which stops the workers) runs only what is missing. A run's prerequisite in the same
+sweep (``boxing-wm`` for ``boxing-wm-alphazero``, ``planet-boxing-agent`` for
+``planet-boxing-value``, same seed) finishes before it starts, as both write the same folders.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import socket
+import time
+from pathlib import Path
+from typing import Callable, NamedTuple
+
+from tqdm import tqdm
+
+from wmthesis.config import profile_name
+from wmthesis.experiments.summary import run_scores
+from wmthesis.utils import atomic_path, check_choice, data_dir
+
+# Experiment -> the experiment whose artifacts it reuses for the same seed (run first).
+PREREQUISITE = {"boxing-wm-alphazero": "boxing-wm", "planet-boxing-value": "planet-boxing-agent"}
+
+
+class SweepRun(NamedTuple):
+    """One task of a sweep: an experiment, its variant (None: its default, or it has none) and a seed."""
+    experiment: str
+    variant: str | None
+    seed: int
+
+    def __str__(self) -> str:
+        return f"{self.experiment}{':' + self.variant if self.variant else ''} seed {self.seed}"
+
+
+def variants_of(experiment: str) -> tuple[str, ...]:
+    """The variants ``experiment`` accepts (empty: it has none)."""
+    from wmthesis.alphazero.selfplay import VARIANTS
+    from wmthesis.experiments import EXPERIMENTS, NO_VARIANTS, planet_variants
+
+    check_choice("experiment", experiment, EXPERIMENTS)
+    if experiment in NO_VARIANTS:
+        return ()
+    return tuple(VARIANTS) if experiment == "boxing-wm-alphazero" else planet_variants(experiment)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-4"`` -> [0, 1, 2, 3, 4]; ``"0,2,7"`` and ``"3"`` as written; a bad range raises ValueError."""
+    seeds = []
+    for part in text.split(","):
+        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if match is None:
+            raise ValueError(f"--seeds {text!r}: {part!r} is not a seed or a range (e.g. 0-4 or 0,2,7)")
+        low, high = int(match[1]), int(match[2] if match[2] is not None else match[1])
+        if high < low:
+            raise ValueError(f"--seeds {text!r}: the range {low}-{high} is empty (write it low-high)")
+        seeds.extend(range(low, high + 1))
+    return sorted(set(seeds))
+
+
+def parse_runs(specs: list[str], seeds: list[int]) -> list[SweepRun]:
+    """``EXPERIMENT[:VARIANT]`` specs x seeds -> the sweep's runs; an unknown experiment or
+    variant raises ValueError listing the valid ones."""
+    runs = []
+    for spec in specs:
+        experiment, _, variant = spec.partition(":")
+        valid = variants_of(experiment)
+        if variant:
+            if not valid:
+                raise ValueError(f"experiment {experiment!r} has no variants, got {variant!r}")
+            check_choice(f"variant of {experiment}", variant, valid)
+        runs.extend(SweepRun(experiment, variant or None, seed) for seed in seeds)
+    return list(dict.fromkeys(runs))
+
+
+def finished(run: SweepRun, profile: str, folder: Path | None = None) -> Path | None:
+    """The ``metrics.json`` under ``folder`` (default ``data/results/EXPERIMENT``) that holds
+    ``run`` in ``profile``, or None."""
+    wanted = _wanted_variants(run)
+    folder = folder or data_dir("results", run.experiment)
+    for path in folder.rglob("metrics.json"):
+        try:
+            metrics = json.loads(path.read_text())
+            if (metrics["experiment"], metrics["profile"], metrics["seed"]) == (run.experiment, profile, run.seed) \
+                    and wanted <= set(run_scores(metrics)):
+                return path
+        except (ValueError, KeyError, TypeError, OSError):
+            continue
+    return None
+
+
+def _wanted_variants(run: SweepRun) -> set:
+    """The variants a finished run's metrics must hold: the named one, else the default run's."""
+    from wmthesis.experiments import PLANET_GAMES
+
+    if run.variant is not None:
+        return {run.variant}
+    if run.experiment in PLANET_GAMES:
+        return {PLANET_GAMES[run.experiment][2]}
+    if run.experiment == "boxing-wm-alphazero":
+        return set(variants_of(run.experiment))
+    return {None} if run.experiment != "planet-boxing-study" else set()
+
+
+def _run_task(runner: Callable, run: SweepRun, profile: str, threads: int) -> tuple[dict, str]:
+    """In a Ray worker: one run with ``threads`` torch threads; returns its metrics and the path
+    of its ``metrics.json`` relative to the worker's data folder."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import torch
+
+    torch.set_num_threads(threads)
+    metrics = runner(run.experiment, profile, run.seed, variant=run.variant, progress=False)
+    path = finished(run, profile)
+    return metrics, str(path.relative_to(data_dir())) if path else ""
+
+
+def check_address(address: str, timeout: float = 5.0) -> None:
+    """Fail at once, with one line, when ``address`` (``HOST:PORT`` or ``ray://HOST:PORT``) does
+    not answer; ``"auto"`` and ``"local"`` are left to Ray."""
+    if address in ("auto", "local"):
+        return
+    match = re.fullmatch(r"(?:ray://)?\[?([^\]/]+?)\]?:(\d+)/?", address)
+    if match is None:
+        raise ValueError(f"--address {address!r}: expected auto, HOST:PORT or ray://HOST:PORT")
+    try:
+        socket.create_connection((match[1], int(match[2])), timeout=timeout).close()
+    except OSError as error:
+        raise ValueError(f"--address {address!r}: no Ray cluster answers there ({error})") from None
+
+
+def start_ray(address: str | None, cpus: int | None = None) -> bool:
+    """Join the cluster at ``address``, or start a Ray of this machine's own (``address`` None,
+    its workers writing to this process's data folder). Returns whether Ray was started here
+    (False: this process had joined one already)."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    if address is None:
+        os.environ["WMTHESIS_DATA"] = str(data_dir())  # the local workers inherit the environment
+        ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, log_to_driver=False)
+    else:
+        check_address(address)
+        try:
+            ray.init(address=address, log_to_driver=False)
+        except ConnectionError as error:
+            raise ValueError(f"--address {address!r}: {error}") from None
+    return True
+
+
+def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None = None, cpus: int = 1,
+          gpus: float | None = None, retries: int = 3, runner: Callable | None = None,
+          progress: bool = True) -> dict[SweepRun, dict]:
+    """Run every run of ``runs`` not finished yet as a Ray task; return each run's outcome:
+    ``{"status": "done" | "finished before" | "failed", "path", "wall_seconds" | "error"}``.
+
+    ``cpus`` per run (its torch threads); ``gpus`` per run (default: 1 where the cluster has a
+    GPU, else 0); ``retries``: how often a run whose worker died starts again; ``runner``:
+    what a task calls (default :func:`~wmthesis.experiments.reproduce`). Ctrl-C cancels the
+    runs under way (the finished ones are kept) and re-raises KeyboardInterrupt.
+    """
+    import ray
+
+    from wmthesis.experiments import reproduce
+
+    profile = profile_name(profile)
+    runner = runner or reproduce
+    outcome = {run: {"status": "finished before", "path": str(path)}
+               for run in runs if (path := finished(run, profile)) is not None}
+    todo = sorted((run for run in runs if run not in outcome), key=lambda run: run.experiment not in PREREQUISITE.values())
+    if not todo:
+        return outcome
+    ours = start_ray(address)
+    if gpus is None:
+        gpus = 1 if ray.cluster_resources().get("GPU", 0) >= 1 else 0
+    task = ray.remote(_run_task).options(num_cpus=cpus, num_gpus=gpus, max_retries=retries, retry_exceptions=False)
+    refs, started = {}, time.time()
+    for run in todo:  # a prerequisite in this sweep goes first: its result is the dependent's argument
+        before = [refs[p] for p in refs if p.experiment == PREREQUISITE.get(run.experiment) and p.seed == run.seed]
+        refs[run] = task.remote(runner, run, profile, cpus) if not before else \
+            ray.remote(_after).options(num_cpus=cpus, num_gpus=gpus, max_retries=retries,
+                                       retry_exceptions=False).remote(runner, run, profile, cpus, *before)
+    waiting = {ref: run for run, ref in refs.items()}
+    bar = tqdm(total=len(todo), desc=f"sweep ({profile})", unit="run", disable=not progress)
+    try:
+        while waiting:
+            ready, _ = ray.wait(list(waiting), num_returns=1)
+            run = waiting.pop(ready[0])
+            outcome[run] = _collect(ray, ready[0], run, started)
+            bar.update()
+            bar.set_postfix(failed=sum(o["status"] == "failed" for o in outcome.values()))
+            bar.write(f"{run}: {outcome[run]['status']}"
+                      + (f" ({outcome[run]['error']})" if outcome[run]["status"] == "failed" else ""))
+    except KeyboardInterrupt:
+        for ref in waiting:
+            ray.cancel(ref, force=True)
+        bar.write(f"interrupted: {len(todo) - len(waiting)} runs kept, {len(waiting)} stopped; "
+                  "run the same sweep again to run only what is missing")
+        raise
+    finally:
+        bar.close()
+        if ours:
+            ray.shutdown()
+    return outcome
+
+
+def _after(runner: Callable, run: SweepRun, profile: str, threads: int, *prerequisites) -> tuple[dict, str]:
+    """A run that waited for its prerequisites (Ray resolved them before calling)."""
+    return _run_task(runner, run, profile, threads)
+
+
+def _collect(ray, ref, run: SweepRun, started: float) -> dict:
+    """A finished task's outcome; its metrics written into this machine's ``data/`` (as the
+    worker wrote them, when the worker is another machine)."""
+    try:
+        metrics, relative = ray.get(ref)
+    except Exception as error:  # the run raised, or its worker died more often than retried
+        cause = getattr(error, "cause", None) or error
+        return {"status": "failed", "error": f"{type(cause).__name__}: {str(cause).strip().splitlines()[-1][:300]}"}
+    path = data_dir() / (relative or Path("results", "sweep", run.experiment, f"{metrics['profile']}-seed{run.seed}",
+                                          run.variant or "", "metrics.json"))
+    text = json.dumps(metrics, indent=1)
+    if not path.is_file() or json.loads(path.read_text()) != json.loads(text):
+        with atomic_path(path) as tmp:
+            tmp.write_text(text)
+    return {"status": "done", "path": str(path), "wall_seconds": metrics.get("wall_seconds"),
+            "since_start": round(time.time() - started, 1)}
+
+
+__all__ = ["SweepRun", "PREREQUISITE", "variants_of", "parse_seeds", "parse_runs", "finished", "check_address",
+           "start_ray", "sweep"]
