@@ -23,6 +23,11 @@ def test_bad_input_is_a_message_not_a_traceback(tmp_path, capsys):
     assert "valid: unchanged, action-repeat" in capsys.readouterr().err
 
 
+def test_solve_sokoban_refuses_the_held_out_boxoban_sets(capsys):
+    assert main(["solve-sokoban", "boxoban-hard", "--profile", "smoke"]) == 2
+    assert "kept for an external check" in capsys.readouterr().err
+
+
 def test_alphazero_experiment_is_on_the_command_line(capsys):
     assert main(["reproduce", "boxing-wm-alphazero", "--variant", "nope", "--profile", "smoke"]) == 2
     assert "valid: unchanged, improved" in capsys.readouterr().err

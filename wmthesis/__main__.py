@@ -6,10 +6,11 @@
         Summarise a store; write a frame strip (PNG) and a rerun recording of one episode.
     reproduce EXPERIMENT [--profile smoke|quick|thesis] [--seed S]
         Run a thesis experiment end to end; results under data/results/EXPERIMENT/.
-    solve-sokoban LEVELS.txt [--profile P] [--seed S] [--out PATH] [--max-steps M] [--inputs pixels|grid]
+    solve-sokoban LEVELS [--profile P] [--seed S] [--out PATH] [--max-steps M] [--inputs pixels|grid]
         Play the agent that ``reproduce sokoban-search`` trained on every level of a text file
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
-        levels after "; N" lines); writes a JSON list of {level, solved, steps, actions}.
+        levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
+        writes a JSON list of {level, solved, steps, actions}.
     search planet-boxing|planet-freeway --trials N [--workers K] [--storage URL] [--profile P]
         Random search over KL scale x free nats (optuna); re-running continues the study, and
         any optuna storage URL (e.g. PostgreSQL) lets workers on many machines share it.
@@ -122,14 +123,14 @@ def cmd_solve_sokoban(args) -> int:
     import json
 
     from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
-    from wmthesis.envs.levels import read_levels
+    from wmthesis.envs.levels import load_levels
     from wmthesis.experiments.sokoban_search import work_folder
     from wmthesis.sokoban_search.evaluation import solve_boards
     from wmthesis.sokoban_search.iteration import load_run
     from wmthesis.utils import atomic_path
 
     profile = profile_name(args.profile)
-    boards = read_levels(args.levels)
+    boards = load_levels(args.levels)
     folder = work_folder(profile, args.seed) / args.inputs
     run = load_run(folder)
     if run is None:
@@ -137,7 +138,9 @@ def cmd_solve_sokoban(args) -> int:
                          f"--profile {profile} --seed {args.seed}` first")
     cfg = for_profile(SokobanSearchConfig, profile, seed=args.seed, inputs=args.inputs)
     results = solve_boards(run.agent(cfg), boards, max_steps=args.max_steps)
-    out = Path(args.out) if args.out else Path(args.levels).with_suffix(".solutions.json")
+    boxoban = args.levels.startswith("boxoban-")
+    out = Path(args.out) if args.out else data_dir("results", "solutions") / f"{args.levels.replace(':', '_')}.json" \
+        if boxoban else Path(args.levels).with_suffix(".solutions.json")
     with atomic_path(out) as tmp:
         tmp.write_text(json.dumps(results, indent=1))
     print(f"{out}: {sum(r['solved'] for r in results)} of {len(results)} levels solved")
@@ -239,7 +242,8 @@ def parser() -> argparse.ArgumentParser:
     reproduce.set_defaults(run=cmd_reproduce)
 
     solve = commands.add_parser("solve-sokoban", help="play the trained Sokoban search agent on levels from a text file")
-    solve.add_argument("levels", help="a text file of levels (# wall, . target, $ box, @ player; '; N' lines between)")
+    solve.add_argument("levels", help="a text file of levels (# wall, . target, $ box, @ player; '; N' lines between), "
+                                      "or Boxoban levels: boxoban-SET[:FILES], e.g. boxoban-medium-valid:005-009")
     solve.add_argument("--profile", choices=PROFILES)
     solve.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
     solve.add_argument("--out", help="JSON results (default: LEVELS.solutions.json)")

@@ -16,7 +16,7 @@ SOKOBAN_VARIANTS = {"sokoban": dict(dim_room=(10, 10), num_boxes=4),
 ENV_NAMES = tuple(ATARI_GAMES) + tuple(SOKOBAN_VARIANTS)
 
 ATARI_OPTIONS = ("preprocessing", "action_repeat", "max_steps", "render_mode")
-SOKOBAN_OPTIONS = ("observation", "max_steps", "render_mode", "tile_size", "frame_size")
+SOKOBAN_OPTIONS = ("observation", "max_steps", "render_mode", "tile_size", "frame_size", "levels")
 
 
 def make_env(name: str, **options) -> gym.Env:
@@ -29,7 +29,10 @@ def make_env(name: str, **options) -> gym.Env:
     Sokoban (``sokoban``: 10x10 with 4 boxes, ``sokoban-small``: 7x7 with 2 boxes):
     ``observation`` in ``rgb`` or ``grid``; ``max_steps`` (default 120); ``render_mode``;
     ``tile_size`` (pixels per cell); ``frame_size`` (World Models frames: the outer wall ring
-    cropped, resized to ``frame_size`` x ``frame_size``).
+    cropped, resized to ``frame_size`` x ``frame_size``); ``levels``: a level source instead of
+    generated levels, e.g. ``"boxoban-unfiltered-valid:005-009"`` (DeepMind's Boxoban levels,
+    :mod:`wmthesis.envs.boxoban`), a text file's path or a list of boards
+    (:func:`wmthesis.envs.levels.load_levels`).
 
     Unknown names and options fail at once with the valid ones listed.
     """

@@ -35,7 +35,7 @@ from gymnasium import spaces
 
 from wmthesis.envs.actions import check_action, check_order
 from wmthesis.envs.levels import (BOX, BOX_ON_TARGET, CELL_NAMES, FLOOR, PLAYER, PLAYER_ON_TARGET, TARGET, WALL,
-                                  check_board, fit_board, parse_level)
+                                  check_board, fit_board, load_levels, parse_level)
 from wmthesis.utils import check_choice
 ACTIONS = ("push up", "push down", "push left", "push right",
            "move up", "move down", "move left", "move right")
@@ -96,7 +96,7 @@ class SokobanEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
 
     def __init__(self, dim_room=(10, 10), num_boxes=4, max_steps=120, observation="rgb",
-                 render_mode="rgb_array", tile_size=16, frame_size=None):
+                 render_mode="rgb_array", tile_size=16, frame_size=None, levels=None):
         check_choice("observation", observation, OBSERVATIONS)
         check_choice("render_mode", render_mode, RENDER_MODES)
         h, w = (int(n) for n in dim_room)
@@ -120,6 +120,8 @@ class SokobanEnv(gym.Env):
             self.observation_space = spaces.Box(0, 255, shape, np.uint8)
         else:
             self.observation_space = spaces.Box(0, len(CELL_NAMES) - 1, ((h - 2) * (w - 2),), np.uint8)
+        self.levels = None if levels is None else [fit_board(b, (h, w), f"level {i}")
+                                                   for i, b in enumerate(load_levels(levels))]
         self._tiles = make_tiles(self.tile_size)
         self.board = np.zeros((h, w), np.uint8)
         self.generation_info: dict = {}
@@ -127,19 +129,28 @@ class SokobanEnv(gym.Env):
         self._episode = "new"  # new -> running -> ended (see wmthesis.envs.actions.check_order)
 
     def reset(self, *, seed=None, options=None):
-        """Generate a new level from ``self.np_random``, or start from ``options["board"]``: board
-        codes (h, w) or a level as text (:mod:`wmthesis.envs.levels`), padded with wall up to
-        ``dim_room``; an unplayable or larger board raises a ``ValueError`` naming why."""
+        """A new level: generated from ``self.np_random``; or, with a level source (``levels``),
+        level ``options["level"]`` of it, else one drawn from ``self.np_random`` (its index in
+        ``info["level"]``); or ``options["board"]``: board codes (h, w) or a level as text
+        (:mod:`wmthesis.envs.levels`), padded with wall up to ``dim_room``. An unplayable or
+        larger board, or a level index outside the source, raises a ``ValueError`` naming why."""
         super().reset(seed=seed)
-        if options and options.get("board") is not None:
+        options, info = options or {}, {}
+        if options.get("board") is not None:
             board = options["board"]
             board = parse_level(board) if isinstance(board, str) else np.array(board, dtype=np.int64)
             check_board(board)
             self.board = fit_board(board.astype(np.uint8), self.dim_room)
+        elif self.levels is not None:
+            index = options.get("level")
+            index = int(self.np_random.integers(len(self.levels))) if index is None else int(index)
+            if not 0 <= index < len(self.levels):
+                raise ValueError(f"level {index} is outside the level source (levels 0 to {len(self.levels) - 1})")
+            self.board, info["level"] = self.levels[index].copy(), index
         else:
             self.board, self.generation_info = generate_level(self.dim_room, self.num_boxes, self.np_random)
         self.steps, self._episode = 0, "running"
-        return self._observe(), {"boxes_on_target": self.boxes_on_target()}
+        return self._observe(), {"boxes_on_target": self.boxes_on_target(), **info}
 
     def step(self, action):
         """Play ``action`` (an integer in ``[0, 8)``; anything else raises a ``ValueError``)."""
