@@ -12,7 +12,9 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
 - ``agent step``: :class:`~wmthesis.planet.train.PlanetMind` ``plan``: encode one frame,
   update the belief, then the CEM; and beside it the latent value agent's step
   (:class:`~wmthesis.planet.value.ValueMind`: encode, update, one transition per action and the
-  value head; beyond the thesis), with its speed-up over the CEM step.
+  value head; beyond the thesis), with its speed-up over the CEM step; and the CEM whose
+  candidates end in that value (:class:`~wmthesis.planet.value_planner.ValuePlanetMind`, the
+  same sizes), with its time over the plain CEM step (``vs_cem``).
 - The same two at the ``quick`` profile's planner sizes.
 - ``update``: one training step through :func:`~wmthesis.training.gradient_step` (loss, NaN
   guard, backward, clipping, Adam) on 50 chunks of 50 steps of 64x64 frames, with latent
@@ -47,6 +49,7 @@ from wmthesis.planet.cem import cem_plan  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
 from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
 from wmthesis.planet.value import LatentValue, ValueMind  # noqa: E402
+from wmthesis.planet.value_planner import ValuePlanetMind  # noqa: E402
 from wmthesis.training import gradient_step  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
@@ -91,12 +94,15 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
     value_cfg = LatentValueConfig()
     value = LatentValue(cfg.belief_size + cfg.state_size, value_cfg.hidden_size, value_cfg.heads).to(dev)
     value_mind = ValueMind(model, value, cfg.bits, seed)
+    value_planner = ValuePlanetMind(model, value, horizon=cfg.horizon, candidates=cfg.candidates, top_k=cfg.top_k,
+                                    iterations=cfg.iterations, bits=cfg.bits,
+                                    generator=torch.Generator(dev).manual_seed(seed))
     size = cfg.frame_size
     frame = np.random.default_rng(seed).integers(0, 32, (size, size, 3), dtype=np.uint8) * 8
     with torch.inference_mode():
         seconds = median_seconds({"bare": bare, "cem": lambda: cem_plan(rollout, N_ACTIONS, *sizes, g),
-                                  "step": lambda: mind.plan(frame), "value": lambda: value_mind.plan(frame)},
-                                 repeats)
+                                  "step": lambda: mind.plan(frame), "value": lambda: value_mind.plan(frame),
+                                  "value_cem": lambda: value_planner.plan(frame)}, repeats)
     bare_s, cem_s, step_s, value_s = seconds["bare"], seconds["cem"], seconds["step"], seconds["value"]
     steps = cfg.iterations * cfg.horizon * cfg.candidates
     name = f"H{cfg.horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}"
@@ -105,7 +111,9 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
             dict(what=f"cem_plan ({label})", sizes=name, seconds=cem_s, ratio=cem_s / bare_s),
             dict(what=f"agent step: encode + CEM ({label})", sizes=name, seconds=step_s, ratio=step_s / bare_s),
             dict(what=f"agent step: encode + latent value ({label})", sizes=f"{N_ACTIONS} actions", seconds=value_s,
-                 speedup_vs_cem=step_s / value_s)]
+                 speedup_vs_cem=step_s / value_s),
+            dict(what=f"agent step: encode + CEM with terminal value ({label})", sizes=name,
+                 seconds=seconds["value_cem"], vs_cem=seconds["value_cem"] / step_s)]
 
 
 def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
@@ -169,7 +177,7 @@ def main() -> int:
     results.append(update_row(quick, "quick", args.updates, args.seed))
 
     print_table(results, ["what", "sizes", "seconds", "ratio", "updates_per_s", "updates_per_hour", "frames_per_s",
-                          "vs_bare", "latent_steps_per_s", "speedup_vs_cem"])
+                          "vs_bare", "latent_steps_per_s", "speedup_vs_cem", "vs_cem"])
     meta = machine_meta(seed=args.seed, repeats=args.repeats, updates=args.updates, threads=torch.get_num_threads(),
                         device=str(next(model.parameters()).device), cpus=os.cpu_count(),
                         load_average_before=load_before, load_average_after=os.getloadavg()[0])

@@ -177,12 +177,15 @@ class PlanetMind(BeliefFilter):
         return cls(model, horizon=config.horizon, candidates=config.candidates, top_k=config.top_k,
                    iterations=config.iterations, bits=config.bits, generator=generator)
 
+    def returns(self, actions: torch.Tensor) -> torch.Tensor:
+        """CEM's objective: one-hot candidates (J, H, A) -> their imagined returns (J,) from the
+        current belief (the thesis's: the sum of predicted rewards)."""
+        return self.model.imagined_returns(self.belief, self.state, actions, self.generator)
+
     @torch.inference_mode()
     def plan(self, state, train_mode: bool = True, debug_mode: bool = False):
         self.observe(state)
-        rollout = lambda actions: self.model.imagined_returns(  # noqa: E731
-            self.belief, self.state, actions, self.generator)
-        belief = cem_belief(rollout, self.model.n_actions, generator=self.generator, **self.sizes)
+        belief = cem_belief(self.returns, self.model.n_actions, generator=self.generator, **self.sizes)
         scores = belief.mean[0].cpu().numpy()
         if debug_mode:
             return scores, {"std": belief.std[0].cpu().numpy(), "best_return": float(belief.returns.max())}

@@ -1,0 +1,71 @@
+"""CEM with a learned terminal value: without a value it is the thesis's CEM, the same draws
+included; with H = 1 it is the value agent; in between, the return by hand."""
+import numpy as np
+import pytest
+import torch
+
+from wmthesis.planet.rssm import RSSM
+from wmthesis.planet.train import PlanetMind
+from wmthesis.planet.value import LatentValue, after_action
+from wmthesis.planet.value_planner import ValuePlanetMind, value_returns
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
+SIZES = dict(horizon=4, candidates=64, top_k=8, iterations=3)
+
+
+def model_and_value(actions: int = 5):
+    torch.manual_seed(0)
+    model = RSSM(actions, belief_size=16, state_size=4, hidden_size=16, reward_hidden_size=8).eval()
+    return model, LatentValue(20, 16, heads=2).eval()
+
+
+def frames(n: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(0)
+    return [rng.integers(0, 256, (64, 64, 3), dtype=np.uint8) for _ in range(n)]
+
+
+def test_without_a_value_it_is_the_thesis_cem_draw_for_draw():
+    model, _ = model_and_value()
+    thesis = PlanetMind(model, **SIZES, generator=torch.Generator().manual_seed(3))
+    ours = ValuePlanetMind(model, None, **SIZES, generator=torch.Generator().manual_seed(3))
+    for frame in frames(4):
+        assert np.array_equal(thesis.plan(frame), ours.plan(frame))
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    actions = torch.nn.functional.one_hot(torch.randint(5, (32, 6)), 5).float()
+    with torch.no_grad():
+        expected = model.imagined_returns(belief, state, actions, torch.Generator().manual_seed(1))
+        assert torch.equal(value_returns(model, None, belief, state, actions, torch.Generator().manual_seed(1)), expected)
+
+
+def test_with_one_step_it_is_the_value_agent():
+    model, value = model_and_value()
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    with torch.no_grad():
+        q = value(after_action(model, belief.expand(5, -1), state.expand(5, -1), torch.arange(5)))
+        assert torch.allclose(value_returns(model, value, belief, state, torch.eye(5)[:, None]), q)
+    # the planner's choice with every action among its candidates is the argmax of Q
+    mind = ValuePlanetMind(model, value, horizon=1, candidates=300, top_k=1, iterations=1,
+                           generator=torch.Generator().manual_seed(0))
+    for frame in frames(5):
+        choice = int(np.argmax(mind.plan(frame)))
+        with torch.no_grad():
+            q = value(after_action(model, mind.belief.expand(5, -1), mind.state.expand(5, -1), torch.arange(5)))
+        assert choice == int(q.argmax())
+
+
+def test_the_return_by_hand_imagined_rewards_then_the_discounted_value():
+    model, value = model_and_value()
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    actions = torch.nn.functional.one_hot(torch.tensor([[2, 0, 4]]), 5).float()
+    with torch.no_grad():
+        generator = torch.Generator().manual_seed(5)
+        h1, p1 = model.transition(belief, state, actions[:, 0])
+        s1 = p1.sample(generator)
+        h2, p2 = model.transition(h1, s1, actions[:, 1])
+        s2 = p2.sample(generator)
+        h3, p3 = model.transition(h2, s2, actions[:, 2])
+        by_hand = model.reward(h1, s1) + 0.9 * model.reward(h2, s2) + 0.81 * value(torch.cat([h3, p3.mean], -1))
+        ours = value_returns(model, value, belief, state, actions, torch.Generator().manual_seed(5), discount=0.9)
+    assert torch.allclose(ours, by_hand)
+    with pytest.raises(ValueError, match="discount"):
+        ValuePlanetMind(model, value, discount=0.0, **SIZES)

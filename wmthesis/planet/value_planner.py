@@ -1,0 +1,60 @@
+"""PlaNet's CEM with a learned value at the end of its horizon (beyond the thesis; PlaNet's
+successors, TD-MPC and Dreamer, plan or act this way).
+
+The thesis's CEM scores a candidate by its imagined rewards over H steps. Here the last step's
+reward and everything after it are the learned action value of :mod:`~wmthesis.planet.value`:
+
+    R(a_t .. a_{t+H-1}) = sum_{k < H-1} gamma^k r(h_{t+k+1}, s_{t+k+1})
+                          + gamma^{H-1} Q(h_{t+H-1}, s_{t+H-1}, a_{t+H-1})
+
+with ``Q = value(h_{t+H}, mean of p(s_{t+H} | h_{t+H}))`` (the value's features after an action,
+:func:`~wmthesis.planet.value.after_action`). The imagined states ``s`` are sampled from the
+prior as in the thesis's planner. Two ends meet the two agents it joins:
+
+- no value (``value=None``): exactly the thesis's CEM objective
+  (:meth:`~wmthesis.planet.rssm.RSSM.imagined_returns`), the same random draws included;
+- H = 1: ``R(a_t) = Q(h_t, s_t, a_t)``, the value agent's own score of ``a_t``
+  (:class:`~wmthesis.planet.value.ValueMind`).
+"""
+from __future__ import annotations
+
+import torch
+
+from wmthesis.planet.rssm import RSSM
+from wmthesis.planet.train import PlanetMind
+from wmthesis.planet.value import LatentValue
+
+
+def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, state: torch.Tensor,
+                  actions: torch.Tensor, generator: torch.Generator | None = None,
+                  discount: float = 1.0) -> torch.Tensor:
+    """The returns R (J,) of one-hot action sequences ``actions`` (J, H, A) from ``belief``
+    (1 or J, B) and ``state`` (1 or J, S): imagined rewards, the last step's (and after) from
+    ``value`` (module docstring); ``value=None``: imagined rewards alone."""
+    count, horizon = actions.shape[:2]
+    belief, state = belief.expand(count, -1), state.expand(count, -1)
+    total = actions.new_zeros(count)
+    for t in range(horizon):
+        belief, prior = model.transition(belief, state, actions[:, t])
+        if value is not None and t == horizon - 1:
+            return total + discount ** t * value(torch.cat([belief, prior.mean], -1))
+        state = prior.sample(generator)
+        total = total + discount ** t * model.reward(belief, state)
+    return total
+
+
+class ValuePlanetMind(PlanetMind):
+    """PlaNet's agent (:class:`~wmthesis.planet.train.PlanetMind`: the belief filtered with the
+    posterior's sample, CEM's sizes) whose candidates end in ``value`` (:func:`value_returns`)."""
+
+    def __init__(self, model: RSSM, value: LatentValue | None, *, discount: float = 1.0, **planner):
+        super().__init__(model, **planner)
+        if not 0.0 < discount <= 1.0:
+            raise ValueError(f"discount must be in (0, 1], got {discount}")
+        self.value, self.discount = value, float(discount)
+
+    def returns(self, actions: torch.Tensor) -> torch.Tensor:
+        return value_returns(self.model, self.value, self.belief, self.state, actions, self.generator, self.discount)
+
+
+__all__ = ["value_returns", "ValuePlanetMind"]
