@@ -123,7 +123,7 @@ def cmd_solve_sokoban(args) -> int:
     import json
 
     from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
-    from wmthesis.envs.levels import load_levels
+    from wmthesis.envs.boxoban import load_levels
     from wmthesis.experiments.sokoban_search import work_folder
     from wmthesis.sokoban_search.evaluation import solve_boards
     from wmthesis.sokoban_search.iteration import load_run

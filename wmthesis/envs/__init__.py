@@ -32,7 +32,7 @@ def make_env(name: str, **options) -> gym.Env:
     cropped, resized to ``frame_size`` x ``frame_size``); ``levels``: a level source instead of
     generated levels, e.g. ``"boxoban-unfiltered-valid:005-009"`` (DeepMind's Boxoban levels,
     :mod:`wmthesis.envs.boxoban`), a text file's path or a list of boards
-    (:func:`wmthesis.envs.levels.load_levels`).
+    (:func:`wmthesis.envs.boxoban.load_levels`).
 
     Unknown names and options fail at once with the valid ones listed.
     """

@@ -1,5 +1,6 @@
-"""DeepMind's Boxoban levels (10x10, 4 boxes; Apache-2.0), the field's Sokoban benchmark, as a
-level source.
+"""Level sources: DeepMind's Boxoban levels (10x10, 4 boxes; Apache-2.0), the field's Sokoban
+benchmark, and :func:`load_levels`, which turns any source (a Boxoban name, a text file, boards)
+into boards for ``SokobanEnv(levels=...)``.
 
 The package carries a subset in ``boxoban_levels/`` (gzipped text, licence beside it):
 
@@ -30,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.envs.levels import LevelError, parse_levels
+from wmthesis.envs.levels import LevelError, check_board, parse_level, parse_levels, read_levels
 
 SETS = {"unfiltered-train": 20, "unfiltered-valid": 10, "medium-train": 20, "medium-valid": 10}
 HELD_OUT = ("unfiltered-test", "hard")  # kept for an external check: never read here
@@ -94,4 +95,21 @@ def boxoban_levels(source: str) -> list[np.ndarray]:
     return [board for number in numbers for board in _read_file(boxoban_file(name, number))]
 
 
-__all__ = ["SETS", "HELD_OUT", "LEVELS_PER_FILE", "level_folder", "parse_source", "boxoban_file", "boxoban_levels"]
+def load_levels(source) -> list[np.ndarray]:
+    """A level source -> its boards: ``"boxoban-SET[:FILES]"`` (the vendored Boxoban levels,
+    above), the path of a text file (:func:`read_levels`), or boards
+    (each (h, w) codes, or a level's text), each checked (:func:`check_board`)."""
+    if isinstance(source, str) and source.startswith("boxoban-"):
+        return boxoban_levels(source)
+    if isinstance(source, (str, Path)):
+        return read_levels(source)
+    boards = [parse_level(b, f"level {i}") if isinstance(b, str) else np.asarray(b, np.uint8)
+              for i, b in enumerate(source)]
+    if not boards:
+        raise LevelError("the level source holds no levels")
+    for i, board in enumerate(boards):
+        check_board(board, f"level {i}")
+    return boards
+
+
+__all__ = ["load_levels", "SETS", "HELD_OUT", "LEVELS_PER_FILE", "level_folder", "parse_source", "boxoban_file", "boxoban_levels"]

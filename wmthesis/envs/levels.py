@@ -89,25 +89,6 @@ def read_levels(path) -> list[np.ndarray]:
     return parse_levels(path.read_text(), str(path))
 
 
-def load_levels(source) -> list[np.ndarray]:
-    """A level source -> its boards: ``"boxoban-SET[:FILES]"`` (the vendored Boxoban levels,
-    :mod:`wmthesis.envs.boxoban`), the path of a text file (:func:`read_levels`), or boards
-    (each (h, w) codes, or a level's text), each checked (:func:`check_board`)."""
-    if isinstance(source, str) and source.startswith("boxoban-"):
-        from wmthesis.envs.boxoban import boxoban_levels
-
-        return boxoban_levels(source)
-    if isinstance(source, (str, Path)):
-        return read_levels(source)
-    boards = [parse_level(b, f"level {i}") if isinstance(b, str) else np.asarray(b, np.uint8)
-              for i, b in enumerate(source)]
-    if not boards:
-        raise LevelError("the level source holds no levels")
-    for i, board in enumerate(boards):
-        check_board(board, f"level {i}")
-    return boards
-
-
 def board_to_text(board: np.ndarray) -> str:
     """A board (h, w) codes -> its text, one line per row."""
     return "\n".join("".join(TEXT[int(code)] for code in row) for row in np.asarray(board))
@@ -168,5 +149,5 @@ def _wall_outside(board: np.ndarray, name: str) -> np.ndarray:
     return board[1:-1, 1:-1].copy()
 
 
-__all__ = ["WALL", "FLOOR", "TARGET", "BOX_ON_TARGET", "BOX", "PLAYER", "PLAYER_ON_TARGET", "CELL_NAMES", "parse_level", "parse_levels", "read_levels", "load_levels", "board_to_text", "fit_board", "check_board",
+__all__ = ["WALL", "FLOOR", "TARGET", "BOX_ON_TARGET", "BOX", "PLAYER", "PLAYER_ON_TARGET", "CELL_NAMES", "parse_level", "parse_levels", "read_levels", "board_to_text", "fit_board", "check_board",
            "LevelError", "SYMBOLS"]

@@ -34,8 +34,9 @@ import numpy as np
 from gymnasium import spaces
 
 from wmthesis.envs.actions import check_action, check_order
+from wmthesis.envs.boxoban import load_levels
 from wmthesis.envs.levels import (BOX, BOX_ON_TARGET, CELL_NAMES, FLOOR, PLAYER, PLAYER_ON_TARGET, TARGET, WALL,
-                                  check_board, fit_board, load_levels, parse_level)
+                                  check_board, fit_board, parse_level)
 from wmthesis.utils import check_choice
 ACTIONS = ("push up", "push down", "push left", "push right",
            "move up", "move down", "move left", "move right")
