@@ -155,6 +155,17 @@ class LatentValueConfig:
 
 
 @dataclass(frozen=True)
+class ValuePlannerConfig:
+    """CEM whose candidates end in the learned action value (beyond the thesis;
+    :mod:`~wmthesis.planet.value_planner`): ``horizon`` imagined steps, the last one's reward
+    and what follows from the value, each step discounted by ``discount``; CEM's candidates,
+    top K and iterations are the PlaNet config's. ``horizon`` 1 is the value agent itself."""
+
+    horizon: int = 3
+    discount: float = 1.0
+
+
+@dataclass(frozen=True)
 class ControllerConfig:
     """Controller evolution (thesis 4.2.2, 4.2.5): CMA-ES, population 64, 5 episodes per
     candidate, fitness = mean return; a linear greedy controller on ``[z h]``.
@@ -345,6 +356,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                              candidates=16, top_k=4, iterations=2, test_interval=1, test_episodes=1),
         "LatentValueConfig": dict(hidden_size=16, random_bouts=2, fit_updates=5, batch_size=16, rounds=1,
                                   bouts_per_round=1, validation_bouts=1, test_bouts=2),
+        "ValuePlannerConfig": dict(horizon=2),
         "SearchConfig": dict(trials=2, workers=1, env_steps=48, open_loop_sequences=2, open_loop_length=10,
                              held_out_episodes=1,
                              heartbeat_interval=1, grace_period=3),

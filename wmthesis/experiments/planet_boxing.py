@@ -182,17 +182,54 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
 
 
 # ---------------------------------------------------------------------------- beyond the thesis
+def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int, mind_seed: int) -> dict:
+    """One full bout of CEM with the chosen value at its end
+    (:func:`~wmthesis.planet.value_planner.play_value_planner`) on the PlaNet agent's frozen
+    model: its ``return``, the return of its first :data:`FIRST_STEPS` steps and its ``steps``."""
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import load_value
+    from wmthesis.planet.value_planner import play_value_planner
+
+    model, planet, _ = load_planet(planet_run)
+    env = make_planet_env(GAME, planet)
+    try:
+        rewards = play_value_planner(env, model, load_value(value_run, model), planet, planner, env_seed, mind_seed)
+    finally:
+        env.close()
+    return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
+
+
+def _value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool) -> dict:
+    """The planner with value over the evaluation ``bouts``: full-bout and first-500-step
+    scores, cached in ``value_run`` for the chosen round ``best`` and the planner's config."""
+    from wmthesis.metrics import score_summary
+
+    key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
+    cached = _read_json(value_run / "value_planner.json")
+    if cached is not None and cached.get("key") == key:
+        return cached["scores"]
+    plays = parallel_calls([(value_planner_bout, planet_run, value_run, planner, *bout) for bout in bouts], progress)
+    scores = {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
+              "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
+              "config": dataclasses.asdict(planner)}
+    with atomic_path(value_run / "value_planner.json") as tmp:
+        tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
+    return scores
+
+
 @releasing_holds
 def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """The PlaNet agent's model (:func:`planet_boxing_agent`, trained first if need be) frozen,
     and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
     its own; after each round, greedy bouts on the agent's evaluation bouts. The round chosen on
     validation bouts of its own (:func:`~wmthesis.planet.value.best_round`) compares with random
-    play and with the CEM planner on the evaluation bouts. Returns the metrics:
+    play and with the CEM planner on the evaluation bouts, and so does CEM with that value at the
+    end of its horizon (:mod:`~wmthesis.planet.value_planner`). Returns the metrics:
     ``value`` and ``random`` (scores over full bouts), ``difference``
-    (:func:`~wmthesis.metrics.score_difference`), ``planet`` (the CEM agent's), the ``curve``
-    (one entry per round) and ``files``."""
-    from wmthesis.config import LatentValueConfig, for_profile
+    (:func:`~wmthesis.metrics.score_difference`), ``planet`` (the CEM agent's), ``value_planner``
+    (CEM with the value: full bouts and their first 500 steps), the ``curve`` (one entry per
+    round) and ``files``."""
+    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
     from wmthesis.metrics import score_difference, score_summary
     from wmthesis.planet.figures import learning_curve_figure
     from wmthesis.planet.train import load_planet, make_planet_env
@@ -213,7 +250,10 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
         env.close()
     chosen = run["curve"][run["best_round"]]
     returns = chosen["returns"]
+    planner = _value_planner_scores(planet_run, work, for_profile(ValuePlannerConfig, profile), agent["bouts"],
+                                    run["best_round"], progress)
     references = {"random play": agent["random"]["full"]["mean"], "PlaNet (CEM)": agent["agent"]["full"]["mean"],
+                  f"CEM, H{planner['config']['horizon']}, with the value at its end": planner["full"]["mean"],
                   "human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
     figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
                                                references=references, x="episodes",
@@ -227,6 +267,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
                            f"{agent['agent']['full']['mean']:.1f})",
                "value": value, "returns": returns, "random": agent["random"]["full"],
                "difference": score_difference(returns, agent["random"]["returns"]), "planet": agent["agent"]["full"],
+               "value_planner": planner,
                "bouts": agent["bouts"], "curve": run["curve"], "best_round": run["best_round"],
                "config": dataclasses.asdict(config),
                "files": {"figures": [str(figure)]}}
@@ -248,12 +289,14 @@ def value_table(metrics: dict) -> str:
         f"| latent value on the PlaNet model (round {chosen['round']}, {chosen['episodes']} bouts of its own; "
         f"chosen on {len(chosen['validation'])} validation bouts) | {_score_cell(metrics['value'])} |",
         f"| PlaNet (CEM planner), same model | {_score_cell(metrics['planet'])} |",
+        *([f"| CEM with the value at the end of its {metrics['value_planner']['config']['horizon']} steps, same model "
+           f"| {_score_cell(metrics['value_planner']['full'])} |"] if "value_planner" in metrics else []),
         f"| random play, same bouts | {_score_cell(metrics['random'])} |",
         f"| value - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) |",
         f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
 
 
-__all__ = ["planet_boxing_study", "planet_boxing_agent", "planet_boxing_value", "value_table", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
+__all__ = ["planet_boxing_study", "planet_boxing_agent", "planet_boxing_value", "value_planner_bout", "value_table", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
 
 
 # ---------------------------------------------------------------------------- tables

@@ -20,6 +20,9 @@ from __future__ import annotations
 
 import torch
 
+from wmthesis.config import PlaNetConfig, ValuePlannerConfig
+from wmthesis.core import loop
+from wmthesis.data import EpisodeBuffer
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.train import PlanetMind
 from wmthesis.planet.value import LatentValue
@@ -57,4 +60,17 @@ class ValuePlanetMind(PlanetMind):
         return value_returns(self.model, self.value, self.belief, self.state, actions, self.generator, self.discount)
 
 
-__all__ = ["value_returns", "ValuePlanetMind"]
+def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfig, planner: ValuePlannerConfig,
+                       env_seed: int, mind_seed: int) -> list[float]:
+    """One greedy episode of the planner with value in ``env`` (reset with ``env_seed``; CEM's
+    noise from ``mind_seed``; CEM's sizes from ``planet``, its horizon from ``planner``): its
+    rewards, one per agent step."""
+    mind = ValuePlanetMind(model, value, horizon=planner.horizon, candidates=planet.candidates, top_k=planet.top_k,
+                           iterations=planet.iterations, bits=planet.bits, discount=planner.discount,
+                           generator=torch.Generator(next(model.parameters()).device).manual_seed(int(mind_seed)))
+    record = EpisodeBuffer()
+    loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
+    return [float(r) for r in record.episode["rewards"]]
+
+
+__all__ = ["value_returns", "ValuePlanetMind", "play_value_planner"]
