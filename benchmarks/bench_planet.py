@@ -13,8 +13,9 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
   update the belief, then the CEM; and beside it the latent value agent's step
   (:class:`~wmthesis.planet.value.ValueMind`: encode, update, one transition per action and the
   value head; beyond the thesis), with its speed-up over the CEM step; and the CEM whose
-  candidates end in that value (:class:`~wmthesis.planet.value_planner.ValuePlanetMind`, the
-  same sizes), with its time over the plain CEM step (``vs_cem``).
+  candidates end in that value (:class:`~wmthesis.planet.value_planner.ValuePlanetMind`: the
+  same J, K and I, the horizon of the profile's ``ValuePlannerConfig``), with its time over the
+  plain CEM step (``vs_cem``).
 - The same two at the ``quick`` profile's planner sizes.
 - ``update``: one training step through :func:`~wmthesis.training.gradient_step` (loss, NaN
   guard, backward, clipping, Adam) on 50 chunks of 50 steps of 64x64 frames, with latent
@@ -43,7 +44,7 @@ import torch.nn.functional as F
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.config import LatentValueConfig, PlaNetConfig  # noqa: E402
+from wmthesis.config import LatentValueConfig, PlaNetConfig, ValuePlannerConfig, for_profile  # noqa: E402
 from wmthesis.planet.profiles import planet_config  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
@@ -94,7 +95,8 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
     value_cfg = LatentValueConfig()
     value = LatentValue(cfg.belief_size + cfg.state_size, value_cfg.hidden_size, value_cfg.heads).to(dev)
     value_mind = ValueMind(model, value, cfg.bits, seed)
-    value_planner = ValuePlanetMind(model, value, horizon=cfg.horizon, candidates=cfg.candidates, top_k=cfg.top_k,
+    horizon = for_profile(ValuePlannerConfig, label).horizon
+    value_planner = ValuePlanetMind(model, value, horizon=horizon, candidates=cfg.candidates, top_k=cfg.top_k,
                                     iterations=cfg.iterations, bits=cfg.bits,
                                     generator=torch.Generator(dev).manual_seed(seed))
     size = cfg.frame_size
@@ -112,7 +114,8 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
             dict(what=f"agent step: encode + CEM ({label})", sizes=name, seconds=step_s, ratio=step_s / bare_s),
             dict(what=f"agent step: encode + latent value ({label})", sizes=f"{N_ACTIONS} actions", seconds=value_s,
                  speedup_vs_cem=step_s / value_s),
-            dict(what=f"agent step: encode + CEM with terminal value ({label})", sizes=name,
+            dict(what=f"agent step: encode + CEM with terminal value ({label})",
+                 sizes=f"H{horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}",
                  seconds=seconds["value_cem"], vs_cem=seconds["value_cem"] / step_s)]
 
 
