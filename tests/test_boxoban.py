@@ -9,6 +9,7 @@ from wmthesis.envs import make_env
 from wmthesis.envs.boxoban import SETS, boxoban_file, boxoban_levels, parse_source
 from wmthesis.envs.levels import BOX, BOX_ON_TARGET, PLAYER, PLAYER_ON_TARGET, TARGET, board_to_text, read_levels
 from wmthesis.envs.sokoban import solve
+from wmthesis.sokoban_search.evaluation import check_board_solutions
 
 # Level 0 of unfiltered/valid/000.txt, as DeepMind's file writes it.
 UNFILTERED_VALID_0 = """##########
@@ -67,6 +68,11 @@ def test_the_environment_plays_boxoban_levels_by_the_rules(tmp_path):
     assert actions is not None
     rewards = [env.step(a)[1] for a in actions]
     assert env.boxes_on_target() == 4 and rewards[-1] > 10 - 1e-6 and env._episode == "ended"
+    # the referee that checks claimed solutions: the whole solution within the steps, nothing less
+    board = env.levels[0]
+    claims = [{"level": 0, "actions": actions}, {"level": 0, "actions": actions[:-1]}]
+    assert check_board_solutions([board], claims) == [True, False]
+    assert check_board_solutions([board], claims[:1], max_steps=len(actions) - 1) == [False]
     drawn = [env.reset(seed=7)[1]["level"] for _ in range(3)]
     assert drawn[0] == drawn[1] == drawn[2]  # the same seed, the same level
     assert len({env.reset()[1]["level"] for _ in range(20)}) > 10  # else drawn from the whole source

@@ -43,11 +43,18 @@ def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, cap
     assert "reproduce sokoban-search --profile smoke --seed 3` first" in capsys.readouterr().err
     assert main(["reproduce", "sokoban-search", "--profile", "smoke", "--seed", "3"]) == 0
     assert "unseen levels solved" in capsys.readouterr().out
+    metrics = json.loads((tmp_path / "data/results/sokoban-search/smoke-seed3/metrics.json").read_text())
+    for kind in ("unfiltered", "medium"):  # the first 2 levels of the report files, played in the real game
+        row = metrics["boxoban"]["pixels"][kind]
+        assert row["levels"] == 2 and row["source"].startswith(f"boxoban-{kind}-valid:005-009")
+        assert row["replayed"] == row["solved"] and len(row["failed_levels"]) == 2 - row["solved"]
+    assert metrics["boxoban"]["splits"]["validation"]["medium"] == "boxoban-medium-valid:000-001"
     out = tmp_path / "results.json"
     assert main(["solve-sokoban", str(levels), "--profile", "smoke", "--seed", "3", "--out", str(out)]) == 0
     results = json.loads(out.read_text())
     assert [r["level"] for r in results] == [0, 1]
-    assert all(set(r) == {"level", "solved", "steps", "actions"} and r["steps"] == len(r["actions"]) for r in results)
+    assert all({"level", "solved", "steps", "actions", "expanded", "seconds"} <= set(r) and r["steps"] == len(r["actions"])
+               for r in results)
     levels.write_text("#####\n#@$x#\n#####\n")
     assert main(["solve-sokoban", str(levels), "--profile", "smoke", "--seed", "3"]) == 2
     assert "level 0: row 2 column 4 holds 'x'" in capsys.readouterr().err

@@ -29,6 +29,19 @@ SOKOBAN_SEARCH_REFERENCE = {
     "I2A (Racaniere et al. 2017)": "about 85% of unseen 10x10 4-box levels, after about 1e9 environment steps",
     "DRC (Guez et al. 2019)": "about 99% of unfiltered Boxoban, after about 1e9 environment steps",
 }
+# DeepMind's Boxoban levels (issue 30): which files serve which purpose. Development decisions
+# are measured on the validation files only; the reported figures come from the report files,
+# which no decision looked at; training uses our generator (the Boxoban train files are free to
+# use). The upstream unfiltered test and hard sets are not in the package.
+BOXOBAN_SPLITS = {
+    "validation": {"unfiltered": "boxoban-unfiltered-valid:000-001", "medium": "boxoban-medium-valid:000-001"},
+    "report": {"unfiltered": "boxoban-unfiltered-valid:005-009", "medium": "boxoban-medium-valid:005-009"},
+}
+BOXOBAN_LEVELS = {"smoke": 2, "quick": 500, "thesis": 1000}  # the first of the report files' levels, each kind
+BOXOBAN_REFERENCE = {  # the best published agent, DRC(3,3), 2e9 environment steps, 120-step episodes
+    "unfiltered": "DRC(3,3) 99.3% of the unfiltered test (AlignmentResearch/learned-planner)",
+    "medium": "DRC(3,3) 76.6-81.3% of medium valid (AlignmentResearch/learned-planner)",
+}
 EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
 EVAL_PARTS = 2  # each evaluation in parts (every other level), so that two processes share them evenly
 # Issue 14's targets in quick: (variant, inputs, lowest solve rate); fewer than 1M env steps.
@@ -94,16 +107,14 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     agents = {"grid": (work / "grid", grid_cfg, False), "pixels": (work / "pixels", configs["pixels"], False),
               "simulator": (work / "grid", grid_cfg, True)}  # the grid run's value with the true rules
     evaluations = {(name, variant, part): (work / f"eval-{name}-{variant}-{part}.json",
-                                           (folder, cfg, variant, seeds[part::EVAL_PARTS], simulator))
+                                           (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator))
                    for variant in reversed(grid_cfg.variants) for name, (folder, cfg, simulator) in agents.items()
                    for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
-    missing = [key for key, (path, _) in evaluations.items() if _read_json(path) is None]
-
-    def keep(index: int, result: dict) -> None:  # each evaluation is saved as it finishes
-        with atomic_path(evaluations[missing[index]][0]) as tmp:
-            tmp.write_text(json.dumps(result))
-
-    parallel_calls([(_evaluate, *evaluations[key][1]) for key in missing], progress, keep)
+    boxoban_count = BOXOBAN_LEVELS[profile]
+    boxoban = {(kind, part): (work / f"eval-boxoban-{kind}-{boxoban_count}-{part}.json",
+                              (_evaluate_boxoban, work / "pixels", configs["pixels"], source, boxoban_count, part))
+               for kind, source in BOXOBAN_SPLITS["report"].items() for part in range(EVAL_PARTS)}
+    _run_saved({**evaluations, **boxoban}, progress)
     for variant in grid_cfg.variants:
         played = {name: _merged([_read_json(evaluations[name, variant, part][0]) for part in range(EVAL_PARTS)], seeds)
                   for name in agents}
@@ -120,6 +131,8 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
         for name in runs:
             with atomic_path(out / f"solutions-{name}-{variant}.json") as tmp:
                 tmp.write_text(json.dumps(played[name]["solutions"]))
+    boxoban_tables = {kind: _boxoban_row(kind, [_read_json(boxoban[kind, part][0]) for part in range(EVAL_PARTS)],
+                                         boxoban_count) for kind in BOXOBAN_SPLITS["report"]}
     figures, recording = _figures(out, runs, grid_cfg, solutions)
     last = grid_cfg.variants[-1]
     replayed = check_solutions(last, solutions[last][:20])
@@ -131,6 +144,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
                    f"({100 * solved / grid_cfg.eval_levels:.1f}%)",
         "env_steps": {name: int(sum(h["env_steps"] for h in run.history)) for name, run in runs.items()},
         "history": {name: run.history for name, run in runs.items()}, "tables": tables,
+        "boxoban": {"pixels": boxoban_tables, "splits": BOXOBAN_SPLITS, "reference": BOXOBAN_REFERENCE},
         "accuracy": model_accuracy, "replayed_solutions": {"checked": len(replayed), "solved": int(sum(replayed))},
         "reference": SOKOBAN_SEARCH_REFERENCE,
         "files": {"figures": [str(f) for f in figures], "recording": str(recording),
@@ -148,6 +162,44 @@ def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -
     run = load_run(folder, cfg)
     agent = run.agent(cfg, Simulator(), GRID) if simulator else run.agent(cfg)
     return {"plays": [p.record() for p in play_levels(agent, variant, seeds, progress=False)]}
+
+
+def _run_saved(jobs: dict, progress: bool) -> None:
+    """Run each job ``key: (path, (fn, *args))`` whose JSON at ``path`` is missing, two at a
+    time, each saved as it finishes (a re-run computes only what is missing)."""
+    missing = [key for key, (path, _) in jobs.items() if _read_json(path) is None]
+
+    def keep(index: int, result: dict) -> None:
+        with atomic_path(jobs[missing[index]][0]) as tmp:
+            tmp.write_text(json.dumps(result))
+
+    parallel_calls([jobs[key][1] for key in missing], progress, keep)
+
+
+def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int) -> dict:
+    """The run in ``folder`` on part ``part`` (every :data:`EVAL_PARTS`-th) of the first ``count``
+    levels of a Boxoban source: ``plays``, one record (level, solved, actions, ...) per level."""
+    from wmthesis.envs.boxoban import load_levels
+    from wmthesis.sokoban_search.evaluation import solve_boards
+
+    levels = list(range(count))[part::EVAL_PARTS]
+    boards = load_levels(source)
+    return {"plays": solve_boards(load_run(folder, cfg).agent(cfg), [boards[i] for i in levels], progress=False,
+                                  levels=levels)}
+
+
+def _boxoban_row(kind: str, parts: list[dict], count: int) -> dict:
+    """The pixel agent's row on a kind of Boxoban levels (its parts merged in level order), the
+    source, and how many of its solutions an independent replay confirmed."""
+    from wmthesis.envs.boxoban import load_levels
+    from wmthesis.sokoban_search.evaluation import check_board_solutions
+
+    source = BOXOBAN_SPLITS["report"][kind]
+    plays = sorted((r for part in parts for r in part["plays"]), key=lambda r: r["level"])
+    solved = [r for r in plays if r["solved"]]
+    replayed = check_board_solutions(load_levels(source), solved)
+    return {**agent_row(plays), "source": f"{source}, its first {count} levels", "replayed": int(sum(replayed)),
+            "failed_levels": [r["level"] for r in plays if not r["solved"]]}
 
 
 def _merged(parts: list[dict], seeds) -> dict:
@@ -210,4 +262,4 @@ def _figures(out: Path, runs: dict, cfg, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "SOKOBAN_SEARCH_REFERENCE", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]
+__all__ = ["sokoban_search", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]

@@ -79,19 +79,42 @@ def replay_states(variant: str, records: list[dict]) -> list[tuple[np.ndarray, n
     return out
 
 
-def solve_boards(agent, boards, max_steps: int = 120, progress: bool = True) -> list[dict]:
+def solve_boards(agent, boards, max_steps: int = 120, progress: bool = True, levels=None) -> list[dict]:
     """The agent on given boards (codes (h, w), any size the model runs on), each in a real
-    environment of the board's size: one ``{"level", "solved", "steps", "actions"}`` per board."""
+    environment of the board's size that ends the episode after ``max_steps`` steps, every
+    replan counted: one ``{"level", "solved", "steps", "actions", "expanded", "seconds", ...}``
+    per board (:meth:`Play.record`), ``level`` its index in ``levels`` (default 0, 1, ...)."""
+    results = []
+    levels = range(len(boards)) if levels is None else levels
+    for index, board in zip(levels, tqdm(boards, desc="levels", disable=not progress)):
+        play = agent.play(_board_env(board, max_steps, **agent.inputs.env_options), board=board)
+        record = play.record()
+        del record["seed"]
+        results.append({"level": int(index), **record})
+    return results
+
+
+def check_board_solutions(boards, records: list[dict], max_steps: int = 120) -> list[bool]:
+    """An independent referee: each record's ``actions`` replayed on its board (``boards[level]``)
+    in a fresh environment; whether it ends with every box on a target within ``max_steps``."""
+    verdicts = []
+    for record in records:
+        env = _board_env(boards[record["level"]], max_steps, observation="grid")
+        env.reset(options={"board": boards[record["level"]]})
+        terminated = truncated = False
+        for action in record["actions"]:
+            _, _, terminated, truncated, _ = env.step(int(action))
+            if terminated or truncated:
+                break
+        verdicts.append(bool(terminated))
+    return verdicts
+
+
+def _board_env(board: np.ndarray, max_steps: int, **options):
     from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, SokobanEnv
 
-    results = []
-    for index, board in enumerate(tqdm(boards, desc="levels", disable=not progress)):
-        boxes = int(np.isin(board, (BOX, BOX_ON_TARGET)).sum())
-        env = SokobanEnv(board.shape, max(boxes, 1), max_steps=max_steps, **agent.inputs.env_options)
-        play = agent.play(env, board=board)
-        results.append({"level": index, "solved": play.solved, "steps": len(play.actions),
-                        "actions": [int(a) for a in play.actions]})
-    return results
+    boxes = int(np.isin(board, (BOX, BOX_ON_TARGET)).sum())
+    return SokobanEnv(board.shape, max(boxes, 1), max_steps=max_steps, **options)
 
 
 def check_solutions(variant: str, records: list[dict]) -> list[bool]:
@@ -110,5 +133,5 @@ def check_solutions(variant: str, records: list[dict]) -> list[bool]:
     return verdicts
 
 
-__all__ = ["play_levels", "solve_boards", "agent_row", "random_row", "astar_row", "replay_states", "check_solutions",
+__all__ = ["play_levels", "solve_boards", "check_board_solutions", "agent_row", "random_row", "astar_row", "replay_states", "check_solutions",
            "THESIS_SOLVED", "random_play"]
