@@ -63,7 +63,8 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
         _write_run(tmp_path, "boxing-wm", seed, score)
     _write_run(tmp_path, "planet-freeway", 0, 23.0, variant="freeway-tuned")
     value = _write_run(tmp_path, "planet-boxing-value", 4, 0.0)  # its headline is the value's score, not "score"
-    value.write_text(json.dumps({**json.loads(value.read_text()), "value": {"mean": 26.8}}))
+    value.write_text(json.dumps({**json.loads(value.read_text()), "value": {"mean": 26.8},
+                                 "value_planner": {"full": {"mean": 31.5}}}))
     rows = write_summary()
     by_name = {row["experiment"]: row for row in rows}
     box = by_name["boxing-wm"]
@@ -77,7 +78,8 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
                for p in box["published"])
     one = by_name["planet-freeway"]
     assert (one["variant"], one["n"], one["mean"], one["std"], one["ci_low"]) == ("freeway-tuned", 1, 23.0, None, None)
-    assert by_name["planet-boxing-value"]["mean"] == 26.8
+    value_rows = {row["variant"]: row["mean"] for row in rows if row["experiment"] == "planet-boxing-value"}
+    assert value_rows == {None: 26.8, "cem-with-value": 31.5}
     table = (tmp_path / "results" / "summary.md").read_text()
     assert "| boxing-wm |  | quick | 3 | 15.0 | 5.6 | [1.2, 28.8] | 0: 10.0, 1: 14.0, 2: 21.0 |" in table
     assert "human 12.1 (iris results/data/HUMAN.json)" in table and "Student-t" in table

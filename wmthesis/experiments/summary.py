@@ -53,7 +53,7 @@ PUBLISHED = {
     "planet-sokoban": [],
 }
 # Experiment -> what its headline score is.
-MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels",
+MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels (generated; boxoban-*: Boxoban valid 005-009)",
            "planet-boxing-value": "full-bout score, the value's chosen round",
            "planet-boxing-agent": "full-bout score, CEM planner"}
 DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
@@ -80,12 +80,16 @@ def run_scores(metrics: dict) -> dict[str | None, float]:
         return {v: float(metrics["scores"][f"AlphaZero {v}"]["mean"]) for v in metrics["variants"]}
     if name == "planet-boxing-study":
         return {}
-    if name == "planet-boxing-value":
-        return {None: float(metrics["value"]["mean"])}
+    if name == "planet-boxing-value":  # the value agent; and CEM with the value at its end, where measured
+        planner = metrics.get("value_planner")
+        return {None: float(metrics["value"]["mean"]),
+                **({"cem-with-value": float(planner["full"]["mean"])} if planner else {})}
     if name == "planet-boxing-agent":
         return {None: float(metrics["agent"]["full"]["mean"])}
-    if name == "sokoban-search":
-        return {None: 100.0 * float(metrics["score"]["mean"])}
+    if name == "sokoban-search":  # generated levels; and Boxoban's report files, where measured
+        boxoban = metrics.get("boxoban", {}).get("pixels", {})
+        return {None: 100.0 * float(metrics["score"]["mean"]),
+                **{f"boxoban-{kind}": 100.0 * float(row["solve_rate"]) for kind, row in boxoban.items()}}
     return {metrics.get("variant"): float(metrics["score"]["mean"])}
 
 
