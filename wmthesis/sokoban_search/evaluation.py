@@ -101,13 +101,18 @@ def check_board_solutions(boards, records: list[dict], max_steps: int = 120) -> 
     for record in records:
         env = _board_env(boards[record["level"]], max_steps, observation="grid")
         env.reset(options={"board": boards[record["level"]]})
-        terminated = truncated = False
-        for action in record["actions"]:
-            _, _, terminated, truncated, _ = env.step(int(action))
-            if terminated or truncated:
-                break
-        verdicts.append(bool(terminated))
+        verdicts.append(_solves(env, record["actions"]))
     return verdicts
+
+
+def _solves(env, actions) -> bool:
+    """Whether ``actions`` played from the env's current start end the episode solved."""
+    terminated = truncated = False
+    for action in actions:
+        _, _, terminated, truncated, _ = env.step(int(action))
+        if terminated or truncated:
+            break
+    return bool(terminated)
 
 
 def _board_env(board: np.ndarray, max_steps: int, **options):
@@ -124,12 +129,7 @@ def check_solutions(variant: str, records: list[dict]) -> list[bool]:
     verdicts = []
     for record in records:
         env.reset(seed=int(record["seed"]))
-        terminated = truncated = False
-        for action in record["actions"]:
-            _, _, terminated, truncated, _ = env.step(int(action))
-            if terminated or truncated:
-                break
-        verdicts.append(bool(terminated))
+        verdicts.append(_solves(env, record["actions"]))
     return verdicts
 
 
