@@ -141,3 +141,9 @@ def test_best_round_is_chosen_on_validation_and_kept(tmp_path):
     assert [play_value(env, model, value, 5, *evaluation_seeds(0, k))["rewards"].sum() for k in range(2)] \
         == curve[best]["returns"]
     assert validation_seeds(0, 0) != evaluation_seeds(0, 0)
+    # a value belongs to its model: another model's weights are refused, on load and on resume
+    other = RSSM(3, belief_size=16, state_size=4, hidden_size=16, reward_hidden_size=8).eval()
+    with pytest.raises(ValueError, match="was fitted on another model"):
+        load_value(tmp_path, other)
+    with pytest.raises(ValueError, match="was fitted on another model"):
+        train_value(other, 5, env, dataclasses.replace(config, rounds=4), tmp_path, seed=0, progress=False)

@@ -35,7 +35,7 @@ from wmthesis.data import EpisodeBuffer, EpisodeStore, play_random_episode
 from wmthesis.envs.preprocessing import to_float
 from wmthesis.planet.rssm import RSSM, one_hot_previous
 from wmthesis.planet.train import BeliefFilter
-from wmthesis.utils import atomic_path, derive_seeds
+from wmthesis.utils import atomic_path, derive_seeds, fingerprint
 
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
 
@@ -181,6 +181,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     state = torch.load(saved, map_location=device, weights_only=False) if saved.exists() else {"curve": []}
     if "value" in state:
         _check_resumable(state["config"], config, saved)
+        _check_model(state, model, saved)
         value.load_state_dict(state["value"])
     curve, cache = state["curve"], []
     for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
@@ -204,7 +205,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
             state["best"] = {key: v.clone() for key, v in value.state_dict().items()}
         with atomic_path(saved) as tmp:
             torch.save({"value": value.state_dict(), "best": state["best"], "curve": curve,
-                        "config": dataclasses.asdict(config)}, tmp)
+                        "config": dataclasses.asdict(config), "model": fingerprint(model)}, tmp)
     return {"curve": curve, "best_round": best_round(curve), "run_dir": str(run_dir)}
 
 
@@ -222,6 +223,15 @@ def _check_resumable(saved: dict, config: LatentValueConfig, path: Path) -> None
                          + "); use a new run folder, or the same config (only rounds may change)")
 
 
+def _check_model(state: dict, model: RSSM, path: Path) -> None:
+    """A value belongs to the frozen model it was fitted on (its weights' fingerprint; a value
+    saved before fingerprints were kept passes)."""
+    saved, given = state.get("model"), fingerprint(model)
+    if saved is not None and saved != given:
+        raise ValueError(f"{path} was fitted on another model (weights {saved}, this model's {given}); "
+                         "use the PlaNet run it was fitted on, or fit a value for this model in a new folder")
+
+
 def load_value(run_dir, model: RSSM) -> LatentValue:
     """The chosen value of a :func:`train_value` run (its :func:`best_round`) for ``model``."""
     path = Path(run_dir) / CHECKPOINT
@@ -231,6 +241,7 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
     if "best" not in state:
         raise ValueError(f"{path} was fitted before values were chosen on validation bouts; "
                          "run train_value again in a new folder")
+    _check_model(state, model, path)
     config = LatentValueConfig(**state["config"])
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(next(model.parameters()).device)
     value.load_state_dict(state["best"])
