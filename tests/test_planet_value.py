@@ -147,3 +147,16 @@ def test_best_round_is_chosen_on_validation_and_kept(tmp_path):
         load_value(tmp_path, other)
     with pytest.raises(ValueError, match="was fitted on another model"):
         train_value(other, 5, env, dataclasses.replace(config, rounds=4), tmp_path, seed=0, progress=False)
+
+
+def test_a_nan_in_the_value_loss_stops_before_that_update():
+    from wmthesis.training import NonFiniteLoss
+
+    torch.manual_seed(0)
+    value, config = LatentValue(6, 8, heads=2), LatentValueConfig(fit_updates=5, batch_size=4)
+    features, targets = torch.randn(10, 6), torch.randn(10)
+    targets[3:] = float("nan")  # 7 of 10 targets: the first batches (seeded) draw one
+    before = [p.detach().clone() for p in value.parameters()]
+    with pytest.raises(NonFiniteLoss, match="latent value: non-finite loss term loss = nan at update 1"):
+        fit_value(value, features, targets, config, seed=0)
+    assert all(torch.equal(a, b) for a, b in zip(before, value.parameters()))  # no weight changed

@@ -35,6 +35,7 @@ from wmthesis.data import EpisodeBuffer, EpisodeStore, play_random_episode
 from wmthesis.envs.preprocessing import to_float
 from wmthesis.planet.rssm import RSSM, one_hot_previous
 from wmthesis.planet.train import BeliefFilter
+from wmthesis.training import gradient_step
 from wmthesis.utils import atomic_path, derive_seeds, fingerprint
 
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
@@ -105,18 +106,19 @@ class ValueMind(BeliefFilter):
 def fit_value(value: LatentValue, features: torch.Tensor, targets: torch.Tensor,
               config: LatentValueConfig, seed: int) -> float:
     """``config.fit_updates`` Adam steps of mean squared error on (features (N, F), targets (N,)),
-    each head on its own random batches; returns the last step's loss, averaged over the heads."""
+    each head on its own random batches, through the shared guarded step (a NaN stops the fit
+    with :class:`~wmthesis.training.NonFiniteLoss` before that update); returns the last step's
+    loss, averaged over the heads."""
     optimizer = torch.optim.Adam(value.parameters(), lr=config.lr)
     rng = np.random.default_rng(seed)
     loss = torch.zeros(())
-    for _ in range(config.fit_updates):
+    for update in range(1, config.fit_updates + 1):
         batches = torch.as_tensor(rng.integers(len(targets), size=(len(value.heads), config.batch_size)),
                                   device=targets.device)
         loss = sum(F.mse_loss(head(features[batch]).squeeze(-1), targets[batch])
                    for head, batch in zip(value.heads, batches)) / len(value.heads)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
+        gradient_step("latent value", update, {"loss": loss}, optimizer, value.parameters(),
+                      kept="the value of the last finished round is kept in value.pt")
     return float(loss.detach())
 
 
