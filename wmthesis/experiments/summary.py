@@ -176,7 +176,9 @@ def summary_figure(rows: list[dict]):
     import matplotlib.pyplot as plt
 
     experiments = list(dict.fromkeys(row["experiment"] for row in rows))
-    fig, axes = plt.subplots(len(experiments), 1, figsize=(7, 1.2 + 1.0 * len(rows)), squeeze=False)
+    heights = [max(2.0, 0.5 + 0.5 * sum(row["experiment"] == e for row in rows)) for e in experiments]
+    fig, axes = plt.subplots(len(experiments), 1, figsize=(7, sum(heights)), squeeze=False,
+                             gridspec_kw={"height_ratios": heights})
     for ax, experiment in zip(axes[:, 0], experiments):
         mine = [row for row in rows if row["experiment"] == experiment]
         for y, row in enumerate(mine):
@@ -184,10 +186,13 @@ def summary_figure(rows: list[dict]):
             if row["ci_low"] is not None:
                 ax.plot([row["ci_low"], row["ci_high"]], [y, y], color="black", lw=2)
             ax.scatter([row["mean"]], [y], marker="|", s=300, color="black", zorder=4)
+        at: dict[float, list[str]] = {}  # published numbers, those at one value named together
         for name, value, _ in PUBLISHED.get(experiment, []):
             if isinstance(value, (int, float)):
-                ax.axvline(value, ls=":", lw=1, color="gray")
-                ax.annotate(name, (value, len(mine) - 0.5), fontsize=6, rotation=90, va="top", color="gray")
+                at.setdefault(float(value), []).append(name.split(" (")[0].split(",")[0])
+        for value, names in at.items():
+            ax.axvline(value, ls=":", lw=1, color="gray")
+            ax.annotate(" / ".join(names), (value, len(mine) - 0.5), fontsize=6, rotation=90, va="top", color="gray")
         ax.set_yticks(range(len(mine)), [f"{r['variant'] or 'default'} ({r['profile']}, n={r['n']})" for r in mine])
         ax.set_ylim(-0.5, len(mine) - 0.5)
         ax.set_title(f"{experiment}: {MEASURE.get(experiment, DEFAULT_MEASURE)}", fontsize=9)
