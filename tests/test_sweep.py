@@ -192,3 +192,26 @@ def test_a_killed_worker_is_retried_and_its_run_resumes(local_ray):
     assert outcome[run]["status"] == "done", outcome[run]
     assert (local_ray / "attempts.txt").read_text().split() == ["attempt", "attempt"]
     assert json.loads(finished(run, "smoke").read_text())["seed"] == 5
+
+
+def _records_order(name, profile, seed, variant=None, progress=True):
+    """Notes when each run starts and ends; the prerequisite takes a while."""
+    from wmthesis.utils import data_dir
+
+    log = data_dir() / "order.txt"
+    with open(log, "a") as f:
+        f.write(f"start {name}\n")
+    if name == "boxing-wm":
+        time.sleep(3)
+    with open(log, "a") as f:
+        f.write(f"end {name}\n")
+    return {"experiment": name, "profile": profile, "seed": seed, "variant": variant, "score": {"mean": 1.0},
+            "scores": {f"AlphaZero {variant}": {"mean": 1.0}}, "variants": [variant]}
+
+
+def test_a_run_waits_for_its_prerequisite_in_the_same_sweep(local_ray):
+    runs = [SweepRun("boxing-wm-alphazero", "imitation", 11), SweepRun("boxing-wm", None, 11)]  # dependent first
+    outcome = sweep(runs, "smoke", runner=_records_order, progress=False)
+    assert {o["status"] for o in outcome.values()} == {"done"}
+    assert (local_ray / "order.txt").read_text().split("\n")[:4] == [
+        "start boxing-wm", "end boxing-wm", "start boxing-wm-alphazero", "end boxing-wm-alphazero"]

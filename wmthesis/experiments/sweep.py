@@ -114,9 +114,10 @@ def _wanted_variants(run: SweepRun) -> set:
     return {None} if run.experiment != "planet-boxing-study" else set()
 
 
-def _run_task(runner: Callable, run: SweepRun, profile: str, threads: int) -> tuple[dict, str]:
-    """In a Ray worker: one run with ``threads`` torch threads; returns its metrics and the path
-    of its ``metrics.json`` relative to the worker's data folder."""
+def _run_task(runner: Callable, run: SweepRun, profile: str, threads: int, *prerequisites) -> tuple[dict, str]:
+    """In a Ray worker: one run with ``threads`` torch threads, after its ``prerequisites``
+    (results of other tasks, which Ray waits for before it calls); returns its metrics and the
+    path of its ``metrics.json`` relative to the worker's data folder."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -191,9 +192,7 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
     refs, started = {}, time.time()
     for run in todo:  # a prerequisite in this sweep goes first: its result is the dependent's argument
         before = [refs[p] for p in refs if p.experiment == PREREQUISITE.get(run.experiment) and p.seed == run.seed]
-        refs[run] = task.remote(runner, run, profile, cpus) if not before else \
-            ray.remote(_after).options(num_cpus=cpus, num_gpus=gpus, max_retries=retries,
-                                       retry_exceptions=False).remote(runner, run, profile, cpus, *before)
+        refs[run] = task.remote(runner, run, profile, cpus, *before)
     waiting = {ref: run for run, ref in refs.items()}
     bar = tqdm(total=len(todo), desc=f"sweep ({profile})", unit="run", disable=not progress)
     try:
@@ -216,11 +215,6 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
         if ours:
             ray.shutdown()
     return outcome
-
-
-def _after(runner: Callable, run: SweepRun, profile: str, threads: int, *prerequisites) -> tuple[dict, str]:
-    """A run that waited for its prerequisites (Ray resolved them before calling)."""
-    return _run_task(runner, run, profile, threads)
 
 
 def _collect(ray, ref, run: SweepRun, started: float) -> dict:
