@@ -1,5 +1,6 @@
 """The command line: collect and view a store; bad input gives a message and exit status 2."""
 from wmthesis.__main__ import main
+from wmthesis.experiments.sokoban_search import boxoban_rows
 from wmthesis.data import EpisodeStore
 from wmthesis.viz import recording_rows
 
@@ -45,9 +46,15 @@ def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, cap
     assert "unseen levels solved" in capsys.readouterr().out
     metrics = json.loads((tmp_path / "data/results/sokoban-search/smoke-seed3/metrics.json").read_text())
     for kind in ("unfiltered", "medium"):  # the first 2 levels of the report files, played in the real game
-        row = metrics["boxoban"]["pixels"][kind]
-        assert row["levels"] == 2 and row["source"].startswith(f"boxoban-{kind}-valid:005-009")
-        assert row["replayed"] == row["solved"] and len(row["failed_levels"]) == 2 - row["solved"]
+        table = metrics["boxoban"]["tables"][kind]
+        for title in ("agent, learned model (pixels)", "agent, learned model (grid)", "agent, true simulator (grid)"):
+            row = table[title]
+            assert row["levels"] == 2 and row["source"].startswith(f"boxoban-{kind}-valid:005-009")
+            assert row["replayed"] == row["solved"] and len(row["failed_levels"]) == 2 - row["solved"]
+        assert table["A* (reference)"]["solved"] == 2  # both first levels solve with the rules written in
+        assert table["random play"]["levels"] == 2 and table["thesis"]["solve_rate"] == 0.0
+    rows = {row[0]: row for row in boxoban_rows(metrics)}
+    assert rows["A* (reference)"][1:3] == ["100.0", "100.0"] and "2e9 env steps" in rows["DRC(3,3), model-free"]
     assert metrics["boxoban"]["splits"]["validation"]["medium"] == "boxoban-medium-valid:000-001"
     out = tmp_path / "results.json"
     assert main(["solve-sokoban", str(levels), "--profile", "smoke", "--seed", "3", "--out", str(out)]) == 0

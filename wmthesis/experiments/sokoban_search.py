@@ -15,8 +15,8 @@ from wmthesis.metrics import score_summary
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
 from wmthesis.sokoban_search.cells import GRID, code_table
-from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_row, check_solutions, play_levels,
-                                                random_row, replay_states)
+from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
+                                                play_levels, random_board_row, random_row, replay_states)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution
 from wmthesis.sokoban_search.iteration import load_run, schedule, train_search_agent
 from wmthesis.sokoban_search.search import Simulator
@@ -38,10 +38,28 @@ BOXOBAN_SPLITS = {
     "report": {"unfiltered": "boxoban-unfiltered-valid:005-009", "medium": "boxoban-medium-valid:005-009"},
 }
 BOXOBAN_LEVELS = {"smoke": 2, "quick": 500, "thesis": 1000}  # the first of the report files' levels, each kind
+# The reference rows (the grid agent, the true-rules agent) on the first of those levels: pixels
+# and grid are the same input with this renderer (cells.py), so the grid row checks that, and the
+# true rules tell how much of the failures are the model's; fewer levels keep the run in its time.
+BOXOBAN_REFERENCE_LEVELS = {"smoke": 2, "quick": 100, "thesis": 1000}
+BOXOBAN_AGENTS = {"pixels": "agent, learned model (pixels)", "grid": "agent, learned model (grid)",
+                  "simulator": "agent, true simulator (grid)"}
 BOXOBAN_REFERENCE = {  # the best published agent, DRC(3,3), 2e9 environment steps, 120-step episodes
     "unfiltered": "DRC(3,3) 99.3% of the unfiltered test (AlignmentResearch/learned-planner)",
     "medium": "DRC(3,3) 76.6-81.3% of medium valid (AlignmentResearch/learned-planner)",
 }
+# Published rows for the Boxoban table: (agent, unfiltered %, medium %, data, source). Not the
+# same levels as ours (their test sets; our report files are valid 005-009), given for scale.
+BOXOBAN_PUBLISHED = (
+    ("DRC(3,3), model-free", "99.3 (test)", "76.6-81.3 (valid)", "2e9 env steps",
+     "AlignmentResearch/learned-planner plot/data/drc33_*_success_across_thinking_steps.csv"),
+    ("Thinker, learned model + planning", "94.5 (train)", "", "5e7 frames", "Chung et al. 2023, Table 1"),
+    ("MuZero", "21 (train)", "", "5e7 frames", "Chung et al. 2023, Table 1"),
+    ("DreamerV3", "32 (train)", "", "5e7 frames", "Chung et al. 2023, Table 1"),
+    ("LevinTS, learned policy + true simulator", "100 (test)", "", "6.6e6 expansions", "Orseau et al. 2018, Table 1"),
+    ("A*, box-distance heuristic, true rules", "98.9 (test, 1M nodes)", "99.998 (valid, 5M nodes)", "",
+     "AlignmentResearch/boxoban-astar-solutions"),
+)
 EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
 EVAL_PARTS = 2  # each evaluation in parts (every other level), so that two processes share them evenly
 # Issue 14's targets in quick: (variant, inputs, lowest solve rate); fewer than 1M env steps.
@@ -110,10 +128,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
                                            (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator))
                    for variant in reversed(grid_cfg.variants) for name, (folder, cfg, simulator) in agents.items()
                    for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
-    boxoban_count = BOXOBAN_LEVELS[profile]
-    boxoban = {(kind, part): (work / f"eval-boxoban-{kind}-{boxoban_count}-{part}.json",
-                              (_evaluate_boxoban, work / "pixels", configs["pixels"], source, boxoban_count, part))
-               for kind, source in BOXOBAN_SPLITS["report"].items() for part in range(EVAL_PARTS)}
+    boxoban = _boxoban_jobs(work, agents, profile)
     _run_saved({**evaluations, **boxoban}, progress)
     for variant in grid_cfg.variants:
         played = {name: _merged([_read_json(evaluations[name, variant, part][0]) for part in range(EVAL_PARTS)], seeds)
@@ -131,8 +146,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
         for name in runs:
             with atomic_path(out / f"solutions-{name}-{variant}.json") as tmp:
                 tmp.write_text(json.dumps(played[name]["solutions"]))
-    boxoban_tables = {kind: _boxoban_row(kind, [_read_json(boxoban[kind, part][0]) for part in range(EVAL_PARTS)],
-                                         boxoban_count) for kind in BOXOBAN_SPLITS["report"]}
+    boxoban_tables = {kind: _boxoban_table(kind, boxoban, profile) for kind in BOXOBAN_SPLITS["report"]}
     figures, recording = _figures(out, runs, grid_cfg, solutions)
     last = grid_cfg.variants[-1]
     replayed = check_solutions(last, solutions[last][:20])
@@ -144,7 +158,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
                    f"({100 * solved / grid_cfg.eval_levels:.1f}%)",
         "env_steps": {name: int(sum(h["env_steps"] for h in run.history)) for name, run in runs.items()},
         "history": {name: run.history for name, run in runs.items()}, "tables": tables,
-        "boxoban": {"pixels": boxoban_tables, "splits": BOXOBAN_SPLITS, "reference": BOXOBAN_REFERENCE},
+        "boxoban": {"tables": boxoban_tables, "splits": BOXOBAN_SPLITS, "reference": BOXOBAN_REFERENCE},
         "accuracy": model_accuracy, "replayed_solutions": {"checked": len(replayed), "solved": int(sum(replayed))},
         "reference": SOKOBAN_SEARCH_REFERENCE,
         "files": {"figures": [str(f) for f in figures], "recording": str(recording),
@@ -176,30 +190,81 @@ def _run_saved(jobs: dict, progress: bool) -> None:
     parallel_calls([jobs[key][1] for key in missing], progress, keep)
 
 
-def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int) -> dict:
-    """The run in ``folder`` on part ``part`` (every :data:`EVAL_PARTS`-th) of the first ``count``
-    levels of a Boxoban source: ``plays``, one record (level, solved, actions, ...) per level."""
+def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
+    """The Boxoban evaluations as :func:`_run_saved` jobs, keyed (row, kind, part): each agent
+    of ``agents`` (name: (folder, cfg, simulator)) on the first levels of each report file set
+    (:data:`BOXOBAN_LEVELS` for pixels, :data:`BOXOBAN_REFERENCE_LEVELS` for the rest), in
+    parts; random play and A* on the pixel agent's levels, whole."""
+    jobs = {}
+    for kind, source in BOXOBAN_SPLITS["report"].items():
+        for name, (folder, cfg, simulator) in agents.items():
+            count = (BOXOBAN_LEVELS if name == "pixels" else BOXOBAN_REFERENCE_LEVELS)[profile]
+            jobs.update({(name, kind, part): (work / f"eval-boxoban-{name}-{kind}-{count}-{part}.json",
+                                              (_evaluate_boxoban, folder, cfg, source, count, part, simulator))
+                         for part in range(EVAL_PARTS)})
+        count = BOXOBAN_LEVELS[profile]
+        for name, row in (("random", random_board_row), ("astar", astar_board_row)):
+            jobs[name, kind, 0] = (work / f"{name}-boxoban-{kind}-{count}.json", (_boxoban_reference, row, source, count))
+    return jobs
+
+
+def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, simulator: bool = False) -> dict:
+    """The run in ``folder`` (with the true rules in place of its model if ``simulator``) on
+    part ``part`` (every :data:`EVAL_PARTS`-th) of the first ``count`` levels of a Boxoban
+    source: ``plays``, one record (level, solved, actions, ...) per level."""
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.sokoban_search.evaluation import solve_boards
 
     levels = list(range(count))[part::EVAL_PARTS]
     boards = load_levels(source)
-    return {"plays": solve_boards(load_run(folder, cfg).agent(cfg), [boards[i] for i in levels], progress=False,
-                                  levels=levels)}
+    run = load_run(folder, cfg)
+    agent = run.agent(cfg, Simulator(), GRID) if simulator else run.agent(cfg)
+    return {"plays": solve_boards(agent, [boards[i] for i in levels], progress=False, levels=levels)}
 
 
-def _boxoban_row(kind: str, parts: list[dict], count: int) -> dict:
-    """The pixel agent's row on a kind of Boxoban levels (its parts merged in level order), the
-    source, and how many of its solutions an independent replay confirmed."""
+def _boxoban_reference(row, source: str, count: int) -> dict:
+    """``row(boards)`` (random play, A*) on the first ``count`` levels of a Boxoban source."""
+    from wmthesis.envs.boxoban import load_levels
+
+    return row(load_levels(source)[:count])
+
+
+def _boxoban_table(kind: str, jobs: dict, profile: str) -> dict:
+    """A kind's Boxoban rows (random play, the thesis, the agents, A*), each agent's parts
+    merged in level order, with its source and how many solutions an independent replay
+    confirmed."""
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.sokoban_search.evaluation import check_board_solutions
 
-    source = BOXOBAN_SPLITS["report"][kind]
-    plays = sorted((r for part in parts for r in part["plays"]), key=lambda r: r["level"])
-    solved = [r for r in plays if r["solved"]]
-    replayed = check_board_solutions(load_levels(source), solved)
-    return {**agent_row(plays), "source": f"{source}, its first {count} levels", "replayed": int(sum(replayed)),
-            "failed_levels": [r["level"] for r in plays if not r["solved"]]}
+    source, rows = BOXOBAN_SPLITS["report"][kind], {}
+    boards = load_levels(source)
+    rows["random play"] = _read_json(jobs["random", kind, 0][0])
+    rows["thesis"] = {"solve_rate": THESIS_SOLVED}
+    for name, title in BOXOBAN_AGENTS.items():
+        plays = sorted((r for part in range(EVAL_PARTS) for r in _read_json(jobs[name, kind, part][0])["plays"]),
+                       key=lambda r: r["level"])
+        solved = [r for r in plays if r["solved"]]
+        rows[title] = {**agent_row(plays), "source": f"{source}, its first {len(plays)} levels",
+                       "replayed": int(sum(check_board_solutions(boards, solved))),
+                       "failed_levels": [r["level"] for r in plays if not r["solved"]]}
+    rows["A* (reference)"] = _read_json(jobs["astar", kind, 0][0])
+    return rows
+
+
+def boxoban_rows(metrics: dict) -> list[list]:
+    """The Boxoban table of a run's metrics beside the published agents: one row per agent,
+    (agent, unfiltered %, medium %, levels, data, source)."""
+    tables, rows = metrics["boxoban"]["tables"], []
+    steps = metrics["env_steps"]
+    data = {"agent, learned model (pixels)": steps.get("pixels"), "agent, learned model (grid)": steps.get("grid"),
+            "agent, true simulator (grid)": steps.get("grid")}
+    for title in tables["unfiltered"]:
+        measured = {kind: tables[kind][title] for kind in tables}
+        levels = {m.get("levels") for m in measured.values()} - {None}
+        rows.append([title, *(f"{100 * measured[k]['solve_rate']:.1f}" for k in ("unfiltered", "medium")),
+                     ", ".join(map(str, sorted(levels))), f"{data[title]:,} env steps" if data.get(title) else "",
+                     "this run, " + ", ".join(f"{k}: {BOXOBAN_SPLITS['report'][k]}" for k in tables)])
+    return rows + [list(row[:3]) + ["", *row[3:]] for row in BOXOBAN_PUBLISHED]
 
 
 def _merged(parts: list[dict], seeds) -> dict:
@@ -262,4 +327,5 @@ def _figures(out: Path, runs: dict, cfg, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]
+__all__ = ["sokoban_search", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+           "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]

@@ -67,6 +67,31 @@ def astar_row(variant: str, seeds, max_nodes: int = 100_000) -> dict:
             "seconds_per_level": (time.perf_counter() - start) / len(seeds)}
 
 
+def random_board_row(boards, seed: int = 0, max_steps: int = 120) -> dict:
+    """Uniformly random play, one episode of ``max_steps`` on each of ``boards`` (level i's
+    actions seeded from ``(seed, i)``)."""
+    start, solved = time.perf_counter(), 0
+    for i, board in enumerate(boards):
+        env = _board_env(board, max_steps, observation="grid")
+        env.reset(options={"board": board})
+        rng = np.random.default_rng(derive_seeds(seed, i)[0])
+        solved += _solves(env, rng.integers(8, size=max_steps))
+    return {"levels": len(boards), "solved": solved, "solve_rate": solved / len(boards),
+            "seconds_per_level": (time.perf_counter() - start) / len(boards)}
+
+
+def astar_board_row(boards, max_nodes: int = 100_000, max_steps: int = 120) -> dict:
+    """A* over pushes on each of ``boards``; solved when its solution fits ``max_steps``."""
+    start, lengths = time.perf_counter(), []
+    for board in boards:
+        actions = solve(board, max_nodes=max_nodes)
+        if actions is not None and len(actions) <= max_steps:
+            lengths.append(len(actions))
+    return {"levels": len(boards), "solved": len(lengths), "solve_rate": len(lengths) / len(boards),
+            "steps_when_solved": float(np.mean(lengths)) if lengths else None,
+            "seconds_per_level": (time.perf_counter() - start) / len(boards)}
+
+
 def replay_states(variant: str, records: list[dict]) -> list[tuple[np.ndarray, np.ndarray]]:
     """The real grid states (T + 1, h', w') and actions (T,) of saved plays (``seed``,
     ``actions``), replayed in the environment."""
@@ -133,5 +158,6 @@ def check_solutions(variant: str, records: list[dict]) -> list[bool]:
     return verdicts
 
 
-__all__ = ["play_levels", "solve_boards", "check_board_solutions", "agent_row", "random_row", "astar_row", "replay_states", "check_solutions",
+__all__ = ["play_levels", "solve_boards", "check_board_solutions", "agent_row", "random_row", "astar_row",
+           "random_board_row", "astar_board_row", "replay_states", "check_solutions",
            "THESIS_SOLVED", "random_play"]

@@ -8,7 +8,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmthesis.sokoban_search.agent import grid_env
-from wmthesis.viz import image_rows, markdown_table, record_frames
+from wmthesis.envs.sokoban import make_tiles, render_board
+from wmthesis.viz import image_grid, image_rows, markdown_table, record_frames
 
 TABLE_COLUMNS = ("solve_rate", "solved", "levels", "steps_when_solved", "nodes_per_move", "seconds_per_level")
 
@@ -78,6 +79,14 @@ def _percent(value):
     return f"{100 * value:.2f}%" if isinstance(value, float) else ("" if value is None else value)
 
 
+def plot_levels(boards, titles=None, columns: int = 8, tile_size: int = 8, suptitle: str | None = None):
+    """Levels as pictures: ``boards`` (codes (h, w) each, wall ring included) in rows of
+    ``columns``, each titled by ``titles``."""
+    tiles = make_tiles(tile_size)
+    return image_grid([render_board(np.asarray(b), tiles) for b in boards], columns, titles, scale=1.6,
+                      suptitle=suptitle)
+
+
 def record_solution(path: str | Path, variant: str, record: dict) -> Path:
     """A rerun recording of a saved solution replayed in the real environment."""
     env = grid_env(variant)
@@ -92,4 +101,4 @@ def record_solution(path: str | Path, variant: str, record: dict) -> Path:
     return record_frames(path, {"board": np.stack(frames)}, {"reward": np.array(rewards)})
 
 
-__all__ = ["plot_plan", "plot_rounds", "results_table", "accuracy_table", "record_solution"]
+__all__ = ["plot_plan", "plot_rounds", "plot_levels", "results_table", "accuracy_table", "record_solution"]
