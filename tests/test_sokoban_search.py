@@ -353,6 +353,43 @@ def test_an_unknown_variant_fails_with_the_valid_ones():
         grid_env("sokoban-huge")
 
 
+def test_a_curriculum_trains_on_boxoban_train_levels_and_never_on_the_valid_files(tmp_path):
+    from wmthesis.envs.boxoban import boxoban_levels
+
+    train = {b.tobytes() for b in boxoban_levels("boxoban-medium-train:000")}
+    for seed in level_seeds(0, 2, 3):  # a round's levels: each one of the file's boards, drawn by the seed
+        env = grid_env("boxoban-medium-train:000")
+        env.reset(seed=seed)
+        assert env.board.tobytes() in train
+    for name in ("boxoban-unfiltered-valid", "boxoban-medium-valid:000"):
+        with pytest.raises(ValueError, match="only Boxoban's train files"):
+            train_search_agent(tmp_path, for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small", name)))
+    with pytest.raises(ValueError, match="kept for an external check"):
+        grid_env("boxoban-hard")
+    cfg = for_profile(SokobanSearchConfig, "smoke", variants=("boxoban-unfiltered-train:001",), random_levels=3)
+    run = train_search_agent(tmp_path / "run", cfg, progress=False)
+    assert [h["variant"] for h in run.history] == ["random play", "boxoban-unfiltered-train:001"]
+    assert run.history[1]["levels"] == cfg.levels_per_round
+
+
+def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own(tmp_path, monkeypatch):
+    import wmthesis.sokoban_search.iteration as iteration
+
+    budgets = []
+    real = iteration.SearchAgent.play
+    monkeypatch.setattr(iteration.SearchAgent, "play", lambda self, *a, **k: budgets.append(self.budget) or real(self, *a, **k))
+    cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",), budget=50, round_budget=150)
+    run = train_search_agent(tmp_path, cfg, progress=False)
+    assert budgets == [150] * cfg.levels_per_round and run.agent(cfg).budget == 50
+
+
+def test_validation_knows_its_levers_and_names_the_valid_ones():
+    from wmthesis.experiments.sokoban_search import validate
+
+    with pytest.raises(ValueError, match="valid: baseline, boxoban-curriculum"):
+        validate("bigger-brain", "smoke")
+
+
 # ---------------------------------------------------------------------------- pixels
 
 def test_cell_codes_learned_from_pixels_stand_for_one_cell_type_each_and_decode_exactly():

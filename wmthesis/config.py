@@ -295,7 +295,9 @@ class SokobanSearchConfig:
     Data: ``random_levels`` levels of uniformly random play per variant, then ``rounds`` rounds
     per variant of ``levels_per_round`` levels played by the search agent (5.3.3's "iterative
     approach to gathering data"). The variants are played in the order of ``variants``, the
-    later ones starting from what the earlier ones learned (one model, any board size).
+    later ones starting from what the earlier ones learned (one model, any board size): our
+    generator's (``sokoban-small``, ``sokoban``) and Boxoban's train files
+    (``boxoban-unfiltered-train``, ``boxoban-medium-train``), a curriculum.
 
     Model (:mod:`~wmthesis.sokoban_search.model`): ``channels`` x ``blocks`` residual layers,
     ``model_updates`` Adam updates (``lr``, cosine decay to lr / 10, batch ``batch_size`` with
@@ -311,7 +313,9 @@ class SokobanSearchConfig:
     Search (:mod:`~wmthesis.sokoban_search.search`): ``budget`` nodes per search, ``batch``
     nodes per model call, priority ``g + weight * h`` where a step costs ``1 + doubt`` times
     the model's surprise at its own prediction (nats), each of ``weights`` in turn until one
-    finds a plan, at most ``replans`` searches again after the real game left the plan. Evaluation: ``eval_levels`` unseen levels per variant.
+    finds a plan, at most ``replans`` searches again after the real game left the plan; in the
+    training rounds ``round_budget`` nodes (0: ``budget``), a stronger expert than at evaluation.
+    Evaluation: ``eval_levels`` unseen levels per generated variant.
     """
 
     variants: tuple = ("sokoban-small", "sokoban")
@@ -338,6 +342,7 @@ class SokobanSearchConfig:
     weights: tuple = (3.0, 1.5)
     doubt: float = 20.0
     replans: int = 4
+    round_budget: int = 0
     eval_levels: int = 500
     seed: int = 0
 

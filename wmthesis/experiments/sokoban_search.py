@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
+from wmthesis.envs import SOKOBAN_VARIANTS
 from wmthesis.experiments.results import _first_run_seconds, _jsonable, _read_json, _run_header
 from wmthesis.metrics import score_summary
 from wmthesis.sokoban_search import accuracy
@@ -122,15 +123,16 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     runs = {name: load_run(work / name, cfg) for name, cfg in configs.items()}
     tables, model_accuracy, solutions = {}, {}, {}
     seeds = level_seeds(seed, EVAL_PURPOSE, grid_cfg.eval_levels)
+    generated = [v for v in grid_cfg.variants if v in SOKOBAN_VARIANTS]  # unseen levels; Boxoban's below
     agents = {"grid": (work / "grid", grid_cfg, False), "pixels": (work / "pixels", configs["pixels"], False),
               "simulator": (work / "grid", grid_cfg, True)}  # the grid run's value with the true rules
     evaluations = {(name, variant, part): (work / f"eval-{name}-{variant}-{part}.json",
                                            (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator))
-                   for variant in reversed(grid_cfg.variants) for name, (folder, cfg, simulator) in agents.items()
+                   for variant in reversed(generated) for name, (folder, cfg, simulator) in agents.items()
                    for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
     boxoban = _boxoban_jobs(work, agents, profile)
     _run_saved({**evaluations, **boxoban}, progress)
-    for variant in grid_cfg.variants:
+    for variant in generated:
         played = {name: _merged([_read_json(evaluations[name, variant, part][0]) for part in range(EVAL_PARTS)], seeds)
                   for name in agents}
         tables[variant] = {"random play": _cached(work / f"random-{variant}.json", random_row, variant, seeds),
@@ -147,8 +149,8 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
             with atomic_path(out / f"solutions-{name}-{variant}.json") as tmp:
                 tmp.write_text(json.dumps(played[name]["solutions"]))
     boxoban_tables = {kind: _boxoban_table(kind, boxoban, profile) for kind in BOXOBAN_SPLITS["report"]}
-    figures, recording = _figures(out, runs, grid_cfg, solutions)
-    last = grid_cfg.variants[-1]
+    figures, recording = _figures(out, runs, generated, solutions)
+    last = generated[-1]
     replayed = check_solutions(last, solutions[last][:20])
     solved = len(solutions[last])
     metrics = {
@@ -162,12 +164,54 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
         "accuracy": model_accuracy, "replayed_solutions": {"checked": len(replayed), "solved": int(sum(replayed))},
         "reference": SOKOBAN_SEARCH_REFERENCE,
         "files": {"figures": [str(f) for f in figures], "recording": str(recording),
-                  "solutions": [str(out / f"solutions-{n}-{v}.json") for n in runs for v in grid_cfg.variants]},
+                  "solutions": [str(out / f"solutions-{n}-{v}.json") for n in runs for v in generated]},
     }
     metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(_jsonable(metrics), indent=1))
     return metrics
+
+
+# Issue 30's levers: each a change to the pixel agent's config, trained in a folder of its own and
+# measured on the validation files only (``validate``), never on the report files.
+LEVERS = {
+    "baseline": {},  # the pixel run of ``sokoban_search`` itself
+    "boxoban-curriculum": dict(variants=("sokoban-small", "boxoban-unfiltered-train", "boxoban-medium-train")),
+    "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
+    "more-rounds": dict(rounds=5),
+}
+VALIDATION_LEVELS = {"smoke": 2, "quick": 200, "thesis": 1000}  # the first of each validation set
+
+
+@releasing_holds
+def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int | None = None,
+             progress: bool = True) -> dict:
+    """The pixel agent with a lever of :data:`LEVERS` (trained if need be, resumable) on the first
+    ``levels`` levels of each validation set (:data:`BOXOBAN_SPLITS`); the rows (solve rate,
+    nodes and seconds per level), also written to the run's results folder as
+    ``validation-LEVER.json``."""
+    if lever not in LEVERS:
+        raise ValueError(f"unknown lever {lever!r}; valid: {', '.join(LEVERS)}")
+    profile = profile_name(profile)
+    levels = VALIDATION_LEVELS[profile] if levels is None else int(levels)
+    cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels", **LEVERS[lever])
+    folder = hold(work_folder(profile, seed) / ("pixels" if lever == "baseline" else f"lever-{lever}"))
+    if not _trained(folder, cfg):
+        train_search_agent(folder, cfg, progress)
+    jobs = {(kind, part): (folder / f"validation-{kind}-{levels}-{part}.json",
+                           (_evaluate_boxoban, folder, cfg, source, levels, part))
+            for kind, source in BOXOBAN_SPLITS["validation"].items() for part in range(EVAL_PARTS)}
+    _run_saved(jobs, progress)
+    rows = {kind: {**agent_row(sorted((r for part in range(EVAL_PARTS) for r in _read_json(jobs[kind, part][0])["plays"]),
+                                      key=lambda r: r["level"])), "source": f"{source}, its first {levels} levels"}
+            for kind, source in BOXOBAN_SPLITS["validation"].items()}
+    run = load_run(folder, cfg)
+    result = {"lever": lever, "changes": LEVERS[lever], "profile": profile, "seed": seed, "rows": rows,
+              "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
+    out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
+    with atomic_path(out / f"validation-{lever}.json") as tmp:
+        tmp.write_text(json.dumps(_jsonable(result), indent=1))
+    return result
 
 
 def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -> dict:
@@ -305,14 +349,14 @@ def _cached(path: Path, fn, *args) -> dict:
     return row
 
 
-def _figures(out: Path, runs: dict, cfg, solutions: dict):
+def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     """Solve rate by round (both inputs); the pixel model's boards against the real ones along
     the longest solution of the last variant (the model fed its own predictions, decoded to
     frames); a recording of it."""
     from wmthesis.sokoban_search.cells import render_cells
 
     figures = [save_figure(plot_rounds(runs["grid"].history, runs["pixels"].history), out / "rounds.png")]
-    variant = next((v for v in reversed(cfg.variants) if solutions[v]), None)
+    variant = next((v for v in reversed(generated) if solutions[v]), None)
     if variant is None:
         return figures, None
     record = max(solutions[variant], key=lambda r: r["steps"])
@@ -327,5 +371,5 @@ def _figures(out: Path, runs: dict, cfg, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+__all__ = ["sokoban_search", "validate", "LEVERS", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
            "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]

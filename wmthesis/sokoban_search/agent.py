@@ -51,10 +51,26 @@ class Play:
                     seconds=round(self.seconds, 4))
 
 
-def grid_env(name: str, **options) -> SokobanEnv:
-    """The Sokoban variant ``name`` with grid observations."""
+def variant_options(name: str) -> dict:
+    """The ``SokobanEnv`` options of a variant the agent may train on: a generated one
+    (``sokoban``, ``sokoban-small``), or DeepMind's Boxoban train levels
+    (``boxoban-unfiltered-train``, ``boxoban-medium-train[:FILES]``, 10x10 with 4 boxes), a level
+    drawn by the seed. Boxoban's valid files are for validation and report, never for training."""
+    if name.startswith("boxoban-"):
+        from wmthesis.envs.boxoban import parse_source
+
+        kind, _ = parse_source(name)
+        if not kind.endswith("-train"):
+            raise ValueError(f"Sokoban variant {name!r}: only Boxoban's train files are played in training "
+                             "(the valid files are kept for validation and the reported figures)")
+        return dict(dim_room=(10, 10), num_boxes=4, levels=name)
     check_choice("Sokoban variant", name, tuple(SOKOBAN_VARIANTS))
-    return SokobanEnv(**SOKOBAN_VARIANTS[name], observation="grid", **options)
+    return SOKOBAN_VARIANTS[name]
+
+
+def grid_env(name: str, **options) -> SokobanEnv:
+    """The Sokoban variant ``name`` (:func:`variant_options`) with grid observations."""
+    return SokobanEnv(**variant_options(name), observation="grid", **options)
 
 
 def grid_state(env: SokobanEnv, observation: np.ndarray) -> np.ndarray:
@@ -102,8 +118,7 @@ class SearchAgent:
 
     def env(self, variant: str) -> SokobanEnv:
         """Variant ``variant`` showing what this agent sees."""
-        check_choice("Sokoban variant", variant, tuple(SOKOBAN_VARIANTS))
-        return SokobanEnv(**SOKOBAN_VARIANTS[variant], **self.inputs.env_options)
+        return SokobanEnv(**variant_options(variant), **self.inputs.env_options)
 
     def play(self, env: SokobanEnv, seed: int | None = None, board=None) -> Play:
         """Play one level: the one ``seed`` generates, or ``board`` (codes or text)."""
@@ -169,4 +184,4 @@ def level_seeds(seed: int, purpose: int, n: int) -> list[int]:
     return [int(s) for s in derive_seeds(seed, 7_000_000 + purpose, n=n)]
 
 
-__all__ = ["SearchAgent", "Remembered", "Play", "random_play", "grid_env", "grid_state", "level_seeds"]
+__all__ = ["SearchAgent", "Remembered", "Play", "random_play", "variant_options", "grid_env", "grid_state", "level_seeds"]

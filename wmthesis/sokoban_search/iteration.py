@@ -25,9 +25,8 @@ import torch
 from tqdm import tqdm
 
 from wmthesis.config import SokobanSearchConfig
-from wmthesis.envs import SOKOBAN_VARIANTS
 from wmthesis.envs.sokoban import CELL_NAMES
-from wmthesis.sokoban_search.agent import SearchAgent, level_seeds, random_play
+from wmthesis.sokoban_search.agent import SearchAgent, level_seeds, random_play, variant_options
 from wmthesis.sokoban_search.cells import GRID, CellCoder, GridInputs, PixelInputs, fit_coder, render_cells
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
@@ -70,7 +69,7 @@ def train_search_agent(folder: str | Path, cfg: SokobanSearchConfig, progress: b
     """Random play, the model trained on it, then every round of :func:`schedule`; resumable."""
     check_choice("inputs", cfg.inputs, INPUTS)
     for variant in cfg.variants:
-        check_choice("Sokoban variant", variant, tuple(SOKOBAN_VARIANTS))
+        variant_options(variant)  # an unknown variant, or Boxoban's valid files, fail here
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     run = load_run(folder, cfg)
@@ -115,7 +114,7 @@ def n_codes(cfg: SokobanSearchConfig) -> int:
 def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: int, variant: str, r: int,
            progress: bool) -> None:
     """Round ``number``: play levels, keep what was seen, train the model and the value."""
-    agent = run.agent(cfg)
+    agent = run.agent(dataclasses.replace(cfg, budget=cfg.round_budget or cfg.budget))  # the expert in training
     env = agent.env(variant)
     seeds = level_seeds(cfg.seed, 1 + number, cfg.levels_per_round)
     plays = [agent.play(env, s) for s in tqdm(seeds, desc=f"round {number} ({variant})", disable=not progress)]
