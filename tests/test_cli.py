@@ -101,3 +101,13 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert planner["full"]["mean"] == sum(planner["returns"]) / 2 and planner["first_returns"] == planner["returns"]
     with EpisodeStore(tmp_path / "data/smoke/planet-boxing-value/seed0/episodes.h5") as own:
         assert len(own) == 3 and own.num_steps == 48  # 2 random bouts, 1 of its own, 16 steps each in smoke
+
+    from wmthesis.experiments.planet_boxing import value_plan_choices
+
+    compared = value_plan_choices("smoke", 0, progress=False)  # the last own bout's first 5 steps
+    assert compared["steps"] == 5 and set(compared["choices"]) == {"CEM (thesis)", "CEM with value", "value alone"}
+    assert all(len(c) == 5 and max(c) < 18 for c in compared["choices"].values()) and len(compared["action_names"]) == 18
+    same = compared["agreement"]["CEM (thesis) = CEM with value"]
+    thesis, ours = compared["choices"]["CEM (thesis)"], compared["choices"]["CEM with value"]
+    assert same == sum(a == b for a, b in zip(thesis, ours)) / 5
+    assert value_plan_choices("smoke", 0, progress=False)["choices"] == compared["choices"]  # cached, or the same again

@@ -69,3 +69,24 @@ def test_the_return_by_hand_imagined_rewards_then_the_discounted_value():
     assert torch.allclose(ours, by_hand)
     with pytest.raises(ValueError, match="discount"):
         ValuePlanetMind(model, value, discount=0.0, **SIZES)
+
+
+def test_plan_choices_follow_one_belief_and_one_step_with_the_value_is_the_value_agent():
+    from wmthesis.config import PlaNetConfig, ValuePlannerConfig
+    from wmthesis.planet.value import ValueMind
+    from wmthesis.planet.value_planner import PLANNERS, plan_choices
+
+    model, value = model_and_value()
+    planet = PlaNetConfig(horizon=3, candidates=200, top_k=20, iterations=3)
+    shown, taken = np.stack(frames(6)), np.array([1, 4, 0, 2, 3, 1])
+    choices = plan_choices(model, value, planet, ValuePlannerConfig(horizon=1), shown, taken, seed=2)
+    assert set(choices) == set(PLANNERS) and all(len(c) == 6 for c in choices.values())
+    # the value alone is the value agent along the same frames and actions
+    mind = ValueMind(model, value, planet.bits)
+    for t, frame in enumerate(shown):
+        assert choices["value alone"][t] == int(np.argmax(mind.plan(frame)))
+        mind.prev_action = torch.nn.functional.one_hot(torch.tensor([int(taken[t])]), 5).float()
+    # CEM over one step with the value at its end finds the value's argmax among 5 actions
+    assert np.array_equal(choices["CEM with value"], choices["value alone"])
+    # and the thesis's CEM, blind to the value, does not always agree with it
+    assert not np.array_equal(choices["CEM (thesis)"], choices["value alone"])

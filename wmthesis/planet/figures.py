@@ -138,3 +138,21 @@ def study_pictures_figure(rollouts: dict[str, dict], *, sequence: int = 0, colum
         ax.set_title(f"+{t - context + 1}" if t >= context else ("context" if t == context // 2 else ""), fontsize=7)
     fig.tight_layout(pad=0.2)
     return fig
+
+
+def plan_choices_figure(choices: dict[str, np.ndarray], action_names: Sequence[str], title: str | None = None):
+    """How often each planner of ``choices`` (name -> actions (T,)) picks each action: grouped
+    bars over ``action_names``, and the share of steps on which each pair agrees in the legend."""
+    names = list(choices)
+    fig, ax = plt.subplots(figsize=(11, 3.2))
+    width = 0.8 / len(names)
+    for k, name in enumerate(names):
+        counts = np.bincount(choices[name], minlength=len(action_names)) / max(len(choices[name]), 1)
+        ax.bar(np.arange(len(action_names)) + k * width, 100 * counts, width, label=name)
+    agreement = ", ".join(f"{a} = {b}: {100 * np.mean(choices[a] == choices[b]):.0f}%"
+                          for i, a in enumerate(names) for b in names[i + 1:])
+    ax.set_xticks(np.arange(len(action_names)) + 0.4 - width / 2, action_names, rotation=60, fontsize=7)
+    ax.set(ylabel="steps (%)", title=title or "the action each planner picks, from the same belief")
+    ax.legend(fontsize=8, title=f"same action: {agreement}", title_fontsize=7)
+    fig.tight_layout()
+    return fig

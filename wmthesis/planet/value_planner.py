@@ -18,14 +18,17 @@ prior as in the thesis's planner. Two ends meet the two agents it joins:
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
+import torch.nn.functional as F
 
 from wmthesis.config import PlaNetConfig, ValuePlannerConfig
 from wmthesis.core import loop
 from wmthesis.data import EpisodeBuffer
+from wmthesis.planet.cem import cem_belief
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.train import PlanetMind
-from wmthesis.planet.value import LatentValue
+from wmthesis.planet.train import BeliefFilter, PlanetMind
+from wmthesis.planet.value import LatentValue, after_action
 
 
 def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, state: torch.Tensor,
@@ -73,4 +76,35 @@ def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfi
     return [float(r) for r in record.episode["rewards"]]
 
 
-__all__ = ["value_returns", "ValuePlanetMind", "play_value_planner"]
+PLANNERS = ("CEM (thesis)", "CEM with value", "value alone")
+
+
+@torch.inference_mode()
+def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner: ValuePlannerConfig,
+                 frames: np.ndarray, actions: np.ndarray, seed: int = 0) -> dict[str, np.ndarray]:
+    """Where the value changes the plan: along a recorded episode, ``frames`` (T, size, size, 3)
+    uint8 and the ``actions`` (T,) taken, the action that each of :data:`PLANNERS` would take at
+    every step from one and the same belief (filtered with the posterior's mean): the thesis's
+    CEM (horizon ``planet.horizon``), CEM with the value at the end of ``planner.horizon`` steps,
+    and the value agent's argmax of Q. Returns each planner's actions (T,) int64 (CEM's noise
+    from ``seed``)."""
+    generator = torch.Generator(next(model.parameters()).device).manual_seed(int(seed))
+    track = BeliefFilter(model, planet.bits, generator)
+    sizes = dict(candidates=planet.candidates, top_k=planet.top_k, iterations=planet.iterations, generator=generator)
+    every = torch.arange(model.n_actions, device=generator.device)
+    chosen = {name: [] for name in PLANNERS}
+    for frame, action in zip(frames, actions):
+        track.observe(frame, sample=False)
+        belief, state = track.belief, track.state
+        thesis = cem_belief(lambda a: model.imagined_returns(belief, state, a, generator), model.n_actions,
+                            planet.horizon, **sizes)
+        ours = cem_belief(lambda a: value_returns(model, value, belief, state, a, generator, planner.discount),
+                          model.n_actions, planner.horizon, **sizes)
+        q = value(after_action(model, belief.expand(model.n_actions, -1), state.expand(model.n_actions, -1), every))
+        for name, pick in zip(PLANNERS, (thesis.mean[0].argmax(), ours.mean[0].argmax(), q.argmax())):
+            chosen[name].append(int(pick))
+        track.prev_action = F.one_hot(torch.tensor([int(action)], device=belief.device), model.n_actions).float()
+    return {name: np.asarray(picks, np.int64) for name, picks in chosen.items()}
+
+
+__all__ = ["value_returns", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
