@@ -90,3 +90,17 @@ def test_plan_choices_follow_one_belief_and_one_step_with_the_value_is_the_value
     assert np.array_equal(choices["CEM with value"], choices["value alone"])
     # and the thesis's CEM, blind to the value, does not always agree with it
     assert not np.array_equal(choices["CEM (thesis)"], choices["value alone"])
+
+
+def test_the_planners_over_seeds_each_seed_then_the_mean_and_its_t_interval():
+    from wmthesis.experiments.planet_boxing import planner_rows
+
+    def metrics(x):
+        return {"random": {"mean": 0.0}, "planet": {"mean": x - 5}, "value": {"mean": x + 1},
+                "value_planner": {"full": {"mean": x}, "first": {"mean": x / 2}}}
+
+    rows = {row[0]: row[1:] for row in planner_rows({0: metrics(10.0), 3: metrics(20.0)})}
+    # mean 15, s = sqrt(50), t(0.975, 1) = 12.706: 15 -+ 12.706 * sqrt(50) / sqrt(2) = 15 -+ 63.5
+    assert rows["CEM with the value, full bouts"] == ["10.0", "20.0", "15.0 [-48.5, 78.5]"]
+    assert rows["CEM with the value, first 500 steps"][:2] == ["5.0", "10.0"]
+    assert planner_rows({0: metrics(7.0)})[3] == ["CEM with the value, full bouts", "7.0", "7.0"]  # one seed: no interval

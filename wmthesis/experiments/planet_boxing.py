@@ -332,6 +332,25 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
             "files": [str(f) for f in files]}
 
 
+def planner_rows(by_seed: dict[int, dict]) -> list[list[str]]:
+    """The planners over seeds (``by_seed``: seed -> :func:`planet_boxing_value`'s metrics), one
+    row each: every seed's mean over its bouts, then the mean over seeds with its 95% t-interval
+    (:func:`~wmthesis.experiments.summary.aggregate`)."""
+    from wmthesis.experiments.summary import aggregate
+
+    players = {"random play": lambda m: m["random"]["mean"], "PlaNet's CEM (thesis), full bouts": lambda m: m["planet"]["mean"],
+               "value alone, full bouts": lambda m: m["value"]["mean"],
+               "CEM with the value, full bouts": lambda m: m["value_planner"]["full"]["mean"],
+               "CEM with the value, first 500 steps": lambda m: m["value_planner"]["first"]["mean"]}
+    rows = []
+    for name, score in players.items():
+        scores = [score(m) for m in by_seed.values()]
+        summary = aggregate(scores)
+        interval = "" if summary["ci_low"] is None else f" [{summary['ci_low']:.1f}, {summary['ci_high']:.1f}]"
+        rows.append([name, *(f"{x:.1f}" for x in scores), f"{summary['mean']:.1f}{interval}"])
+    return rows
+
+
 def _score_cell(summary: dict) -> str:
     """A :func:`~wmthesis.metrics.score_summary` as a table cell: mean ± std (n)."""
     return f"{summary['mean']:.1f} ± {summary['std']:.1f} (n={summary['episodes']})"
@@ -352,7 +371,7 @@ def value_table(metrics: dict) -> str:
         f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
 
 
-__all__ = ["planet_boxing_study", "planet_boxing_agent", "planet_boxing_value", "value_plan_choices", "PLAN_STEPS", "value_planner_bout", "value_table", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
+__all__ = ["planet_boxing_study", "planet_boxing_agent", "planet_boxing_value", "value_plan_choices", "PLAN_STEPS", "planner_rows", "value_planner_bout", "value_table", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
 
 
 # ---------------------------------------------------------------------------- tables
