@@ -246,7 +246,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"])
     env = make_planet_env(GAME, planet)
     try:
-        run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress)
+        run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS)
     finally:
         env.close()
     chosen = run["curve"][run["best_round"]]
@@ -267,6 +267,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
                            f"(random play {agent['random']['full']['mean']:.1f}, PlaNet's CEM "
                            f"{agent['agent']['full']['mean']:.1f})",
                "value": value, "returns": returns, "random": agent["random"]["full"],
+               **({"value_first": score_summary(chosen["first_returns"])} if "first_returns" in chosen else {}),
                "difference": score_difference(returns, agent["random"]["returns"]), "planet": agent["agent"]["full"],
                "value_planner": planner,
                "bouts": agent["bouts"], "curve": run["curve"], "best_round": run["best_round"],
@@ -340,11 +341,14 @@ def planner_rows(by_seed: dict[int, dict]) -> list[list[str]]:
 
     players = {"random play": lambda m: m["random"]["mean"], "PlaNet's CEM (thesis), full bouts": lambda m: m["planet"]["mean"],
                "value alone, full bouts": lambda m: m["value"]["mean"],
+               "value alone, first 500 steps": lambda m: m.get("value_first", {}).get("mean"),  # runs since 2026-11-24
                "CEM with the value, full bouts": lambda m: m["value_planner"]["full"]["mean"],
                "CEM with the value, first 500 steps": lambda m: m["value_planner"]["first"]["mean"]}
     rows = []
     for name, score in players.items():
         scores = [score(m) for m in by_seed.values()]
+        if None in scores:  # not measured in an older run
+            continue
         summary = aggregate(scores)
         interval = "" if summary["ci_low"] is None else f" [{summary['ci_low']:.1f}, {summary['ci_high']:.1f}]"
         rows.append([name, *(f"{x:.1f}" for x in scores), f"{summary['mean']:.1f}{interval}"])

@@ -161,12 +161,15 @@ def validation_seeds(seed: int, k: int) -> tuple[int, int]:
     return int(env_seed), int(mind_seed)
 
 
-def _greedy_returns(env, model: RSSM, value: LatentValue, bits: int, seeds) -> list[float]:
-    return [float(play_value(env, model, value, bits, *pair)["rewards"].sum()) for pair in seeds]
+def _greedy_returns(env, model: RSSM, value: LatentValue, bits: int, seeds, first_steps: int = 0):
+    """The greedy bouts' returns; with ``first_steps``, also the returns of their first steps."""
+    rewards = [play_value(env, model, value, bits, *pair)["rewards"] for pair in seeds]
+    full = [float(r.sum()) for r in rewards]
+    return (full, [float(r[:first_steps].sum()) for r in rewards]) if first_steps else full
 
 
 def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir, *, seed: int,
-                progress: bool = True) -> dict:
+                progress: bool = True, first_steps: int = 500) -> dict:
     """Play ``random_bouts`` random bouts into ``run_dir/episodes.h5``, fit the value on them;
     then ``config.rounds`` times: ``bouts_per_round`` epsilon-greedy bouts of the value agent
     into the same store, refit on all of it. After each fit the value plays ``validation_bouts``
@@ -175,7 +178,8 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     round to round as its own bouts change the data), chosen without looking at the test bouts.
     Resumable: every bout is stored as it ends, the values and the scores after each round.
     Returns ``curve`` (one entry per round: ``round``, ``episodes`` (of its own), ``validation``,
-    ``returns`` (the test bouts), ``mean``, ``std``, ``loss``), ``best_round`` and ``run_dir``."""
+    ``returns`` (the test bouts), ``first_returns`` (their first ``first_steps`` steps), ``mean``,
+    ``std``, ``loss``), ``best_round`` and ``run_dir``."""
     run_dir = Path(run_dir)
     device = next(model.parameters()).device
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(device)
@@ -199,9 +203,10 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
         loss = fit_value(value, features, targets, config, seed=int(derive_seeds(seed, 5, round_)[0]))
         validation = _greedy_returns(env, model, value, bits,
                                      [validation_seeds(seed, k) for k in range(config.validation_bouts)])
-        returns = _greedy_returns(env, model, value, bits, [evaluation_seeds(seed, k) for k in range(config.test_bouts)])
+        returns, first = _greedy_returns(env, model, value, bits, [evaluation_seeds(seed, k) for k in range(config.test_bouts)],
+                                         first_steps)
         curve.append({"round": round_, "episodes": episodes, "validation": validation,
-                      "validation_mean": float(np.mean(validation)), "returns": returns,
+                      "validation_mean": float(np.mean(validation)), "returns": returns, "first_returns": first,
                       "mean": float(np.mean(returns)), "std": float(np.std(returns)), "loss": loss})
         if best_round(curve) == round_:
             state["best"] = {key: v.clone() for key, v in value.state_dict().items()}
