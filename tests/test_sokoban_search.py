@@ -383,11 +383,20 @@ def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own
     assert budgets == [150] * cfg.levels_per_round and run.agent(cfg).budget == 50
 
 
-def test_validation_knows_its_levers_and_names_the_valid_ones():
-    from wmthesis.experiments.sokoban_search import validate
+def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, monkeypatch):
+    from wmthesis.experiments.sokoban_search import BOXOBAN_SPLITS, lever_rows, validate
 
     with pytest.raises(ValueError, match="valid: baseline, boxoban-curriculum"):
         validate("bigger-brain", "smoke")
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    result = validate("strong-expert", "smoke", seed=1, levels=3, progress=False)
+    assert result["changes"] == {"round_budget": 60_000}
+    for kind, row in result["rows"].items():
+        assert row["levels"] == 3 and row["source"].startswith(BOXOBAN_SPLITS["validation"][kind])
+        assert row["source"].startswith(("boxoban-unfiltered-valid:000-001", "boxoban-medium-valid:000-001"))
+    (row,) = lever_rows("smoke", seed=1)
+    assert row[:2] == ["strong-expert", "round_budget=60000"] and row[4] == 3
+    assert row[2] == f"{100 * result['rows']['unfiltered']['solve_rate']:.1f}"
 
 
 # ---------------------------------------------------------------------------- pixels

@@ -214,6 +214,23 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     return result
 
 
+def lever_rows(profile: str | None = None, seed: int = 0) -> list[list]:
+    """The levers measured so far (``validation-LEVER.json`` of :func:`validate`) on the
+    validation files: (lever, its changes, unfiltered %, medium %, levels, seconds per level,
+    environment steps), the baseline first."""
+    folder = data_dir("results", "sokoban-search", f"{profile_name(profile)}-seed{seed}")
+    found = {lever: _read_json(folder / f"validation-{lever}.json") for lever in LEVERS}
+    rows = []
+    for lever, result in found.items():
+        if result is not None:
+            measured = result["rows"]
+            rows.append([lever, ", ".join(f"{k}={v}" for k, v in result["changes"].items()) or "(quick as it is)",
+                         *(f"{100 * measured[k]['solve_rate']:.1f}" for k in ("unfiltered", "medium")),
+                         measured["unfiltered"]["levels"],
+                         f"{np.mean([m['seconds_per_level'] for m in measured.values()]):.2f}", f"{result['env_steps']:,}"])
+    return rows
+
+
 def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -> dict:
     """The run in ``folder`` (with the true rules in place of its model if ``simulator``) on the
     levels: ``plays``, one record (seed, solved, actions, ...) per level."""
@@ -371,5 +388,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "validate", "LEVERS", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+__all__ = ["sokoban_search", "validate", "lever_rows", "LEVERS", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
            "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]
