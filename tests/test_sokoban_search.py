@@ -123,6 +123,71 @@ def test_the_values_symmetries_are_the_squares_eight_and_keep_a_levels_shortest_
     assert len(shortest) == 1  # so the steps to go, the value's label, holds for every symmetry
 
 
+def test_the_policys_actions_turn_with_the_board_so_every_symmetry_keeps_a_solution():
+    from wmthesis.envs.sokoban import apply_action
+    from wmthesis.sokoban_search.policy import turned_actions
+
+    env = grid_env("sokoban-small")
+    env.reset(seed=5)
+    board = env.board.copy()  # with its wall ring
+    for k in range(4):
+        for mirrored in (False, True):
+            for action in range(8):
+                after = board.copy()
+                apply_action(after, action)
+                view = turned(torch.as_tensor(board)[None], k, mirrored)[0].numpy().copy()
+                moved = int(turned_actions(torch.tensor([action]), k, mirrored)[0])
+                apply_action(view, moved)
+                assert np.array_equal(view, turned(torch.as_tensor(after)[None], k, mirrored)[0].numpy())
+                assert moved // 4 == action // 4  # a push stays a push, a move a move
+
+
+def test_a_policy_prior_orders_the_expansions_along_the_solution_it_knows():
+    level = parse_levels(LEVELS)[0][1:-1, 1:-1]
+    blind = best_first(Simulator().expand, level, budget=50_000, batch=1)  # one node at a time: the order shows
+    taken = dict(zip((s.tobytes() for s in blind.states[:-1]), blind.actions))
+
+    def oracle(states):  # a test-only prior that knows one solution: not something the agent is given
+        out = np.full((len(states), 8), np.log(1 / 8))
+        for i, state in enumerate(states):
+            if state.tobytes() in taken:
+                out[i] = np.log(0.03 / 7)
+                out[i, taken[state.tobytes()]] = np.log(0.97)
+        return out
+
+    guided = best_first(Simulator().expand, level, budget=50_000, batch=1, prior=oracle, prior_weight=1.0)
+    assert guided.found and guided.actions == blind.actions and guided.expanded < blind.expanded / 10
+    ignored = best_first(Simulator().expand, level, budget=50_000, batch=1, prior=oracle, prior_weight=0.0)
+    assert ignored.expanded == blind.expanded
+
+
+def test_a_policy_learns_the_actions_of_solutions_and_a_run_keeps_it(tmp_path):
+    import dataclasses
+
+    from wmthesis.sokoban_search.iteration import Run, fit_policy, save_run
+    from wmthesis.sokoban_search.policy import Policy
+
+    cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",), value_updates=600, batch_size=64)
+    solver = SearchAgent(Simulator(), budget=5000)
+    with Experience(tmp_path / "experience.h5") as experience:
+        for seed in range(12):
+            play = solver.play(grid_env("sokoban-small"), seed)
+            assert play.solved
+            experience.add("solutions", 1, states=play.transitions["states"], actions=play.transitions["actions"])
+        torch.manual_seed(0)
+        policy = Policy(7, 8, channels=32, blocks=2)
+        accuracy = fit_policy(policy, experience, cfg, np.random.default_rng(0), progress=False)
+    assert accuracy > 0.6  # chance is 1/8: it finds the player and the way its solutions go
+    weighted = dataclasses.replace(cfg, prior_weight=1.0)
+    model = SokobanModel(7, 8, np.array([-0.1, 0.9, 10.9], np.float32), channels=8, blocks=1)
+    save_run(tmp_path, Run(model, None, [], 0, policy=policy), dataclasses.replace(weighted, value_channels=32, value_blocks=2))
+    again = load_run(tmp_path)
+    states = np.stack([grid_state(grid_env("sokoban-small"), grid_env("sokoban-small").reset(seed=s)[0]) for s in (20, 21)])
+    assert np.array_equal(again.policy.log_probs(states), policy.log_probs(states))
+    assert np.allclose(np.exp(policy.log_probs(states)).sum(1), 1.0, atol=1e-3)
+    assert again.agent(weighted).prior is not None and again.agent(cfg).prior is None  # weight 0: no prior
+
+
 def test_the_search_stops_at_its_budget_and_says_it_found_nothing():
     easy = parse_level("#######\n#@ $ .#\n#######\n")  # walk, then push right twice
     assert best_first(Simulator().expand, easy[1:-1, 1:-1], budget=50).found

@@ -315,6 +315,9 @@ class SokobanSearchConfig:
     the model's surprise at its own prediction (nats), each of ``weights`` in turn until one
     finds a plan, at most ``replans`` searches again after the real game left the plan; in the
     training rounds ``round_budget`` nodes (0: ``budget``), a stronger expert than at evaluation.
+    A policy prior learned from the agent's own solutions (:mod:`~wmthesis.sokoban_search.policy`,
+    the value's sizes and updates) adds ``prior_weight`` per nat of ``-log pi`` to a step's cost
+    (0: none, and none is trained).
     Evaluation: ``eval_levels`` unseen levels per generated variant.
     """
 
@@ -343,6 +346,7 @@ class SokobanSearchConfig:
     doubt: float = 20.0
     replans: int = 4
     round_budget: int = 0
+    prior_weight: float = 0.0
     eval_levels: int = 500
     seed: int = 0
 

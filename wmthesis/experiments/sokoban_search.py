@@ -179,6 +179,7 @@ LEVERS = {
     "boxoban-curriculum": dict(variants=("sokoban-small", "boxoban-unfiltered-train", "boxoban-medium-train")),
     "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
     "more-rounds": dict(rounds=5),
+    "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
 }
 VALIDATION_LEVELS = {"smoke": 2, "quick": 200, "thesis": 1000}  # the first of each validation set
 

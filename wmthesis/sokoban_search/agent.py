@@ -103,18 +103,22 @@ class SearchAgent:
     the :class:`~wmthesis.sokoban_search.search.Simulator`: anything with ``expand``), guided by
     ``heuristic`` (steps to go, or None: breadth first), ``budget`` nodes per search, ``batch``
     per model call, ``weights`` on the heuristic tried in turn (a search that spends its budget
-    without a plan starts again with the next weight) and ``doubt`` on the model's surprise
+    without a plan starts again with the next weight), ``doubt`` on the model's surprise and
+    ``prior_weight`` on a policy prior's ``-log pi`` (``prior``: states -> log pi, or None)
     (:func:`~wmthesis.sokoban_search.search.best_first`); ``inputs``
     (:mod:`~wmthesis.sokoban_search.cells`: grid states or pixels) turns what the env shows into
     the model's state, and makes envs that show it."""
 
     def __init__(self, model, *, inputs=GRID, heuristic=None, budget: int = 20_000,
-                 batch: int = 64, weights: tuple = (1.0,), doubt: float = 0.0, replans: int = 4):
+                 batch: int = 64, weights: tuple = (1.0,), doubt: float = 0.0, replans: int = 4,
+                 prior=None, prior_weight: float = 0.0):
         if not weights or min(weights) < 0:
             raise ValueError(f"weights must be one or more non-negative numbers, got {weights!r}")
+        if prior_weight < 0:
+            raise ValueError(f"prior_weight must be non-negative, got {prior_weight!r}")
         self.model, self.inputs = model, inputs
         self.heuristic, self.budget, self.batch, self.weights, self.replans = heuristic, budget, batch, weights, replans
-        self.doubt = doubt
+        self.doubt, self.prior, self.prior_weight = doubt, prior, prior_weight
 
     def env(self, variant: str) -> SokobanEnv:
         """Variant ``variant`` showing what this agent sees."""
@@ -131,7 +135,8 @@ class SearchAgent:
         while not (solved or over) and searches <= self.replans:
             for weight in self.weights:
                 result = best_first(model.expand, state, heuristic=self.heuristic, budget=self.budget,
-                                    batch=self.batch, weight=weight, doubt=self.doubt)
+                                    batch=self.batch, weight=weight, doubt=self.doubt, prior=self.prior,
+                                    prior_weight=self.prior_weight)
                 expanded, generated = expanded + result.expanded, generated + result.generated
                 if result.found or result.info["exhausted"] or self.heuristic is None:
                     break  # found; or every weight would search the same (all reachable seen, no value)

@@ -5,7 +5,10 @@ Groups by kind and board shape (boards of several sizes train the same networks)
 - ``transitions/HxW``: ``states``, ``next_states`` uint8 (N, h, w), ``actions`` uint8 (N,),
   ``rewards`` float32 (N,), ``dones`` bool (N,), ``rounds`` int16 (N,) (0: random play);
 - ``to_go/HxW``: ``states`` uint8 (N, h, w), ``labels`` float32 (N,) steps to the end, from the
-  levels the agent solved; ``rounds`` int16 (N,).
+  levels the agent solved; ``rounds`` int16 (N,);
+- ``solutions/HxW``: ``states`` uint8 (N, h, w), ``actions`` uint8 (N,) the action the agent
+  then played, from the levels it solved; ``rounds`` int16 (N,) (files from before 2026-11-24
+  have none).
 
 States are the env's grid observations (the board's inner cells); pixel frames are their
 rendering (:func:`wmthesis.envs.sokoban.grid_frames` is exact), so they are not stored twice.
@@ -20,7 +23,8 @@ import h5py
 import numpy as np
 
 FIELDS = {"transitions": ("states", "actions", "next_states", "rewards", "dones"),
-          "to_go": ("states", "labels")}
+          "to_go": ("states", "labels"),
+          "solutions": ("states", "actions")}
 
 
 class Experience:

@@ -31,6 +31,7 @@ from wmthesis.sokoban_search.cells import GRID, CellCoder, GridInputs, PixelInpu
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
 from wmthesis.sokoban_search.model import SokobanModel
+from wmthesis.sokoban_search.policy import Policy, turned_actions
 from wmthesis.training import check_same_config, gradient_step, with_added_defaults
 from wmthesis.utils import atomic_path, check_choice, device, half_precision
 
@@ -42,22 +43,25 @@ INPUTS = ("grid", "pixels")
 @dataclasses.dataclass
 class Run:
     """What a run has learned: ``model``, ``heuristic`` (None before any level was solved),
-    ``history`` (one dict per stage: random play, then each round), ``rounds_done``, and
+    ``history`` (one dict per stage: random play, then each round), ``rounds_done``,
     ``inputs``, what the agent sees (grid states, or pixels through a learned
-    :class:`~wmthesis.sokoban_search.cells.CellCoder`)."""
+    :class:`~wmthesis.sokoban_search.cells.CellCoder`), and ``policy``, the policy prior (None
+    unless the config gives it a weight)."""
 
     model: SokobanModel
     heuristic: Heuristic | None
     history: list
     rounds_done: int
     inputs: GridInputs = GRID
+    policy: Policy | None = None
 
     def agent(self, cfg: SokobanSearchConfig, model=None, inputs=None) -> SearchAgent:
         """The search agent of this run (``model``, ``inputs``: e.g. the simulator on grid states)."""
         heuristic = self.heuristic.estimate if self.heuristic is not None else None
+        prior = self.policy.log_probs if self.policy is not None and cfg.prior_weight > 0 else None
         return SearchAgent(model if model is not None else self.model, inputs=inputs or self.inputs,
                            heuristic=heuristic, budget=cfg.budget, batch=cfg.batch, weights=cfg.weights,
-                           doubt=cfg.doubt, replans=cfg.replans)
+                           doubt=cfg.doubt, replans=cfg.replans, prior=prior, prior_weight=cfg.prior_weight)
 
 
 def schedule(cfg: SokobanSearchConfig) -> list[tuple[str, int]]:
@@ -123,6 +127,7 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
         if play.solved:
             states = play.transitions["states"]
             experience.add("to_go", number, states=states, labels=steps_to_go(states))
+            experience.add("solutions", number, states=states, actions=play.transitions["actions"])
     rng = np.random.default_rng([cfg.seed, number])
     losses = fit_model(run.model, experience, cfg, cfg.round_updates, rng, f"model (round {number})", progress)
     if experience.count("to_go"):  # a fresh value each round (see the module's docstring)
@@ -131,11 +136,17 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
         value_error = fit_heuristic(run.heuristic, experience, cfg, rng, f"value (round {number})", progress)
     else:
         value_error = None
+    policy_accuracy = None
+    if cfg.prior_weight > 0 and experience.count("solutions"):  # a fresh policy prior each round, as the value
+        torch.manual_seed(cfg.seed + number)
+        run.policy = Policy(n_codes(cfg), N_ACTIONS, cfg.value_channels, cfg.value_blocks).to(device())
+        policy_accuracy = fit_policy(run.policy, experience, cfg, rng, f"policy (round {number})", progress)
     run.history.append(dict(round=number, variant=variant, env_steps=int(sum(len(p.actions) for p in plays)),
                             levels=len(plays), solved=float(np.mean([p.solved for p in plays])),
                             expanded=float(np.mean([p.expanded for p in plays])),
                             seconds_per_level=float(np.mean([p.seconds for p in plays])),
                             model_loss=losses, value_error=value_error,
+                            **({"policy_accuracy": policy_accuracy} if policy_accuracy is not None else {}),
                             exactness=held_out_exactness(run.model, cfg, run.inputs)))
     run.rounds_done = number
 
@@ -214,6 +225,24 @@ def fit_heuristic(heuristic: Heuristic, experience: Experience, cfg: SokobanSear
     return kept["abs_error"]
 
 
+def fit_policy(policy: Policy, experience: Experience, cfg: SokobanSearchConfig,
+               rng: np.random.Generator, desc: str = "policy", progress: bool = True) -> float:
+    """Train the policy prior on every (state, action) of the levels solved so far, ``value_updates``
+    updates (each batch in a random one of the board's symmetries, states and actions turned
+    together, if ``cfg.value_symmetries``); returns how often its likeliest action is the one
+    taken, over the last tenth of the updates."""
+    groups = {k: {"states": g["states"], "actions": g["actions"]} for k, g in experience.arrays("solutions").items()}
+    batches = _batches(groups, cfg.batch_size, rng)
+    if cfg.value_symmetries:
+        batches = (_turned_batch(batch, int(rng.integers(4)), bool(rng.integers(2))) for batch in batches)
+    return _optimise(policy, policy.losses, batches, cfg.value_updates, cfg.lr, desc, progress)["accuracy"]
+
+
+def _turned_batch(batch: dict, quarter_turns: int, mirrored: bool) -> dict:
+    return {"states": turned(batch["states"], quarter_turns, mirrored),
+            "actions": turned_actions(batch["actions"], quarter_turns, mirrored)}
+
+
 def held_out_exactness(model: SokobanModel, cfg: SokobanSearchConfig, inputs=GRID, levels: int = 20) -> dict:
     """One-step whole-board exactness on random play of unseen levels, per variant."""
     out = {}
@@ -231,6 +260,7 @@ def save_run(folder: Path, run: Run, cfg: SokobanSearchConfig) -> None:
     payload = {"version": STATE_VERSION, "config": dataclasses.asdict(cfg), "model_config": run.model.config(),
                "model": run.model.state_dict(), "rounds_done": run.rounds_done, "history": run.history,
                "heuristic": None if run.heuristic is None else run.heuristic.state_dict(),
+               "policy": None if run.policy is None else run.policy.state_dict(),
                "coder": run.inputs.coder.state() if isinstance(run.inputs, PixelInputs) else None}
     with atomic_path(folder / "state.pt") as tmp:
         torch.save(payload, tmp)
@@ -260,9 +290,14 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
         c = saved["config"]
         heuristic = Heuristic(model.n_codes, c["value_channels"], c["value_blocks"]).to(device())
         heuristic.load_state_dict(saved["heuristic"])
+    policy = None
+    if saved.get("policy") is not None:  # a policy prior (runs whose config weighs one)
+        c = saved["config"]
+        policy = Policy(model.n_codes, N_ACTIONS, c["value_channels"], c["value_blocks"]).to(device())
+        policy.load_state_dict(saved["policy"])
     inputs = GRID if saved.get("coder") is None else PixelInputs(CellCoder(**saved["coder"]))
-    return Run(model, heuristic, saved["history"], saved["rounds_done"], inputs)
+    return Run(model, heuristic, saved["history"], saved["rounds_done"], inputs, policy)
 
 
-__all__ = ["Run", "train_search_agent", "load_run", "save_run", "schedule", "fit_model", "fit_heuristic",
+__all__ = ["Run", "train_search_agent", "load_run", "save_run", "schedule", "fit_model", "fit_heuristic", "fit_policy",
            "held_out_exactness"]

@@ -11,7 +11,8 @@ latent (the thesis's LSTM state) could not.
 
 Priority ``f = g + weight * h``: ``g`` the cost from the root, ``h`` a learned estimate of the
 steps still to go (:class:`~wmthesis.sokoban_search.heuristic.Heuristic`); without one, the
-search is breadth first. A step costs ``1 + doubt * surprise``: a search left to itself finds
+search is breadth first. A learned policy prior (:class:`~wmthesis.sokoban_search.policy.Policy`)
+may add ``prior_weight * -log pi(a | s)`` to a step's cost. A step costs ``1 + doubt * surprise``: a search left to itself finds
 the model's rare mistakes and prefers the ones that help it (a box that vanishes is a box
 solved), so a transition the model is unsure of costs more, in proportion to its doubt. The goal
 is a transition the model predicts to end the episode.
@@ -47,11 +48,13 @@ class SearchResult:
 
 
 def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000, batch: int = 64,
-               weight: float = 1.0, doubt: float = 0.0) -> SearchResult:
+               weight: float = 1.0, doubt: float = 0.0, prior=None, prior_weight: float = 0.0) -> SearchResult:
     """Search from ``root`` (uint8 (h, w)) for a transition that ``expand`` predicts to end the
     episode, expanding at most ``budget`` nodes, ``batch`` at a time (the lowest ``f`` first,
     first-in first-out on ties). ``heuristic(states (B, h, w)) -> steps to go (B,)``; ``doubt``
-    the cost of one nat of the model's surprise."""
+    the cost of one nat of the model's surprise; ``prior(states (B, h, w)) -> log pi (B, A)``, a
+    policy whose unlikely actions cost ``prior_weight`` per nat of ``-log pi`` more (a policy
+    prior orders the expansions, as in Levin tree search)."""
     start = time.perf_counter()
     root = np.ascontiguousarray(root, dtype=np.uint8)
     states, parents, actions, cost, estimate = [root], [-1], [-1], [0.0], [0.0]
@@ -69,8 +72,11 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
         if not picked:
             break
         expanded += len(picked)
-        children, _, dones, surprises = expand(np.stack([states[i] for i in picked]))
+        parents_now = np.stack([states[i] for i in picked])
+        children, _, dones, surprises = expand(parents_now)
         generated += dones.size
+        unlikely = (-prior_weight * np.asarray(prior(parents_now), dtype=np.float64) if prior is not None and prior_weight
+                    else np.zeros(dones.shape))
         fresh, improved = [], set()
         for (k, action), child in zip(np.ndindex(dones.shape), children.reshape(-1, *root.shape)):
             parent = picked[k]
@@ -78,7 +84,8 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
                 plan = _path(parents, actions, parent) + [action]
                 path_states = np.stack([states[i] for i in _nodes(parents, parent)] + [child])
                 return SearchResult(plan, path_states, expanded, generated, time.perf_counter() - start)
-            through = cost[parent] + 1.0 + doubt * float(surprises[k, action])  # the cost of reaching child this way
+            through = (cost[parent] + 1.0 + doubt * float(surprises[k, action])  # the cost of reaching child this way
+                       + float(unlikely[k, action]))
             key = child.tobytes()
             if key not in index:
                 index[key] = len(states)
