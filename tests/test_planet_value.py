@@ -12,7 +12,8 @@ from wmthesis.config import LatentValueConfig, for_profile
 from wmthesis.data import EpisodeStore, play_random_episode
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.value import (LatentValue, ValueMind, after_action, best_round, episode_features,
-                                   evaluation_seeds, fit_value, load_value, play_value, reward_sums, train_value,
+                                   best_values, evaluation_seeds, fit_value, load_value, play_value, reward_sums,
+                                   td_targets, train_value,
                                    validation_seeds)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
@@ -160,3 +161,61 @@ def test_a_nan_in_the_value_loss_stops_before_that_update():
     with pytest.raises(NonFiniteLoss, match="latent value: non-finite loss term loss = nan at update 1"):
         fit_value(value, features, targets, config, seed=0)
     assert all(torch.equal(a, b) for a, b in zip(before, value.parameters()))  # no weight changed
+
+
+def test_td_targets_by_hand_discounted_rewards_then_the_best_value_n_steps_on():
+    rewards = np.array([1.0, 0.0, 2.0, 0.0, 1.0], np.float32)
+    sums = reward_sums(rewards, 2, 0.5)  # r_t + 0.5 r_{t+1}
+    assert sums.tolist() == [1.0, 1.0, 2.0, 0.5, 1.0]
+    values = torch.tensor([9.0, 8.0, 7.0, 6.0, 5.0])
+    targets = td_targets(torch.as_tensor(sums), values, 2, 0.5)  # + 0.25 max_a Q two steps on, 0 past the end
+    assert targets.tolist() == [1.0 + 0.25 * 7, 1.0 + 0.25 * 6, 2.0 + 0.25 * 5, 0.5, 1.0]
+
+
+def test_best_values_are_the_max_over_every_action_through_the_model():
+    model = frozen_rssm()
+    value = LatentValue(20, 8, heads=2)
+    beliefs, states = torch.randn(7, 16), torch.randn(7, 4)
+    with torch.no_grad():
+        by_hand = torch.stack([value(after_action(model, beliefs[i].expand(3, -1), states[i].expand(3, -1),
+                                                  torch.arange(3))).max() for i in range(7)])
+    assert torch.allclose(best_values(model, value, beliefs, states, chunk=3), by_hand, atol=1e-6)
+
+
+class Walk(gym.Env):
+    """Seven cells in a row, drawn as a bright column; action 0 steps left, 1 stays, 2 steps
+    right; every step on the last cell scores 1, and a step left against the wall of the first
+    scores 0.1; 24 steps from the first cell. The large reward is 6 steps away: a value that
+    sums 3 rewards sees only the small one from the start, one that bootstraps sees both."""
+
+    observation_space = gym.spaces.Box(0, 255, (64, 64, 3), np.uint8)
+    action_space = gym.spaces.Discrete(3)
+
+    def frame(self):
+        frame = np.zeros((64, 64, 3), np.uint8)
+        frame[:, 9 * self.cell:9 * self.cell + 8] = 255
+        return frame
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.cell, self.t = 0, 0
+        return self.frame(), {}
+
+    def step(self, action):
+        against_the_wall = self.cell == 0 and int(action) == 0
+        self.cell = int(np.clip(self.cell + int(action) - 1, 0, 6))
+        self.t += 1
+        return self.frame(), float(self.cell == 6) + 0.1 * against_the_wall, False, self.t >= 24, {}
+
+
+def test_a_td_value_looks_past_its_rewards_where_the_sum_of_three_cannot(tmp_path):
+    model, env = frozen_rssm(), Walk()
+    config = LatentValueConfig(hidden_size=64, heads=2, random_bouts=40, fit_updates=1500, batch_size=128, lr=3e-3,
+                               rounds=0, validation_bouts=1, test_bouts=1, reward_steps=3)
+    td = train_value(model, 5, env, dataclasses.replace(config, target="td", discount=0.9, td_iterations=6),
+                     tmp_path / "td", seed=0, progress=False)
+    summed = train_value(model, 5, env, config, tmp_path / "sum", seed=0, progress=False)
+    assert td["curve"][0]["returns"][0] >= 15  # walks right at once: 18 of 24 steps on the last cell
+    assert summed["curve"][0]["returns"][0] < 5  # stays by the wall for the small reward (2.4 in all)
+    with pytest.raises(ValueError, match="unknown value target 'mc'; valid: reward-sum, td"):
+        train_value(model, 5, env, dataclasses.replace(config, target="mc"), tmp_path / "x", seed=0, progress=False)

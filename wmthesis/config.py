@@ -138,6 +138,12 @@ class LatentValueConfig:
     ``validation_bouts`` greedy bouts after each fit choose the round whose value is kept (on bouts
     of their own), ``test_bouts`` greedy bouts score each round. The defaults are the sizes measured on Boxing
     (issue 13, session 14): a punch lands two steps after it is thrown, so three rewards.
+
+    ``target``: ``reward-sum`` (the sum above, the agent of notebook 09) or ``td``: temporal
+    differences through the frozen model, ``r_t + ... + discount^(n-1) r_{t+n-1} + discount^n
+    max_a Q(h_{t+n}, s_{t+n}, a)``, the bootstrap from the value fitted before (a fitted-Q
+    iteration whose target network is the previous fit), refreshed ``td_iterations`` times per
+    fit (the fit's updates shared among them), so the value looks past its ``n`` rewards.
     """
 
     reward_steps: int = 3
@@ -152,6 +158,9 @@ class LatentValueConfig:
     epsilon: float = 0.3
     validation_bouts: int = 5
     test_bouts: int = 10
+    target: str = "reward-sum"
+    discount: float = 0.95
+    td_iterations: int = 3
 
 
 @dataclass(frozen=True)

@@ -35,18 +35,43 @@ from wmthesis.data import EpisodeBuffer, EpisodeStore, play_random_episode
 from wmthesis.envs.preprocessing import to_float
 from wmthesis.planet.rssm import RSSM, one_hot_previous
 from wmthesis.planet.train import BeliefFilter
-from wmthesis.training import gradient_step
-from wmthesis.utils import atomic_path, derive_seeds, fingerprint
+from wmthesis.training import gradient_step, with_added_defaults
+from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint
 
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
+TARGETS = ("reward-sum", "td")
 
 
-def reward_sums(rewards: np.ndarray, steps: int) -> np.ndarray:
-    """(T,) -> (T,): ``r_t + ... + r_{t+steps-1}`` of one episode, cut at its end."""
+def reward_sums(rewards: np.ndarray, steps: int, discount: float = 1.0) -> np.ndarray:
+    """(T,) -> (T,): ``r_t + discount r_{t+1} + ... + discount^(steps-1) r_{t+steps-1}`` of one
+    episode, cut at its end."""
     if steps < 1:
         raise ValueError(f"reward_steps must be >= 1, got {steps}")
     padded = np.concatenate([np.asarray(rewards, np.float32), np.zeros(steps - 1, np.float32)])
-    return np.convolve(padded, np.ones(steps, np.float32), mode="valid")
+    weights = (discount ** np.arange(steps)).astype(np.float32)
+    return np.correlate(padded, weights, mode="valid")
+
+
+def td_targets(sums: torch.Tensor, values: torch.Tensor, steps: int, discount: float) -> torch.Tensor:
+    """One episode's temporal-difference targets (T,): ``sums[t] + discount^steps values[t + steps]``,
+    with nothing after the episode's end (``values`` (T,): max_a Q of each step's belief)."""
+    boot = torch.zeros_like(sums)
+    boot[:max(len(sums) - steps, 0)] = values[steps:]
+    return sums + discount ** steps * boot
+
+
+@torch.inference_mode()
+def best_values(model: RSSM, value: nn.Module, beliefs: torch.Tensor, states: torch.Tensor,
+                chunk: int = 4096) -> torch.Tensor:
+    """``max_a Q(h, s, a)`` (T,) of beliefs (T, H) and states (T, S), every action through the
+    model's transition (:func:`after_action`), ``chunk`` beliefs at a time."""
+    count, out = model.n_actions, []
+    every = torch.arange(count, device=beliefs.device)
+    for start in range(0, len(beliefs), chunk):
+        h, s = beliefs[start:start + chunk], states[start:start + chunk]
+        features = after_action(model, h.repeat_interleave(count, 0), s.repeat_interleave(count, 0), every.repeat(len(h)))
+        out.append(value(features).reshape(len(h), count).amax(-1))
+    return torch.cat(out)
 
 
 def after_action(model: RSSM, belief: torch.Tensor, state: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
@@ -75,14 +100,18 @@ class LatentValue(nn.Module):
 
 
 @torch.inference_mode()
-def episode_features(model: RSSM, episode: dict[str, np.ndarray], bits: int, seed: int) -> torch.Tensor:
+def episode_features(model: RSSM, episode: dict[str, np.ndarray], bits: int, seed: int,
+                     beliefs: bool = False):
     """Features of each taken action of a stored episode (observations (T, H, W, 3) uint8,
-    actions (T,)), filtering with the posterior as in training: (T, H + S)."""
+    actions (T,)), filtering with the posterior as in training: (T, H + S); with ``beliefs``,
+    also each step's belief (T, H) and posterior mean (T, S) before its action."""
     generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
     frames = to_float(torch.as_tensor(episode["observations"], device=generator.device)[None], bits, noise=generator)
     actions = torch.as_tensor(episode["actions"], device=generator.device)
     trajectory = model.observe(model.encode(frames), one_hot_previous(actions[None], model.n_actions), generator)
-    return after_action(model, trajectory.beliefs[0], trajectory.posterior.mean[0], actions)
+    h, s = trajectory.beliefs[0], trajectory.posterior.mean[0]
+    features = after_action(model, h, s, actions)
+    return (features, h, s) if beliefs else features
 
 
 class ValueMind(BeliefFilter):
@@ -122,18 +151,36 @@ def fit_value(value: LatentValue, features: torch.Tensor, targets: torch.Tensor,
     return float(loss.detach())
 
 
-def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int,
-             cache: list[tuple[torch.Tensor, torch.Tensor]]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Features (N, H + S) and reward-sum targets (N,) of every episode in the store at ``path``;
-    ``cache`` holds those of the episodes already read (the model is frozen), so each round
-    computes only its new bouts."""
+def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int, cache: list[dict]) -> list[dict]:
+    """Per episode of the store at ``path``: ``features`` (T, H + S), the (discounted, for
+    ``td``) reward sums ``sums`` (T,), and each step's ``beliefs`` (T, H) and ``states`` (T, S)
+    for the bootstrap. ``cache`` holds the episodes already read (the model is frozen), so each
+    round computes only its new bouts."""
+    discount = config.discount if config.target == "td" else 1.0
     with EpisodeStore(path, "r") as store:
         for index in range(len(cache), len(store)):
             episode = store.episode(index)
-            features = episode_features(model, episode, bits, index)
-            cache.append((features, torch.as_tensor(reward_sums(episode["rewards"], config.reward_steps),
-                                                    device=features.device)))
-    return torch.cat([f for f, _ in cache]), torch.cat([t for _, t in cache])
+            features, beliefs, states = episode_features(model, episode, bits, index, beliefs=True)
+            sums = torch.as_tensor(reward_sums(episode["rewards"], config.reward_steps, discount), device=features.device)
+            cache.append({"features": features, "sums": sums, "beliefs": beliefs, "states": states})
+    return cache
+
+
+def _fit_round(value: LatentValue, model: RSSM, episodes: list[dict], config: LatentValueConfig, seed: int,
+               fitted: bool) -> float:
+    """Fit ``value`` on the episodes: to the reward sums, or (``td``) ``td_iterations`` times to
+    targets bootstrapped from the value as it stands (nothing to bootstrap from before its first
+    fit, ``fitted`` False). Returns the last fit's loss."""
+    features = torch.cat([e["features"] for e in episodes])
+    if config.target == "reward-sum":
+        return fit_value(value, features, torch.cat([e["sums"] for e in episodes]), config, seed)
+    share = dataclasses.replace(config, fit_updates=max(1, config.fit_updates // config.td_iterations))
+    loss = 0.0
+    for iteration in range(config.td_iterations):
+        targets = [td_targets(e["sums"], best_values(model, value, e["beliefs"], e["states"]) if fitted or iteration
+                              else torch.zeros_like(e["sums"]), config.reward_steps, config.discount) for e in episodes]
+        loss = fit_value(value, features, torch.cat(targets), share, int(derive_seeds(seed, iteration)[0]))
+    return loss
 
 
 def play_value(env, model: RSSM, value: LatentValue, bits: int, env_seed: int, mind_seed: int,
@@ -180,6 +227,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     Returns ``curve`` (one entry per round: ``round``, ``episodes`` (of its own), ``validation``,
     ``returns`` (the test bouts), ``first_returns`` (their first ``first_steps`` steps), ``mean``,
     ``std``, ``loss``), ``best_round`` and ``run_dir``."""
+    check_choice("value target", config.target, TARGETS)
     run_dir = Path(run_dir)
     device = next(model.parameters()).device
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(device)
@@ -199,8 +247,8 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
                 env_seed, mind_seed = (int(v) for v in derive_seeds(seed, 4, index, n=2))
                 store.append_episode(**play_value(env, model, value, bits, env_seed, mind_seed, config.epsilon))
             episodes = len(store) - config.random_bouts
-        features, targets = _dataset(model, run_dir / STORE, config, bits, cache)
-        loss = fit_value(value, features, targets, config, seed=int(derive_seeds(seed, 5, round_)[0]))
+        data = _dataset(model, run_dir / STORE, config, bits, cache)
+        loss = _fit_round(value, model, data, config, int(derive_seeds(seed, 5, round_)[0]), fitted=round_ > 0)
         validation = _greedy_returns(env, model, value, bits,
                                      [validation_seeds(seed, k) for k in range(config.validation_bouts)])
         returns, first = _greedy_returns(env, model, value, bits, [evaluation_seeds(seed, k) for k in range(config.test_bouts)],
@@ -223,6 +271,7 @@ def best_round(curve: list[dict]) -> int:
 
 def _check_resumable(saved: dict, config: LatentValueConfig, path: Path) -> None:
     """A run goes on only with the config it was started with; ``rounds`` may grow."""
+    saved = with_added_defaults(LatentValueConfig, saved)  # fields added since: what the run did
     changed = sorted(k for k, v in dataclasses.asdict(config).items() if k != "rounds" and saved.get(k) != v)
     if changed:
         raise ValueError(f"{path} was fitted with another LatentValueConfig ("
@@ -256,4 +305,4 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
 
 
 __all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
-           "reward_sums", "evaluation_seeds", "validation_seeds", "best_round", "train_value"]
+           "reward_sums", "td_targets", "best_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value"]
