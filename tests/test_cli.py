@@ -112,3 +112,13 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     thesis, ours = compared["choices"]["CEM (thesis)"], compared["choices"]["CEM with value"]
     assert same == sum(a == b for a, b in zip(thesis, ours)) / 5
     assert value_plan_choices("smoke", 0, progress=False)["choices"] == compared["choices"]  # cached, or the same again
+
+    from wmthesis.experiments.summary import run_scores
+
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "td"]) == 0  # same model
+    td = json.loads((tmp_path / "data/results/planet-boxing-value/smoke-seed0/td/metrics.json").read_text())
+    assert td["variant"] == "td" and td["config"]["target"] == "td" and td["value_planner"]["config"]["discount"] == 0.95
+    assert td["bouts"] == value["bouts"] and td["planet"] == value["planet"]  # the same bouts and CEM on the same model
+    assert set(run_scores(td)) == {"td", "td, cem-with-value"} and set(run_scores(value)) == {None, "cem-with-value"}
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "nope"]) == 2
+    assert "valid: td, validation-10" in capsys.readouterr().err

@@ -31,6 +31,9 @@ def test_seeds_and_runs_are_parsed_and_bad_ones_refused():
         parse_runs(["planet-freeway:nope"], [0])
     with pytest.raises(ValueError, match="has no variants"):
         parse_runs(["boxing-wm:x"], [0])
+    assert parse_runs(["planet-boxing-value:td"], [2]) == [SweepRun("planet-boxing-value", "td", 2)]
+    with pytest.raises(ValueError, match="valid: td, validation-10"):
+        parse_runs(["planet-boxing-value:nope"], [0])
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -203,8 +206,10 @@ def _records_order(name, profile, seed, variant=None, progress=True):
         f.write(f"start {name}\n")
     if name == "boxing-wm":
         time.sleep(3)
+    if variant == "imitation":
+        time.sleep(2)
     with open(log, "a") as f:
-        f.write(f"end {name}\n")
+        f.write(f"end {name}{':' + variant if variant else ''}\n")
     return {"experiment": name, "profile": profile, "seed": seed, "variant": variant, "score": {"mean": 1.0},
             "scores": {f"AlphaZero {variant}": {"mean": 1.0}}, "variants": [variant]}
 
@@ -214,4 +219,13 @@ def test_a_run_waits_for_its_prerequisite_in_the_same_sweep(local_ray):
     outcome = sweep(runs, "smoke", runner=_records_order, progress=False)
     assert {o["status"] for o in outcome.values()} == {"done"}
     assert (local_ray / "order.txt").read_text().split("\n")[:4] == [
-        "start boxing-wm", "end boxing-wm", "start boxing-wm-alphazero", "end boxing-wm-alphazero"]
+        "start boxing-wm", "end boxing-wm", "start boxing-wm-alphazero", "end boxing-wm-alphazero:imitation"]
+
+
+def test_variants_of_a_dependent_run_and_seed_go_one_after_the_other(local_ray):
+    runs = [SweepRun("boxing-wm-alphazero", "imitation", 12), SweepRun("boxing-wm-alphazero", "unchanged", 12)]
+    outcome = sweep(runs, "smoke", cpus=1, runner=_records_order, progress=False)  # two CPUs: room for both at once
+    assert {o["status"] for o in outcome.values()} == {"done"}
+    assert (local_ray / "order.txt").read_text().split("\n")[-5:-1] == [
+        "start boxing-wm-alphazero", "end boxing-wm-alphazero:imitation",
+        "start boxing-wm-alphazero", "end boxing-wm-alphazero:unchanged"]

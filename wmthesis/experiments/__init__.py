@@ -33,16 +33,15 @@ from wmthesis.utils import check_choice, set_threads
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
                "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "sokoban-search")
-NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent",
-               "planet-boxing-value")
+NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent")
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
               progress: bool = True) -> dict:
     """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics.
 
-    ``variant`` selects a variant of experiments that have them (PlaNet's, AlphaZero's); others
-    refuse one.
+    ``variant`` selects a variant of experiments that have them (PlaNet's, AlphaZero's, the
+    PlaNet value's); others refuse one.
     """
     check_choice("experiment", name, EXPERIMENTS)
     if name in NO_VARIANTS and variant is not None:
@@ -58,7 +57,7 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     if name == "planet-boxing-agent":
         return planet_boxing_agent(profile, seed, progress)
     if name == "planet-boxing-value":
-        return planet_boxing_value(profile, seed, progress)
+        return planet_boxing_value(profile, seed, progress, variant)
     if name == "boxing-wm-alphazero":
         return boxing_wm_alphazero(profile, seed, variant, progress)
     if name in PLANET_GAMES:

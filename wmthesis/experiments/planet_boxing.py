@@ -22,7 +22,7 @@ from wmthesis.data import EpisodeBuffer
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.planet.profiles import planet_config
 from wmthesis.experiments.results import _read_json, _run_header
-from wmthesis.utils import atomic_path, data_dir, derive_seeds, hold, parallel_calls, releasing_holds
+from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds, hold, parallel_calls, releasing_holds
 from wmthesis.viz import record_frames, save_figure
 
 GAME = "boxing"
@@ -36,6 +36,10 @@ STUDY = {
 }
 AGENT = {"smoke": dict(bouts=2), "quick": dict(bouts=10), "thesis": dict(bouts=10)}
 FIRST_STEPS = 500  # 2,000 frames at action repeat 4: the author's episode cap
+# The value's variants (issue 31's levers, each on the same frozen model): the default fits the
+# sum of the next rewards (notebook 09); ``td`` bootstraps through the model; ``validation-10``
+# chooses the round on twice the validation bouts.
+VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10)}
 
 
 def boxing_config(profile: str, variant: str | None = None, study: bool = True) -> PlaNetConfig:
@@ -219,7 +223,8 @@ def _value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: lis
 
 
 @releasing_holds
-def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: bool = True,
+                        variant: str | None = None) -> dict:
     """The PlaNet agent's model (:func:`planet_boxing_agent`, trained first if need be) frozen,
     and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
     its own; after each round, greedy bouts on the agent's evaluation bouts. The round chosen on
@@ -229,21 +234,25 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     ``value`` and ``random`` (scores over full bouts), ``difference``
     (:func:`~wmthesis.metrics.score_difference`), ``planet`` (the CEM agent's), ``value_planner``
     (CEM with the value: full bouts and their first 500 steps), the ``curve`` (one entry per
-    round) and ``files``."""
+    round) and ``files``. A ``variant`` of :data:`VALUE_VARIANTS` fits its value in a folder of
+    its own, on the same model and bouts (a ``td`` value is discounted in the planner as in its
+    targets)."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
     from wmthesis.metrics import score_difference, score_summary
     from wmthesis.planet.figures import learning_curve_figure
     from wmthesis.planet.train import load_planet, make_planet_env
     from wmthesis.planet.value import train_value
 
+    if variant is not None:
+        check_choice("planet-boxing-value variant", variant, tuple(VALUE_VARIANTS))
     profile = profile_name(profile)
     started = time.time()
     agent = planet_boxing_agent(profile, seed, progress)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = hold(data_dir(profile, "planet-boxing-value", f"seed{seed}"))
-    out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}")
+    work = hold(data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}"))
+    out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
     model, planet, _ = load_planet(planet_run)
-    config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"])
+    config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"], **VALUE_VARIANTS.get(variant, {}))
     env = make_planet_env(GAME, planet)
     try:
         run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS)
@@ -251,7 +260,8 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
         env.close()
     chosen = run["curve"][run["best_round"]]
     returns = chosen["returns"]
-    planner = _value_planner_scores(planet_run, work, for_profile(ValuePlannerConfig, profile), agent["bouts"],
+    discount = {"discount": config.discount} if config.target == "td" else {}
+    planner = _value_planner_scores(planet_run, work, for_profile(ValuePlannerConfig, profile, **discount), agent["bouts"],
                                     run["best_round"], progress)
     references = {"random play": agent["random"]["full"]["mean"], "PlaNet (CEM)": agent["agent"]["full"]["mean"],
                   f"CEM, H{planner['config']['horizon']}, with the value at its end": planner["full"]["mean"],
@@ -261,7 +271,8 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
                                                title="Boxing: the value agent after each round"),
                          out / "value_curve.png")
     value = score_summary(returns)
-    metrics = {**_run_header("planet-boxing-value", profile, seed, time.time() - started, env=GAME),
+    metrics = {**_run_header("planet-boxing-value", profile, seed, time.time() - started, env=GAME,
+                             **({} if variant is None else {"variant": variant})),
                "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} bouts "
                            f"(the value of round {chosen['round']}, chosen on {len(chosen['validation'])} validation bouts) "
                            f"(random play {agent['random']['full']['mean']:.1f}, PlaNet's CEM "
@@ -375,7 +386,7 @@ def value_table(metrics: dict) -> str:
         f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
 
 
-__all__ = ["planet_boxing_study", "planet_boxing_agent", "planet_boxing_value", "value_plan_choices", "PLAN_STEPS", "planner_rows", "value_planner_bout", "value_table", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
+__all__ = ["planet_boxing_study", "planet_boxing_agent", "planet_boxing_value", "value_plan_choices", "PLAN_STEPS", "planner_rows", "VALUE_VARIANTS", "value_planner_bout", "value_table", "boxing_config", "play_bout", "study_table", "agent_table", "STUDY", "AGENT", "FIRST_STEPS"]
 
 
 # ---------------------------------------------------------------------------- tables

@@ -81,9 +81,10 @@ def run_scores(metrics: dict) -> dict[str | None, float]:
     if name == "planet-boxing-study":
         return {}
     if name == "planet-boxing-value":  # the value agent; and CEM with the value at its end, where measured
-        planner = metrics.get("value_planner")
-        return {None: float(metrics["value"]["mean"]),
-                **({"cem-with-value": float(planner["full"]["mean"])} if planner else {})}
+        planner, variant = metrics.get("value_planner"), metrics.get("variant")
+        return {variant: float(metrics["value"]["mean"]),
+                **({"cem-with-value" if variant is None else f"{variant}, cem-with-value": float(planner["full"]["mean"])}
+                   if planner else {})}
     if name == "planet-boxing-agent":
         return {None: float(metrics["agent"]["full"]["mean"])}
     if name == "sokoban-search":  # generated levels; and Boxoban's report files, where measured

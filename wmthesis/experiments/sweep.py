@@ -53,6 +53,10 @@ def variants_of(experiment: str) -> tuple[str, ...]:
     check_choice("experiment", experiment, EXPERIMENTS)
     if experiment in NO_VARIANTS:
         return ()
+    if experiment == "planet-boxing-value":
+        from wmthesis.experiments.planet_boxing import VALUE_VARIANTS
+
+        return tuple(VALUE_VARIANTS)
     return tuple(VARIANTS) if experiment == "boxing-wm-alphazero" else planet_variants(experiment)
 
 
@@ -190,8 +194,10 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
         gpus = 1 if ray.cluster_resources().get("GPU", 0) >= 1 else 0
     task = ray.remote(_run_task).options(num_cpus=cpus, num_gpus=gpus, max_retries=retries, retry_exceptions=False)
     refs, started = {}, time.time()
-    for run in todo:  # a prerequisite in this sweep goes first: its result is the dependent's argument
-        before = [refs[p] for p in refs if p.experiment == PREREQUISITE.get(run.experiment) and p.seed == run.seed]
+    for run in todo:  # a prerequisite in this sweep goes first: its result is the dependent's argument;
+        # variants of a dependent experiment and seed share its prerequisite's folders, so they go one by one
+        before = [refs[p] for p in refs if p.seed == run.seed and (p.experiment == PREREQUISITE.get(run.experiment) or
+                                                                   p.experiment == run.experiment in PREREQUISITE)]
         refs[run] = task.remote(runner, run, profile, cpus, *before)
     waiting = {ref: run for run, ref in refs.items()}
     bar = tqdm(total=len(todo), desc=f"sweep ({profile})", unit="run", disable=not progress)
