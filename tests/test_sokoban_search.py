@@ -185,6 +185,8 @@ def test_a_policy_learns_the_actions_of_solutions_and_a_run_keeps_it(tmp_path):
     states = np.stack([grid_state(grid_env("sokoban-small"), grid_env("sokoban-small").reset(seed=s)[0]) for s in (20, 21)])
     assert np.array_equal(again.policy.log_probs(states), policy.log_probs(states))
     assert np.allclose(np.exp(policy.log_probs(states)).sum(1), 1.0, atol=1e-3)
+    corridor = parse_level("#########\n#@ $  . #\n#########\n")[1:-1, 1:-1]  # any board size: 1x7 inside
+    assert policy.log_probs(corridor[None]).shape == (1, 8)
     assert again.agent(weighted).prior is not None and again.agent(cfg).prior is None  # weight 0: no prior
 
 
