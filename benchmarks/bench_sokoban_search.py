@@ -14,9 +14,10 @@ Rows:
 - ``search``: breadth-first :func:`best_first` from ``--levels`` generated levels of each
   variant with the learned-model interface (the random model above, its end logits pinned
   negative and its skip connection off: the search never finds an end and its children are new
-  states, so every search expands its whole ``--budget``) and with the true rules
-  (:class:`Simulator`, which stops when it solves the level): nodes expanded per second,
-  batch 64.
+  states, so every search expands its whole ``--budget``), the same with a policy prior
+  (:class:`Policy`, 32 channels x 2 blocks, weight 1: one more network call per batch), and with
+  the true rules (:class:`Simulator`, which stops when it solves the level): nodes expanded per
+  second, batch 64.
 
 The model runs in bfloat16 where the CPU computes it natively (:func:`wmthesis.utils.half_precision`),
 as in the experiment; the JSON records which. Runs on torch's default threads (the machine's cores). Writes ``benchmarks/results/sokoban_search.json``.
@@ -37,6 +38,7 @@ sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve
 
 from wmthesis.sokoban_search.agent import grid_env, grid_state, level_seeds, random_play  # noqa: E402
 from wmthesis.sokoban_search.model import SokobanModel  # noqa: E402
+from wmthesis.sokoban_search.policy import Policy  # noqa: E402
 from wmthesis.sokoban_search.search import Simulator, best_first  # noqa: E402
 from wmthesis.utils import device, half_precision  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
@@ -63,13 +65,16 @@ def expand_rows(model: SokobanModel, rng: np.random.Generator, name: str = "mode
 
 def search_rows(model: SokobanModel, levels: int, budget: int, seed: int) -> list[dict]:
     rows = []
+    prior = Policy(7, 8).log_probs  # the policy prior's size in the experiment (the value's: 32 x 2)
+    searches = {"learned model": (model.expand, {}), "learned model, policy prior": (model.expand, dict(prior=prior, prior_weight=1.0)),
+                "true rules": (Simulator().expand, {})}
     for variant in SIZES:
         env = grid_env(variant)
         roots = [grid_state(env, env.reset(seed=s)[0]) for s in level_seeds(seed, 5_000, levels)]
-        for name, expand in (("learned model", model.expand), ("true rules", Simulator().expand)):
+        for name, (expand, options) in searches.items():
             expanded, seconds = 0, 0.0
             for root in roots:
-                result = best_first(expand, root, budget=budget, batch=64)
+                result = best_first(expand, root, budget=budget, batch=64, **options)
                 expanded, seconds = expanded + result.expanded, seconds + result.seconds
             rows.append(dict(row=f"search, {name}", variant=variant, levels=levels,
                              nodes_per_level=expanded / levels, nodes_per_s=expanded / seconds))
