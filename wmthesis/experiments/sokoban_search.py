@@ -203,8 +203,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
                            (_evaluate_boxoban, folder, cfg, source, levels, part))
             for kind, source in BOXOBAN_SPLITS["validation"].items() for part in range(EVAL_PARTS)}
     _run_saved(jobs, progress)
-    rows = {kind: {**agent_row(sorted((r for part in range(EVAL_PARTS) for r in _read_json(jobs[kind, part][0])["plays"]),
-                                      key=lambda r: r["level"])), "source": f"{source}, its first {levels} levels"}
+    rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
             for kind, source in BOXOBAN_SPLITS["validation"].items()}
     run = load_run(folder, cfg)
     result = {"lever": lever, "changes": LEVERS[lever], "profile": profile, "seed": seed, "rows": rows,
@@ -291,6 +290,12 @@ def _boxoban_reference(row, source: str, count: int) -> dict:
     return row(load_levels(source)[:count])
 
 
+def _level_plays(jobs: dict, *key) -> list[dict]:
+    """The plays of an evaluation saved in :data:`EVAL_PARTS` parts (``jobs[(*key, part)]``), in level order."""
+    return sorted((r for part in range(EVAL_PARTS) for r in _read_json(jobs[(*key, part)][0])["plays"]),
+                  key=lambda r: r["level"])
+
+
 def _boxoban_table(kind: str, jobs: dict, profile: str) -> dict:
     """A kind's Boxoban rows (random play, the thesis, the agents, A*), each agent's parts
     merged in level order, with its source and how many solutions an independent replay
@@ -303,8 +308,7 @@ def _boxoban_table(kind: str, jobs: dict, profile: str) -> dict:
     rows["random play"] = _read_json(jobs["random", kind, 0][0])
     rows["thesis"] = {"solve_rate": THESIS_SOLVED}
     for name, title in BOXOBAN_AGENTS.items():
-        plays = sorted((r for part in range(EVAL_PARTS) for r in _read_json(jobs[name, kind, part][0])["plays"]),
-                       key=lambda r: r["level"])
+        plays = _level_plays(jobs, name, kind)
         solved = [r for r in plays if r["solved"]]
         rows[title] = {**agent_row(plays), "source": f"{source}, its first {len(plays)} levels",
                        "replayed": int(sum(check_board_solutions(boards, solved))),
