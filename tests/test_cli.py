@@ -103,7 +103,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     with EpisodeStore(tmp_path / "data/smoke/planet-boxing-value/seed0/episodes.h5") as own:
         assert len(own) == 3 and own.num_steps == 48  # 2 random bouts, 1 of its own, 16 steps each in smoke
 
-    from wmthesis.experiments.planet_boxing import value_plan_choices
+    from wmthesis.experiments.planet_boxing_value import value_plan_choices
 
     compared = value_plan_choices("smoke", 0, progress=False)  # the last own bout's first 5 steps
     assert compared["steps"] == 5 and set(compared["choices"]) == {"CEM (thesis)", "CEM with value", "value alone"}

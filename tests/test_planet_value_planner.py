@@ -93,7 +93,7 @@ def test_plan_choices_follow_one_belief_and_one_step_with_the_value_is_the_value
 
 
 def test_the_planners_over_seeds_each_seed_then_the_mean_and_its_t_interval():
-    from wmthesis.experiments.planet_boxing import planner_rows
+    from wmthesis.experiments.planet_boxing_value import planner_rows
 
     def metrics(x):
         return {"random": {"mean": 0.0}, "planet": {"mean": x - 5}, "value": {"mean": x + 1},

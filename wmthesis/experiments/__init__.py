@@ -3,7 +3,8 @@
 One module per experiment: :mod:`~wmthesis.experiments.sokoban_world_models` (5.3),
 :mod:`~wmthesis.experiments.world_models` (Boxing, 5.4.1), :mod:`~wmthesis.experiments.alphazero`
 (5.4.2), :mod:`~wmthesis.experiments.planet` (5.5, 5.6), :mod:`~wmthesis.experiments.planet_boxing`
-(5.6.1-5.6.4 measured: the model study and the agent) and
+(5.6.1-5.6.4 measured: the model study and the agent), :mod:`~wmthesis.experiments.planet_boxing_value`
+(beyond the thesis: a learned value on that model, alone and at the end of CEM's horizon) and
 :mod:`~wmthesis.experiments.sokoban_search` (beyond the thesis: Sokoban solved by search in a
 learned model); :mod:`~wmthesis.experiments.results`
 holds what they share to write their results.
@@ -22,7 +23,8 @@ from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, ALPHAZERO
                                             boxing_wm_alphazero)
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, PLANET_REFERENCE,
                                          planet_experiment, planet_variants)
-from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study, planet_boxing_value
+from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
+from wmthesis.experiments.planet_boxing_value import planet_boxing_value
 from wmthesis.experiments.sokoban_search import SOKOBAN_SEARCH_REFERENCE, sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,

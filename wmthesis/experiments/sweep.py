@@ -54,7 +54,7 @@ def variants_of(experiment: str) -> tuple[str, ...]:
     if experiment in NO_VARIANTS:
         return ()
     if experiment == "planet-boxing-value":
-        from wmthesis.experiments.planet_boxing import VALUE_VARIANTS
+        from wmthesis.experiments.planet_boxing_value import VALUE_VARIANTS
 
         return tuple(VALUE_VARIANTS)
     return tuple(VARIANTS) if experiment == "boxing-wm-alphazero" else planet_variants(experiment)

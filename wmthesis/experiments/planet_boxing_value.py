@@ -1,0 +1,224 @@
+"""Beyond the thesis on PlaNet's Boxing model (issue 31): the model of
+:func:`~wmthesis.experiments.planet_boxing.planet_boxing_agent` frozen, a latent action value
+fitted on it (:mod:`~wmthesis.planet.value`, notebook 09), and CEM with that value at the end of
+its horizon (:mod:`~wmthesis.planet.value_planner`, notebook 10), each beside the thesis's CEM on
+the same bouts.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from wmthesis.config import profile_name
+from wmthesis.experiments.planet import PLANET_REFERENCE
+from wmthesis.experiments.planet_boxing import AGENT, FIRST_STEPS, GAME, _score_cell, planet_boxing_agent
+from wmthesis.experiments.results import _read_json, _run_header
+from wmthesis.utils import atomic_path, check_choice, data_dir, hold, parallel_calls, releasing_holds
+from wmthesis.viz import save_figure
+
+# The value's variants (issue 31's levers, each on the same frozen model): the default fits the
+# sum of the next rewards (notebook 09); ``td`` bootstraps through the model; ``validation-10``
+# chooses the round on twice the validation bouts.
+VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10)}
+
+
+def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int, mind_seed: int) -> dict:
+    """One full bout of CEM with the chosen value at its end
+    (:func:`~wmthesis.planet.value_planner.play_value_planner`) on the PlaNet agent's frozen
+    model: its ``return``, the return of its first :data:`FIRST_STEPS` steps and its ``steps``."""
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import load_value
+    from wmthesis.planet.value_planner import play_value_planner
+
+    model, planet, _ = load_planet(planet_run)
+    env = make_planet_env(GAME, planet)
+    try:
+        rewards = play_value_planner(env, model, load_value(value_run, model), planet, planner, env_seed, mind_seed)
+    finally:
+        env.close()
+    return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
+
+
+def _value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool) -> dict:
+    """The planner with value over the evaluation ``bouts``: full-bout and first-500-step
+    scores, cached in ``value_run`` for the chosen round ``best`` and the planner's config."""
+    from wmthesis.metrics import score_summary
+
+    key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
+    cached = _read_json(value_run / "value_planner.json")
+    if cached is not None and cached.get("key") == key:
+        return cached["scores"]
+    plays = parallel_calls([(value_planner_bout, planet_run, value_run, planner, *bout) for bout in bouts], progress)
+    scores = {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
+              "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
+              "config": dataclasses.asdict(planner)}
+    with atomic_path(value_run / "value_planner.json") as tmp:
+        tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
+    return scores
+
+
+@releasing_holds
+def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: bool = True,
+                        variant: str | None = None) -> dict:
+    """The PlaNet agent's model (:func:`planet_boxing_agent`, trained first if need be) frozen,
+    and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
+    its own; after each round, greedy bouts on the agent's evaluation bouts. The round chosen on
+    validation bouts of its own (:func:`~wmthesis.planet.value.best_round`) compares with random
+    play and with the CEM planner on the evaluation bouts, and so does CEM with that value at the
+    end of its horizon (:mod:`~wmthesis.planet.value_planner`). Returns the metrics:
+    ``value`` and ``random`` (scores over full bouts), ``difference``
+    (:func:`~wmthesis.metrics.score_difference`), ``planet`` (the CEM agent's), ``value_planner``
+    (CEM with the value: full bouts and their first 500 steps), the ``curve`` (one entry per
+    round) and ``files``. A ``variant`` of :data:`VALUE_VARIANTS` fits its value in a folder of
+    its own, on the same model and bouts (a ``td`` value is discounted in the planner as in its
+    targets)."""
+    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
+    from wmthesis.metrics import score_difference, score_summary
+    from wmthesis.planet.figures import learning_curve_figure
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import train_value
+
+    if variant is not None:
+        check_choice("planet-boxing-value variant", variant, tuple(VALUE_VARIANTS))
+    profile = profile_name(profile)
+    started = time.time()
+    agent = planet_boxing_agent(profile, seed, progress)
+    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
+    work = hold(data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}"))
+    out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
+    model, planet, _ = load_planet(planet_run)
+    config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"], **VALUE_VARIANTS.get(variant, {}))
+    env = make_planet_env(GAME, planet)
+    try:
+        run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS)
+    finally:
+        env.close()
+    chosen = run["curve"][run["best_round"]]
+    returns = chosen["returns"]
+    discount = {"discount": config.discount} if config.target == "td" else {}
+    planner = _value_planner_scores(planet_run, work, for_profile(ValuePlannerConfig, profile, **discount), agent["bouts"],
+                                    run["best_round"], progress)
+    references = {"random play": agent["random"]["full"]["mean"], "PlaNet (CEM)": agent["agent"]["full"]["mean"],
+                  f"CEM, H{planner['config']['horizon']}, with the value at its end": planner["full"]["mean"],
+                  "human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
+    figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
+                                               references=references, x="episodes",
+                                               title="Boxing: the value agent after each round"),
+                         out / "value_curve.png")
+    value = score_summary(returns)
+    metrics = {**_run_header("planet-boxing-value", profile, seed, time.time() - started, env=GAME,
+                             **({} if variant is None else {"variant": variant})),
+               "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} bouts "
+                           f"(the value of round {chosen['round']}, chosen on {len(chosen['validation'])} validation bouts) "
+                           f"(random play {agent['random']['full']['mean']:.1f}, PlaNet's CEM "
+                           f"{agent['agent']['full']['mean']:.1f})",
+               "value": value, "returns": returns, "random": agent["random"]["full"],
+               **({"value_first": score_summary(chosen["first_returns"])} if "first_returns" in chosen else {}),
+               "difference": score_difference(returns, agent["random"]["returns"]), "planet": agent["agent"]["full"],
+               "value_planner": planner,
+               "bouts": agent["bouts"], "curve": run["curve"], "best_round": run["best_round"],
+               "config": dataclasses.asdict(config),
+               "files": {"figures": [str(figure)]}}
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1))
+    return metrics
+
+
+PLAN_STEPS = {"smoke": 5, "quick": 300, "thesis": 500}  # steps of a bout on which the planners are compared
+
+
+def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+    """Where the value changes the plan (:func:`~wmthesis.planet.value_planner.plan_choices`):
+    on the first :data:`PLAN_STEPS` steps of the value agent's last bout of its own, the action
+    the thesis's CEM, CEM with the chosen value and the value alone would take from the same
+    belief. Runs :func:`planet_boxing_value` first if need be; cached. Returns ``choices``
+    (planner -> actions), ``agreement`` (pair -> share of steps), ``action_names`` and
+    ``files`` (the bars, and the frames where CEM and CEM with value part)."""
+    from wmthesis.config import ValuePlannerConfig, for_profile
+    from wmthesis.data import EpisodeStore
+    from wmthesis.planet.figures import plan_choices_figure
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import STORE, load_value
+    from wmthesis.planet.value_planner import PLANNERS, plan_choices
+    from wmthesis.viz import image_grid
+
+    profile = profile_name(profile)
+    metrics = planet_boxing_value(profile, seed, progress)
+    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
+    work = data_dir(profile, "planet-boxing-value", f"seed{seed}")
+    out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}")
+    model, planet, _ = load_planet(planet_run)
+    planner, steps = for_profile(ValuePlannerConfig, profile), PLAN_STEPS[profile]
+    with EpisodeStore(work / STORE, "r") as store:
+        bout = store.episode(-1)
+    frames, taken = bout["observations"][:steps], bout["actions"][:steps]
+    key = {"round": metrics["best_round"], "steps": len(taken), "planner": dataclasses.asdict(planner)}
+    cached = _read_json(work / "plan_choices.json")
+    if cached is None or cached.get("key") != key:
+        choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
+        cached = {"key": key, "choices": {name: c.tolist() for name, c in choices.items()}}
+        with atomic_path(work / "plan_choices.json") as tmp:
+            tmp.write_text(json.dumps(cached))
+    choices = {name: np.asarray(c) for name, c in cached["choices"].items()}
+    env = make_planet_env(GAME, planet)
+    names = env.unwrapped.get_action_meanings()
+    env.close()
+    bars = save_figure(plan_choices_figure(choices, names, title=f"Boxing, the first {len(taken)} steps of one bout: "
+                                                                 "the action each planner picks from the same belief"),
+                       out / "plan_choices.png")
+    thesis, ours = choices[PLANNERS[0]], choices[PLANNERS[1]]
+    parted = np.flatnonzero(thesis != ours)[:12]
+    files = [bars]
+    if len(parted):
+        files.append(save_figure(image_grid([frames[t] for t in parted], 6, [f"step {t}: CEM {names[thesis[t]]}\n"
+                                                                           f"+ value {names[ours[t]]}" for t in parted],
+                                            scale=1.9), out / "plan_choices_frames.png"))
+    agreement = {f"{a} = {b}": float(np.mean(choices[a] == choices[b]))
+                 for i, a in enumerate(PLANNERS) for b in PLANNERS[i + 1:]}
+    return {"choices": cached["choices"], "agreement": agreement, "action_names": names, "steps": len(taken),
+            "files": [str(f) for f in files]}
+
+
+def planner_rows(by_seed: dict[int, dict]) -> list[list[str]]:
+    """The planners over seeds (``by_seed``: seed -> :func:`planet_boxing_value`'s metrics), one
+    row each: every seed's mean over its bouts, then the mean over seeds with its 95% t-interval
+    (:func:`~wmthesis.experiments.summary.aggregate`)."""
+    from wmthesis.experiments.summary import aggregate
+
+    players = {"random play": lambda m: m["random"]["mean"], "PlaNet's CEM (thesis), full bouts": lambda m: m["planet"]["mean"],
+               "value alone, full bouts": lambda m: m["value"]["mean"],
+               "value alone, first 500 steps": lambda m: m.get("value_first", {}).get("mean"),  # runs since 2026-11-24
+               "CEM with the value, full bouts": lambda m: m["value_planner"]["full"]["mean"],
+               "CEM with the value, first 500 steps": lambda m: m["value_planner"]["first"]["mean"]}
+    rows = []
+    for name, score in players.items():
+        scores = [score(m) for m in by_seed.values()]
+        if None in scores:  # not measured in an older run
+            continue
+        summary = aggregate(scores)
+        interval = "" if summary["ci_low"] is None else f" [{summary['ci_low']:.1f}, {summary['ci_high']:.1f}]"
+        rows.append([name, *(f"{x:.1f}" for x in scores), f"{summary['mean']:.1f}{interval}"])
+    return rows
+
+
+def value_table(metrics: dict) -> str:
+    """The value agent's chosen round beside random play and the CEM planner on the same bouts (markdown)."""
+    diff, chosen = metrics["difference"], metrics["curve"][metrics["best_round"]]
+    return "\n".join([
+        "| player | full bout |", "|---|---|",
+        f"| latent value on the PlaNet model (round {chosen['round']}, {chosen['episodes']} bouts of its own; "
+        f"chosen on {len(chosen['validation'])} validation bouts) | {_score_cell(metrics['value'])} |",
+        f"| PlaNet (CEM planner), same model | {_score_cell(metrics['planet'])} |",
+        *([f"| CEM with the value at the end of its {metrics['value_planner']['config']['horizon']} steps, same model "
+           f"| {_score_cell(metrics['value_planner']['full'])} |"] if "value_planner" in metrics else []),
+        f"| random play, same bouts | {_score_cell(metrics['random'])} |",
+        f"| value - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) |",
+        f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
+
+
+__all__ = ["planet_boxing_value", "value_plan_choices", "value_planner_bout", "planner_rows", "value_table",
+           "VALUE_VARIANTS", "PLAN_STEPS"]
