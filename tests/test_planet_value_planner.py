@@ -1,5 +1,7 @@
 """CEM with a learned terminal value: without a value it is the thesis's CEM, the same draws
 included; with H = 1 it is the value agent; in between, the return by hand."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -104,3 +106,77 @@ def test_the_planners_over_seeds_each_seed_then_the_mean_and_its_t_interval():
     assert rows["CEM with the value, full bouts"] == ["10.0", "20.0", "15.0 [-48.5, 78.5]"]
     assert rows["CEM with the value, first 500 steps"][:2] == ["5.0", "10.0"]
     assert planner_rows({0: metrics(7.0)})[3] == ["CEM with the value, full bouts", "7.0", "7.0"]  # one seed: no interval
+
+
+def test_imagining_the_priors_mean_is_one_path_by_hand_and_draws_nothing():
+    model, value = model_and_value()
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    actions = torch.nn.functional.one_hot(torch.tensor([[1, 3, 0], [4, 4, 2]]), 5).float()
+    with torch.no_grad():
+        h1, p1 = model.transition(belief.expand(2, -1), state.expand(2, -1), actions[:, 0])
+        h2, p2 = model.transition(h1, p1.mean, actions[:, 1])
+        h3, p3 = model.transition(h2, p2.mean, actions[:, 2])
+        by_hand = model.reward(h1, p1.mean) + 0.5 * model.reward(h2, p2.mean) + 0.25 * value(torch.cat([h3, p3.mean], -1))
+        generator = torch.Generator().manual_seed(9)
+        before = generator.get_state()
+        ours = value_returns(model, value, belief, state, actions, generator, discount=0.5, imagine="mean")
+        assert torch.equal(generator.get_state(), before)  # no sampling noise in the return
+        sampled = value_returns(model, value, belief, state, actions, torch.Generator().manual_seed(9), discount=0.5)
+    assert torch.allclose(ours, by_hand) and not torch.allclose(sampled, by_hand)
+    with pytest.raises(ValueError, match="imagine"):
+        ValuePlanetMind(model, value, imagine="median", **SIZES)
+
+
+def test_the_value_seeds_cems_first_step_with_the_z_scores_of_q():
+    from wmthesis.planet.cem import cem_belief
+    from wmthesis.planet.value_planner import value_scores
+
+    model, value = model_and_value()
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    with torch.no_grad():
+        q = value(after_action(model, belief.expand(5, -1), state.expand(5, -1), torch.arange(5)))
+        mean = value_scores(model, value, belief, state, scale=2.0, horizon=3)
+    z = (q - q.mean()) / q.std()
+    assert mean.shape == (3, 5) and torch.allclose(mean[0], 2.0 * z) and not mean[1:].any()
+    # a strong seed holds CEM's first step where it points when every return ties ...
+    strong = torch.zeros(3, 5)
+    strong[0, 3] = 50.0
+    flat = cem_belief(lambda a: torch.zeros(len(a)), 5, 3, 64, 8, 3, torch.Generator().manual_seed(0), mean=strong)
+    assert int(flat.mean[0].argmax()) == 3
+    # ... and the returns still overrule it when they disagree
+    best_first_0 = cem_belief(lambda a: a[:, 0, 0] * 10.0, 5, 3, 200, 20, 4, torch.Generator().manual_seed(0),
+                              mean=strong * 0.05)
+    assert int(best_first_0.mean[0].argmax()) == 0
+    # no seed is the thesis's zero mean, draw for draw
+    plain = cem_belief(lambda a: a[:, 0, 1], 5, 3, 64, 8, 3, torch.Generator().manual_seed(4))
+    zeros = cem_belief(lambda a: a[:, 0, 1], 5, 3, 64, 8, 3, torch.Generator().manual_seed(4), mean=torch.zeros(3, 5))
+    assert torch.equal(plain.mean, zeros.mean)
+    with pytest.raises(ValueError, match="first mean"):
+        cem_belief(lambda a: torch.zeros(len(a)), 5, 3, 64, 8, 3, mean=torch.zeros(2, 5))
+    with pytest.raises(ValueError, match="value_prior"):
+        ValuePlanetMind(model, None, value_prior=1.0, **SIZES)
+
+
+def test_a_seeded_planner_over_one_step_is_still_the_value_agent():
+    model, value = model_and_value()
+    mind = ValuePlanetMind(model, value, horizon=1, candidates=300, top_k=1, iterations=1, value_prior=1.0,
+                           imagine="mean", generator=torch.Generator().manual_seed(0))
+    for frame in frames(4):
+        choice = int(np.argmax(mind.plan(frame)))
+        with torch.no_grad():
+            q = value(after_action(model, mind.belief.expand(5, -1), mind.state.expand(5, -1), torch.arange(5)))
+        assert choice == int(q.argmax())
+
+
+def test_a_planner_cache_from_before_a_field_was_added_reads_as_its_default(tmp_path):
+    import json
+
+    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.experiments.planet_boxing_value import _cached
+
+    path = tmp_path / "value_planner.json"
+    path.write_text(json.dumps({"key": {"round": 2, "planner": {"horizon": 3, "discount": 1.0}}, "scores": {"x": 1}}))
+    default = {"round": 2, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3))}
+    assert _cached(path, default)["scores"] == {"x": 1}
+    assert _cached(path, {**default, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, imagine="mean"))}) is None
+    assert _cached(path, {**default, "round": 3}) is None

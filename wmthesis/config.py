@@ -168,10 +168,15 @@ class ValuePlannerConfig:
     """CEM whose candidates end in the learned action value (beyond the thesis;
     :mod:`~wmthesis.planet.value_planner`): ``horizon`` imagined steps, the last one's reward
     and what follows from the value, each step discounted by ``discount``; CEM's candidates,
-    top K and iterations are the PlaNet config's. ``horizon`` 1 is the value agent itself."""
+    top K and iterations are the PlaNet config's. ``horizon`` 1 is the value agent itself.
+    ``imagine``: the imagined states are the prior's samples (``sample``, the thesis's) or its
+    ``mean``; ``value_prior`` > 0 seeds CEM's first step with that many z-scores of the value's Q
+    (0: the thesis's zero mean)."""
 
     horizon: int = 3
     discount: float = 1.0
+    imagine: str = "sample"
+    value_prior: float = 0.0
 
 
 @dataclass(frozen=True)

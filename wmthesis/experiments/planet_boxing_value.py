@@ -43,22 +43,40 @@ def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int
     return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
 
 
-def _value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool) -> dict:
-    """The planner with value over the evaluation ``bouts``: full-bout and first-500-step
-    scores, cached in ``value_run`` for the chosen round ``best`` and the planner's config."""
+def _value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool,
+                          cache: Path | None = None) -> dict:
+    """The planner with value over ``bouts`` (the evaluation bouts by default): full-bout and
+    first-500-step scores, cached in ``cache`` (``value_run/value_planner.json`` by default) for
+    the chosen round ``best``, the planner's config and the bouts."""
     from wmthesis.metrics import score_summary
 
     key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
-    cached = _read_json(value_run / "value_planner.json")
-    if cached is not None and cached.get("key") == key:
+    cache = value_run / "value_planner.json" if cache is None else cache
+    cached = _cached(cache, key)
+    if cached is not None:
         return cached["scores"]
     plays = parallel_calls([(value_planner_bout, planet_run, value_run, planner, *bout) for bout in bouts], progress)
     scores = {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
               "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
               "config": dataclasses.asdict(planner)}
-    with atomic_path(value_run / "value_planner.json") as tmp:
+    with atomic_path(cache) as tmp:
         tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
     return scores
+
+
+def _cached(path: Path, key: dict) -> dict | None:
+    """The JSON cache at ``path`` if it was written for ``key`` (a planner config saved before a
+    field was added reads as that field's default: what it did), else None."""
+    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.training import with_added_defaults
+
+    cached = _read_json(path)
+    if cached is None or not isinstance(cached.get("key"), dict):
+        return None
+    saved = dict(cached["key"])
+    if isinstance(saved.get("planner"), dict):
+        saved["planner"] = with_added_defaults(ValuePlannerConfig, saved["planner"])
+    return cached if saved == key else None
 
 
 @releasing_holds
@@ -157,8 +175,8 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
         bout = store.episode(-1)
     frames, taken = bout["observations"][:steps], bout["actions"][:steps]
     key = {"round": metrics["best_round"], "steps": len(taken), "planner": dataclasses.asdict(planner)}
-    cached = _read_json(work / "plan_choices.json")
-    if cached is None or cached.get("key") != key:
+    cached = _cached(work / "plan_choices.json", key)
+    if cached is None:
         choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
         cached = {"key": key, "choices": {name: c.tolist() for name, c in choices.items()}}
         with atomic_path(work / "plan_choices.json") as tmp:
@@ -181,6 +199,46 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
                  for i, a in enumerate(PLANNERS) for b in PLANNERS[i + 1:]}
     return {"choices": cached["choices"], "agreement": agreement, "action_names": names, "steps": len(taken),
             "files": [str(f) for f in files]}
+
+
+# Issue 31's levers on CEM with the value, each measured on the value's validation bouts (never
+# on the evaluation bouts): its horizon, its imagined states, the value seeding its search.
+PLANNER_LEVERS = {"H3": {}, "H2": dict(horizon=2), "prior's mean": dict(imagine="mean"),
+                  "value seeds CEM": dict(value_prior=1.0),
+                  "prior's mean, value seeds CEM": dict(imagine="mean", value_prior=1.0)}
+
+
+def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
+                      bouts: int = 10, progress: bool = True) -> dict[str, dict]:
+    """CEM with the chosen value (:func:`planet_boxing_value`, run first if need be) under each
+    of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on ``bouts`` of the value's
+    validation bouts (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation
+    bouts), each lever cached in the value's folder. Returns lever -> the planner's ``config``
+    and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
+    from wmthesis.config import ValuePlannerConfig, for_profile
+    from wmthesis.planet.value import validation_seeds
+
+    profile = profile_name(profile)
+    levers = tuple(PLANNER_LEVERS) if levers is None else levers
+    for lever in levers:
+        check_choice("planner lever", lever, tuple(PLANNER_LEVERS))
+    if bouts < 1:
+        raise ValueError(f"bouts must be >= 1, got {bouts}")
+    metrics = planet_boxing_value(profile, seed, progress)
+    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
+    work = data_dir(profile, "planet-boxing-value", f"seed{seed}")
+    validation = [validation_seeds(seed, k) for k in range(bouts)]
+    results = {}
+    for lever in levers:
+        planner = for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever])
+        folder = data_dir(profile, "planet-boxing-value", f"seed{seed}", "planner-validation", _slug(lever))
+        results[lever] = _value_planner_scores(planet_run, work, planner, validation, metrics["best_round"], progress,
+                                               cache=folder / "scores.json")
+    return results
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() else "-" for c in name.lower()).strip("-")
 
 
 def planner_rows(by_seed: dict[int, dict]) -> list[list[str]]:
@@ -220,5 +278,5 @@ def value_table(metrics: dict) -> str:
         f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
 
 
-__all__ = ["planet_boxing_value", "value_plan_choices", "value_planner_bout", "planner_rows", "value_table",
+__all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "PLANNER_LEVERS", "value_planner_bout", "planner_rows", "value_table",
            "VALUE_VARIANTS", "PLAN_STEPS"]

@@ -30,16 +30,22 @@ class Belief(NamedTuple):
 
 
 def cem_belief(rollout_fn: RolloutFn, n_actions: int, horizon: int, candidates: int,
-               top_k: int, iterations: int, generator: torch.Generator | None = None) -> Belief:
+               top_k: int, iterations: int, generator: torch.Generator | None = None,
+               mean: torch.Tensor | None = None) -> Belief:
     """Run the discrete CEM and return its final :class:`Belief`.
 
     ``rollout_fn`` maps one-hot action sequences (J, H, A) float to returns (J,). Sampling
     happens on ``generator``'s device (the CPU without one); the one-hot batch is passed on
-    that device.
+    that device. ``mean`` (H, A): the first belief's mean (beyond the thesis: a prior that seeds
+    the search); zeros without one, the thesis's.
     """
     _check_sizes(n_actions, horizon, candidates, top_k, iterations)
     device = generator.device if generator is not None else torch.device("cpu")
-    mean = torch.zeros(horizon, n_actions, device=device)
+    if mean is None:
+        mean = torch.zeros(horizon, n_actions, device=device)
+    elif mean.shape != (horizon, n_actions):
+        raise ValueError(f"the first mean must have shape (horizon, n_actions) = ({horizon}, {n_actions}), "
+                         f"got {tuple(mean.shape)}")
     std = torch.ones(horizon, n_actions, device=device)
     for _ in range(iterations):
         noise = torch.randn((candidates, horizon, n_actions), generator=generator, device=device)

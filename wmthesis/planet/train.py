@@ -182,10 +182,15 @@ class PlanetMind(BeliefFilter):
         current belief (the thesis's: the sum of predicted rewards)."""
         return self.model.imagined_returns(self.belief, self.state, actions, self.generator)
 
+    def first_mean(self) -> torch.Tensor | None:
+        """CEM's first mean (H, A) from the current belief; None: zeros, the thesis's."""
+        return None
+
     @torch.inference_mode()
     def plan(self, state, train_mode: bool = True, debug_mode: bool = False):
         self.observe(state)
-        belief = cem_belief(self.returns, self.model.n_actions, generator=self.generator, **self.sizes)
+        belief = cem_belief(self.returns, self.model.n_actions, generator=self.generator, mean=self.first_mean(),
+                            **self.sizes)
         scores = belief.mean[0].cpu().numpy()
         if debug_mode:
             return scores, {"std": belief.std[0].cpu().numpy(), "best_return": float(belief.returns.max())}

@@ -9,7 +9,11 @@ reward and everything after it are the learned action value of :mod:`~wmthesis.p
 
 with ``Q = value(h_{t+H}, mean of p(s_{t+H} | h_{t+H}))`` (the value's features after an action,
 :func:`~wmthesis.planet.value.after_action`). The imagined states ``s`` are sampled from the
-prior as in the thesis's planner. Two ends meet the two agents it joins:
+prior as in the thesis's planner (``imagine="sample"``), or are the prior's mean (``"mean"``: one
+deterministic imagined path per candidate, no sampling noise in its return). With
+``value_prior`` > 0 the value also seeds the search: CEM's first mean for the first step is
+``value_prior`` times the z-scores of Q over the actions (TD-MPC seeds its search with a learned
+policy in the same spirit); 0 starts from zero, the thesis's. Two ends meet the two agents it joins:
 
 - no value (``value=None``): exactly the thesis's CEM objective
   (:meth:`~wmthesis.planet.rssm.RSSM.imagined_returns`), the same random draws included;
@@ -31,12 +35,16 @@ from wmthesis.planet.train import BeliefFilter, PlanetMind
 from wmthesis.planet.value import LatentValue, after_action
 
 
+IMAGINE = ("sample", "mean")
+
+
 def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, state: torch.Tensor,
                   actions: torch.Tensor, generator: torch.Generator | None = None,
-                  discount: float = 1.0) -> torch.Tensor:
+                  discount: float = 1.0, imagine: str = "sample") -> torch.Tensor:
     """The returns R (J,) of one-hot action sequences ``actions`` (J, H, A) from ``belief``
     (1 or J, B) and ``state`` (1 or J, S): imagined rewards, the last step's (and after) from
-    ``value`` (module docstring); ``value=None``: imagined rewards alone."""
+    ``value`` (module docstring); ``value=None``: imagined rewards alone. ``imagine``: the
+    imagined states are the prior's samples (the thesis's) or its ``mean``."""
     count, horizon = actions.shape[:2]
     belief, state = belief.expand(count, -1), state.expand(count, -1)
     total = actions.new_zeros(count)
@@ -44,23 +52,49 @@ def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, 
         belief, prior = model.transition(belief, state, actions[:, t])
         if value is not None and t == horizon - 1:
             return total + discount ** t * value(torch.cat([belief, prior.mean], -1))
-        state = prior.sample(generator)
+        state = prior.sample(generator) if imagine == "sample" else prior.mean
         total = total + discount ** t * model.reward(belief, state)
     return total
+
+
+def value_scores(model: RSSM, value: LatentValue, belief: torch.Tensor, state: torch.Tensor,
+                 scale: float, horizon: int) -> torch.Tensor:
+    """CEM's first mean (H, A) seeded by the value: the first row ``scale`` times the z-scores
+    of Q(h, s, a) over the A actions from ``belief`` (1, B) and ``state`` (1, S); the later rows zero."""
+    every = torch.arange(model.n_actions, device=belief.device)
+    q = value(after_action(model, belief.expand(model.n_actions, -1), state.expand(model.n_actions, -1), every))
+    mean = q.new_zeros(horizon, model.n_actions)
+    mean[0] = scale * (q - q.mean()) / q.std().clamp_min(1e-6)
+    return mean
 
 
 class ValuePlanetMind(PlanetMind):
     """PlaNet's agent (:class:`~wmthesis.planet.train.PlanetMind`: the belief filtered with the
     posterior's sample, CEM's sizes) whose candidates end in ``value`` (:func:`value_returns`)."""
 
-    def __init__(self, model: RSSM, value: LatentValue | None, *, discount: float = 1.0, **planner):
+    def __init__(self, model: RSSM, value: LatentValue | None, *, discount: float = 1.0, imagine: str = "sample",
+                 value_prior: float = 0.0, **planner):
         super().__init__(model, **planner)
-        if not 0.0 < discount <= 1.0:
-            raise ValueError(f"discount must be in (0, 1], got {discount}")
-        self.value, self.discount = value, float(discount)
+        _check_planner(discount, imagine, value_prior, value)
+        self.value, self.discount, self.imagine, self.value_prior = value, float(discount), imagine, float(value_prior)
 
     def returns(self, actions: torch.Tensor) -> torch.Tensor:
-        return value_returns(self.model, self.value, self.belief, self.state, actions, self.generator, self.discount)
+        return value_returns(self.model, self.value, self.belief, self.state, actions, self.generator, self.discount,
+                             self.imagine)
+
+    def first_mean(self) -> torch.Tensor | None:
+        if not self.value_prior:
+            return None
+        return value_scores(self.model, self.value, self.belief, self.state, self.value_prior, self.sizes["horizon"])
+
+
+def _check_planner(discount: float, imagine: str, value_prior: float, value) -> None:
+    if not 0.0 < discount <= 1.0:
+        raise ValueError(f"discount must be in (0, 1], got {discount}")
+    if imagine not in IMAGINE:
+        raise ValueError(f"imagine must be one of {IMAGINE}, got {imagine!r}")
+    if value_prior < 0 or (value_prior and value is None):
+        raise ValueError(f"value_prior must be >= 0 and needs a value, got {value_prior} with value={value is not None}")
 
 
 def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfig, planner: ValuePlannerConfig,
@@ -70,6 +104,7 @@ def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfi
     rewards, one per agent step."""
     mind = ValuePlanetMind(model, value, horizon=planner.horizon, candidates=planet.candidates, top_k=planet.top_k,
                            iterations=planet.iterations, bits=planet.bits, discount=planner.discount,
+                           imagine=planner.imagine, value_prior=planner.value_prior,
                            generator=torch.Generator(next(model.parameters()).device).manual_seed(int(mind_seed)))
     record = EpisodeBuffer()
     loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
@@ -98,8 +133,9 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
         belief, state = track.belief, track.state
         thesis = cem_belief(lambda a: model.imagined_returns(belief, state, a, generator), model.n_actions,
                             planet.horizon, **sizes)
-        ours = cem_belief(lambda a: value_returns(model, value, belief, state, a, generator, planner.discount),
-                          model.n_actions, planner.horizon, **sizes)
+        first = value_scores(model, value, belief, state, planner.value_prior, planner.horizon) if planner.value_prior else None
+        ours = cem_belief(lambda a: value_returns(model, value, belief, state, a, generator, planner.discount,
+                                                  planner.imagine), model.n_actions, planner.horizon, mean=first, **sizes)
         q = value(after_action(model, belief.expand(model.n_actions, -1), state.expand(model.n_actions, -1), every))
         for name, pick in zip(PLANNERS, (thesis.mean[0].argmax(), ours.mean[0].argmax(), q.argmax())):
             chosen[name].append(int(pick))
@@ -107,4 +143,4 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
     return {name: np.asarray(picks, np.int64) for name, picks in chosen.items()}
 
 
-__all__ = ["value_returns", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
+__all__ = ["value_returns", "value_scores", "IMAGINE", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
