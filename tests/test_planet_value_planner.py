@@ -180,3 +180,18 @@ def test_a_planner_cache_from_before_a_field_was_added_reads_as_its_default(tmp_
     assert _cached(path, default)["scores"] == {"x": 1}
     assert _cached(path, {**default, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, imagine="mean"))}) is None
     assert _cached(path, {**default, "round": 3}) is None
+
+
+def test_the_planner_levers_table_is_paired_against_the_first_lever():
+    from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS, planner_lever_rows
+    from wmthesis.metrics import score_summary
+
+    def scores(returns, first):
+        return {"returns": returns, "full": score_summary(returns), "first": score_summary(first)}
+
+    rows = planner_lever_rows({"H3": scores([2.0, 4.0, 0.0], [1.0, 1.0, 1.0]),
+                               "prior's mean": scores([5.0, 5.0, 5.0], [2.0, 3.0, 4.0])})
+    assert rows[0] == ["H3", "(as evaluated)", "2.0 ± 1.6", "1.0", "+0.0 ± 0.0"]
+    # differences 3, 1, 5: mean 3, standard error 2 / sqrt(3)
+    assert rows[1] == ["prior's mean", "imagine=mean", "5.0 ± 0.0", "3.0", "+3.0 ± 1.2"]
+    assert set(PLANNER_LEVERS["prior's mean, value seeds CEM"]) == {"imagine", "value_prior"}

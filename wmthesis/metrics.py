@@ -49,6 +49,17 @@ def score_difference(returns, baseline) -> dict:
             "standard_error": float(np.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size))}
 
 
+def paired_difference(returns, baseline) -> dict:
+    """How far ``returns`` lie above ``baseline`` bout for bout (two players on the same (N,)
+    bouts): the mean of the differences and its standard error ``s_d / sqrt(N)`` (nan for one bout)."""
+    a, b = np.asarray(returns, np.float64), np.asarray(baseline, np.float64)
+    if a.shape != b.shape or a.size < 1:
+        raise ValueError(f"need the same bouts for both, got {a.size} and {b.size} returns")
+    d = a - b
+    error = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("nan")
+    return {"difference": float(d.mean()), "standard_error": error}
+
+
 def correlation(x, y) -> float:
     """Pearson correlation of two (N,) arrays; nan when either is constant or N < 2."""
     x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)

@@ -206,13 +206,14 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
 PLANNER_LEVERS = {"H3": {}, "H2": dict(horizon=2), "prior's mean": dict(imagine="mean"),
                   "value seeds CEM": dict(value_prior=1.0),
                   "prior's mean, value seeds CEM": dict(imagine="mean", value_prior=1.0)}
+LEVER_BOUTS = {"smoke": 1, "quick": 10, "thesis": 10}  # validation bouts per lever
 
 
 def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
-                      bouts: int = 10, progress: bool = True) -> dict[str, dict]:
+                      bouts: int | None = None, progress: bool = True) -> dict[str, dict]:
     """CEM with the chosen value (:func:`planet_boxing_value`, run first if need be) under each
-    of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on ``bouts`` of the value's
-    validation bouts (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation
+    of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on ``bouts`` (the profile's
+    :data:`LEVER_BOUTS` by default) of the value's validation bouts (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation
     bouts), each lever cached in the value's folder. Returns lever -> the planner's ``config``
     and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
     from wmthesis.config import ValuePlannerConfig, for_profile
@@ -220,6 +221,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
 
     profile = profile_name(profile)
     levers = tuple(PLANNER_LEVERS) if levers is None else levers
+    bouts = LEVER_BOUTS[profile] if bouts is None else bouts
     for lever in levers:
         check_choice("planner lever", lever, tuple(PLANNER_LEVERS))
     if bouts < 1:
@@ -235,6 +237,23 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
         results[lever] = _value_planner_scores(planet_run, work, planner, validation, metrics["best_round"], progress,
                                                cache=folder / "scores.json")
     return results
+
+
+def planner_lever_rows(results: dict[str, dict]) -> list[list[str]]:
+    """:func:`validate_planners`' results as table rows: lever, its changes to the planner,
+    full-bout mean ± std, first-500-step mean, and the difference from the first lever's
+    full-bout scores with its standard error (the same bouts: paired,
+    :func:`~wmthesis.metrics.paired_difference`)."""
+    from wmthesis.metrics import paired_difference
+
+    first = next(iter(results.values()))
+    rows = []
+    for lever, scores in results.items():
+        diff = paired_difference(scores["returns"], first["returns"])
+        changes = ", ".join(f"{k}={v}" for k, v in PLANNER_LEVERS.get(lever, {}).items()) or "(as evaluated)"
+        rows.append([lever, changes, f"{scores['full']['mean']:.1f} ± {scores['full']['std']:.1f}",
+                     f"{scores['first']['mean']:.1f}", f"{diff['difference']:+.1f} ± {diff['standard_error']:.1f}"])
+    return rows
 
 
 def _slug(name: str) -> str:
@@ -278,5 +297,5 @@ def value_table(metrics: dict) -> str:
         f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
 
 
-__all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "PLANNER_LEVERS", "value_planner_bout", "planner_rows", "value_table",
+__all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "value_planner_bout", "planner_rows", "value_table",
            "VALUE_VARIANTS", "PLAN_STEPS"]
