@@ -219,3 +219,23 @@ def test_a_td_value_looks_past_its_rewards_where_the_sum_of_three_cannot(tmp_pat
     assert summed["curve"][0]["returns"][0] < 5  # stays by the wall for the small reward (2.4 in all)
     with pytest.raises(ValueError, match="unknown value target 'mc'; valid: reward-sum, td"):
         train_value(model, 5, env, dataclasses.replace(config, target="mc"), tmp_path / "x", seed=0, progress=False)
+
+
+def test_a_variant_that_adds_rounds_starts_from_a_copy_and_matches_a_run_from_scratch(tmp_path):
+    from wmthesis.experiments.planet_boxing_value import _start_from
+
+    model, env = frozen_rssm(), DelayedPunch()
+    config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=2, batch_size=8, lr=0.03, rounds=1,
+                               bouts_per_round=1, validation_bouts=1, test_bouts=1)
+    train_value(model, 5, env, config, tmp_path / "default", seed=0, progress=False)
+    more = dataclasses.replace(config, rounds=2)
+    _start_from(tmp_path / "variant", tmp_path / "default")
+    copied = train_value(model, 5, env, more, tmp_path / "variant", seed=0, progress=False)["curve"]
+    scratch = train_value(model, 5, env, more, tmp_path / "scratch", seed=0, progress=False)["curve"]
+    strip = [{k: v for k, v in c.items() if k != "loss"} for c in scratch]
+    assert len(copied) == 3 and [{k: v for k, v in c.items() if k != "loss"} for c in copied] == strip
+    assert [c["loss"] for c in copied] == pytest.approx([c["loss"] for c in scratch])
+    # once the variant has a checkpoint of its own, the default's is never copied over it
+    before = (tmp_path / "variant" / "value.pt").read_bytes()
+    _start_from(tmp_path / "variant", tmp_path / "default")
+    assert (tmp_path / "variant" / "value.pt").read_bytes() == before

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -22,8 +23,10 @@ from wmthesis.viz import save_figure
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
 # sum of the next rewards (notebook 09); ``td`` bootstraps through the model; ``validation-10``
-# chooses the round on twice the validation bouts.
-VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10)}
+# chooses the round on twice the validation bouts; ``rounds-10`` goes on for twice the rounds
+# (a variant that only adds rounds starts from a copy of the default's bouts and values: the
+# same seeds give the same first rounds).
+VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10), "rounds-10": dict(rounds=10)}
 
 
 def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int, mind_seed: int) -> dict:
@@ -110,6 +113,8 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
     model, planet, _ = load_planet(planet_run)
     config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"], **VALUE_VARIANTS.get(variant, {}))
+    if set(VALUE_VARIANTS.get(variant, {})) == {"rounds"}:
+        _start_from(work, data_dir(profile, "planet-boxing-value", f"seed{seed}"))
     env = make_planet_env(GAME, planet)
     try:
         run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS)
@@ -144,6 +149,18 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1))
     return metrics
+
+
+def _start_from(work: Path, default: Path) -> None:
+    """A variant that only adds rounds starts from a copy of the default run's bouts and values
+    (once: not over a checkpoint of its own); the rounds it shares are the same rounds."""
+    from wmthesis.planet.value import CHECKPOINT, STORE
+
+    if (work / CHECKPOINT).exists() or not (default / CHECKPOINT).exists():
+        return
+    for name in (STORE, CHECKPOINT):  # the checkpoint last: it marks the copy done
+        with atomic_path(work / name) as tmp:
+            shutil.copyfile(default / name, tmp)
 
 
 PLAN_STEPS = {"smoke": 5, "quick": 300, "thesis": 500}  # steps of a bout on which the planners are compared

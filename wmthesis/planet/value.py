@@ -230,7 +230,9 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     check_choice("value target", config.target, TARGETS)
     run_dir = Path(run_dir)
     device = next(model.parameters()).device
-    value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(device)
+    with torch.random.fork_rng(devices=[]):  # the first weights from the seed alone, however the process began
+        torch.manual_seed(int(derive_seeds(seed, 7)[0]))
+        value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(device)
     saved = run_dir / CHECKPOINT
     state = torch.load(saved, map_location=device, weights_only=False) if saved.exists() else {"curve": []}
     if "value" in state:
