@@ -15,7 +15,8 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
   value head; beyond the thesis), with its speed-up over the CEM step; and the CEM whose
   candidates end in that value (:class:`~wmthesis.planet.value_planner.ValuePlanetMind`: the
   same J, K and I, the horizon of the profile's ``ValuePlannerConfig``), with its time over the
-  plain CEM step (``vs_cem``).
+  plain CEM step (``vs_cem``); and the same with both planner levers of issue 31 (the prior's
+  mean imagined, CEM's first step seeded by the value: one more value call per step).
 - The same two at the ``quick`` profile's planner sizes.
 - ``update``: one training step through :func:`~wmthesis.training.gradient_step` (loss, NaN
   guard, backward, clipping, Adam) on 50 chunks of 50 steps of 64x64 frames, with latent
@@ -99,12 +100,16 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
     value_planner = ValuePlanetMind(model, value, horizon=horizon, candidates=cfg.candidates, top_k=cfg.top_k,
                                     iterations=cfg.iterations, bits=cfg.bits,
                                     generator=torch.Generator(dev).manual_seed(seed))
+    levers = ValuePlanetMind(model, value, horizon=horizon, candidates=cfg.candidates, top_k=cfg.top_k,
+                             iterations=cfg.iterations, bits=cfg.bits, imagine="mean", value_prior=1.0,
+                             generator=torch.Generator(dev).manual_seed(seed))
     size = cfg.frame_size
     frame = np.random.default_rng(seed).integers(0, 32, (size, size, 3), dtype=np.uint8) * 8
     with torch.inference_mode():
         seconds = median_seconds({"bare": bare, "cem": lambda: cem_plan(rollout, N_ACTIONS, *sizes, g),
                                   "step": lambda: mind.plan(frame), "value": lambda: value_mind.plan(frame),
-                                  "value_cem": lambda: value_planner.plan(frame)}, repeats)
+                                  "value_cem": lambda: value_planner.plan(frame),
+                                  "value_cem_levers": lambda: levers.plan(frame)}, repeats)
     bare_s, cem_s, step_s, value_s = seconds["bare"], seconds["cem"], seconds["step"], seconds["value"]
     steps = cfg.iterations * cfg.horizon * cfg.candidates
     name = f"H{cfg.horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}"
@@ -116,7 +121,10 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
                  speedup_vs_cem=step_s / value_s),
             dict(what=f"agent step: encode + CEM with terminal value ({label})",
                  sizes=f"H{horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}",
-                 seconds=seconds["value_cem"], vs_cem=seconds["value_cem"] / step_s)]
+                 seconds=seconds["value_cem"], vs_cem=seconds["value_cem"] / step_s),
+            dict(what=f"agent step: CEM with terminal value, the prior's mean, seeded by the value ({label})",
+                 sizes=f"H{horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}",
+                 seconds=seconds["value_cem_levers"], vs_cem=seconds["value_cem_levers"] / step_s)]
 
 
 def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
