@@ -466,6 +466,33 @@ def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, m
     assert row[2] == f"{100 * result['rows']['unfiltered']['solve_rate']:.1f}"
 
 
+def test_a_search_only_lever_searches_the_baselines_run_without_training_another(tmp_path, monkeypatch):
+    import dataclasses
+    import importlib
+
+    experiment = importlib.import_module("wmthesis.experiments.sokoban_search")  # the module, not its function
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    monkeypatch.setitem(experiment.LEVERS, "one-node", dict(budget=1))  # no search can solve in one node
+    baseline = experiment.validate("baseline", "smoke", seed=2, levels=2, progress=False)
+    pixels = experiment.work_folder("smoke", 2) / "pixels"
+    trained = (pixels / "state.pt").stat().st_mtime_ns
+    searched = []
+    real = experiment._run_saved
+    monkeypatch.setattr(experiment, "_run_saved", lambda jobs, progress: searched.extend(jobs.values()) or real(jobs, progress))
+    starved = experiment.validate("one-node", "smoke", seed=2, levels=2, progress=False)
+    # every job loads the baseline's run as it was trained, and searches with one node
+    cfg = experiment.for_profile(experiment.SokobanSearchConfig, "smoke", seed=2, inputs="pixels")
+    assert len(searched) == 4 and all(args[2] == cfg and args[-1] == dataclasses.replace(cfg, budget=1)
+                                      for _, args in searched)
+    assert (pixels / "state.pt").stat().st_mtime_ns == trained  # nothing trained again
+    assert not (experiment.work_folder("smoke", 2) / "lever-one-node").exists()
+    assert sorted(p.name for p in pixels.glob("validation-one-node-*.json")) == [
+        f"validation-one-node-{kind}-2-{part}.json" for kind in ("medium", "unfiltered") for part in range(2)]
+    for row in starved["rows"].values():  # one node a search, each weight, each replan
+        assert row["solve_rate"] == 0 and row["nodes_per_level"] <= len(cfg.weights) * (1 + cfg.replans)
+    assert starved["env_steps"] == baseline["env_steps"] and starved["changes"] == {"budget": 1}
+
+
 # ---------------------------------------------------------------------------- pixels
 
 def test_cell_codes_learned_from_pixels_stand_for_one_cell_type_each_and_decode_exactly():

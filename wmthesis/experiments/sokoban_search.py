@@ -180,7 +180,11 @@ LEVERS = {
     "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
     "more-rounds": dict(rounds=5),
     "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
+    # the search alone, on the baseline's model and value (no training): where do its failures come from?
+    "bigger-budget": dict(budget=40_000),  # twice the nodes for each search
+    "third-weight": dict(weights=(3.0, 1.5, 0.75)),  # one more search, nearer breadth first, after two fail
 }
+SEARCH_FIELDS = ("budget", "batch", "weights", "doubt", "replans")  # a lever of these alone needs no training
 VALIDATION_LEVELS = {"smoke": 2, "quick": 200, "thesis": 1000}  # the first of each validation set
 
 
@@ -196,16 +200,19 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     profile = profile_name(profile)
     levels = VALIDATION_LEVELS[profile] if levels is None else int(levels)
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels", **LEVERS[lever])
-    folder = hold(work_folder(profile, seed) / ("pixels" if lever == "baseline" else f"lever-{lever}"))
-    if not _trained(folder, cfg):
-        train_search_agent(folder, cfg, progress)
-    jobs = {(kind, part): (folder / f"validation-{kind}-{levels}-{part}.json",
-                           (_evaluate_boxoban, folder, cfg, source, levels, part))
+    search_only = set(LEVERS[lever]) <= set(SEARCH_FIELDS)  # the baseline's run, searched otherwise
+    trained = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels") if search_only else cfg
+    folder = hold(work_folder(profile, seed) / ("pixels" if search_only else f"lever-{lever}"))
+    if not _trained(folder, trained):
+        train_search_agent(folder, trained, progress)
+    name = "validation" if lever == "baseline" or not search_only else f"validation-{lever}"
+    jobs = {(kind, part): (folder / f"{name}-{kind}-{levels}-{part}.json",
+                           (_evaluate_boxoban, folder, trained, source, levels, part, False, cfg))
             for kind, source in BOXOBAN_SPLITS["validation"].items() for part in range(EVAL_PARTS)}
     _run_saved(jobs, progress)
     rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
             for kind, source in BOXOBAN_SPLITS["validation"].items()}
-    run = load_run(folder, cfg)
+    run = load_run(folder, trained)
     result = {"lever": lever, "changes": LEVERS[lever], "profile": profile, "seed": seed, "rows": rows,
               "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
     out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
@@ -269,17 +276,19 @@ def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
     return jobs
 
 
-def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, simulator: bool = False) -> dict:
-    """The run in ``folder`` (with the true rules in place of its model if ``simulator``) on
-    part ``part`` (every :data:`EVAL_PARTS`-th) of the first ``count`` levels of a Boxoban
-    source: ``plays``, one record (level, solved, actions, ...) per level."""
+def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, simulator: bool = False,
+                      search=None) -> dict:
+    """The run in ``folder`` (trained with ``cfg``; with the true rules in place of its model if
+    ``simulator``) on part ``part`` (every :data:`EVAL_PARTS`-th) of the first ``count`` levels of
+    a Boxoban source, searching as ``search`` says (a config; ``cfg`` by default): ``plays``, one
+    record (level, solved, actions, ...) per level."""
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.sokoban_search.evaluation import solve_boards
 
     levels = list(range(count))[part::EVAL_PARTS]
     boards = load_levels(source)
-    run = load_run(folder, cfg)
-    agent = run.agent(cfg, Simulator(), GRID) if simulator else run.agent(cfg)
+    run, search = load_run(folder, cfg), cfg if search is None else search
+    agent = run.agent(search, Simulator(), GRID) if simulator else run.agent(search)
     return {"plays": solve_boards(agent, [boards[i] for i in levels], progress=False, levels=levels)}
 
 
