@@ -52,6 +52,35 @@ def test_bad_sweeps_stop_with_one_line_before_anything_starts(argv, message, cap
     assert not (tmp_path / "results").exists() and not (tmp_path / "smoke").exists()
 
 
+def test_a_local_ray_that_misses_its_startup_deadline_is_tried_again_then_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    import ray
+
+    from wmthesis.experiments.sweep import RayStartFailed, start_ray
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    calls, shutdowns = [], []
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "shutdown", lambda: shutdowns.append(1))
+
+    def init(**kwargs):  # as Ray on a busy machine: the first two starts time out
+        calls.append(kwargs)
+        if len(calls) < 3:
+            raise Exception("The current node timed out during startup.")
+
+    monkeypatch.setattr(ray, "init", init)
+    assert start_ray(None, cpus=2, attempts=3, wait_s=0) is True
+    assert len(calls) == 3 and len(shutdowns) == 2 and calls[-1]["num_cpus"] == 2
+    calls.clear()
+    monkeypatch.setattr(ray, "init", lambda **kwargs: calls.append(kwargs) or (_ for _ in ()).throw(Exception("timed out")))
+    with pytest.raises(RayStartFailed, match="did not start in 2 attempts"):
+        start_ray(None, attempts=2, wait_s=0)
+    assert len(calls) == 2
+    monkeypatch.setattr("wmthesis.experiments.sweep.start_ray",
+                        lambda *a, **k: (_ for _ in ()).throw(RayStartFailed("a local Ray did not start")))
+    assert main(["sweep", "boxing-wm", "--seeds", "0", "--profile", "smoke"]) == 1
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "error: a local Ray did not start"
+
+
 def _write_run(folder, experiment, seed, score, profile="quick", **extra):
     path = folder / "results" / experiment / f"{profile}-seed{seed}" / extra.get("variant", "") / "metrics.json"
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -173,7 +173,7 @@ def cmd_sweep(args) -> int:
     matplotlib.use("Agg")
     from wmthesis.config import profile_name
     from wmthesis.experiments.summary import markdown_table, write_summary
-    from wmthesis.experiments.sweep import check_address, parse_runs, parse_seeds, sweep
+    from wmthesis.experiments.sweep import RayStartFailed, check_address, parse_runs, parse_seeds, sweep
 
     runs = parse_runs(args.runs, parse_seeds(args.seeds))
     if args.address is not None:
@@ -186,6 +186,9 @@ def cmd_sweep(args) -> int:
         print("sweep interrupted: the finished runs are kept; run it again to run only what is missing",
               file=sys.stderr)
         return 130
+    except RayStartFailed as error:  # not bad input: the machine was too busy
+        print(f"error: {error}", file=sys.stderr)
+        return 1
     for run, result in outcome.items():
         detail = result.get("error") or result.get("path")
         print(f"  {run}: {result['status']} ({detail})")

@@ -21,6 +21,7 @@ import json
 import os
 import re
 import socket
+import sys
 import time
 from pathlib import Path
 from typing import Callable, NamedTuple
@@ -147,17 +148,34 @@ def check_address(address: str, timeout: float = 5.0) -> None:
         raise ValueError(f"--address {address!r}: no Ray cluster answers there ({error})") from None
 
 
-def start_ray(address: str | None, cpus: int | None = None) -> bool:
+class RayStartFailed(RuntimeError):
+    """A Ray of this machine's own did not start (on a busy machine its processes can miss
+    Ray's startup deadlines)."""
+
+
+def start_ray(address: str | None, cpus: int | None = None, attempts: int = 3, wait_s: float = 10.0) -> bool:
     """Join the cluster at ``address``, or start a Ray of this machine's own (``address`` None,
-    its workers writing to this process's data folder). Returns whether Ray was started here
-    (False: this process had joined one already)."""
+    its workers writing to this process's data folder; ``attempts`` tries ``wait_s`` apart, each
+    failed start shut down before the next). Returns whether Ray was started here (False: this
+    process had joined one already); :class:`RayStartFailed` when no attempt started."""
     import ray
 
     if ray.is_initialized():
         return False
     if address is None:
         os.environ["WMTHESIS_DATA"] = str(data_dir())  # the local workers inherit the environment
-        ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, log_to_driver=False)
+        for attempt in range(1, attempts + 1):
+            try:
+                ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, log_to_driver=False)
+                return True
+            except Exception as error:  # Ray raises a bare Exception when its node misses the startup deadline
+                ray.shutdown()
+                if attempt == attempts:
+                    raise RayStartFailed(f"a local Ray did not start in {attempts} attempts ({error}); on a busy "
+                                         "machine wait for the load to drop and run the sweep again (finished runs "
+                                         "are kept), or run one seed with `reproduce`") from None
+                print(f"a local Ray did not start ({error}); trying again in {wait_s:.0f} s", file=sys.stderr)
+                time.sleep(wait_s)
     else:
         check_address(address)
         try:
@@ -242,4 +260,4 @@ def _collect(ray, ref, run: SweepRun, started: float) -> dict:
 
 
 __all__ = ["SweepRun", "PREREQUISITE", "variants_of", "parse_seeds", "parse_runs", "finished", "check_address",
-           "start_ray", "sweep"]
+           "start_ray", "RayStartFailed", "sweep"]
