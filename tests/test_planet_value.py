@@ -217,19 +217,19 @@ def test_a_td_value_looks_past_its_rewards_where_the_sum_of_three_cannot(tmp_pat
     summed = train_value(model, 5, env, config, tmp_path / "sum", seed=0, progress=False)
     assert td["curve"][0]["returns"][0] >= 15  # walks right at once: 18 of 24 steps on the last cell
     assert summed["curve"][0]["returns"][0] < 5  # stays by the wall for the small reward (2.4 in all)
-    with pytest.raises(ValueError, match="unknown value target 'mc'; valid: reward-sum, td"):
+    with pytest.raises(ValueError, match="unknown value target 'mc'; valid: reward-sum, discounted-sum, td"):
         train_value(model, 5, env, dataclasses.replace(config, target="mc"), tmp_path / "x", seed=0, progress=False)
 
 
 def test_a_variant_that_adds_rounds_starts_from_a_copy_and_matches_a_run_from_scratch(tmp_path):
-    from wmthesis.experiments.planet_boxing_value import _start_from
+    from wmthesis.experiments.planet_value import start_from
 
     model, env = frozen_rssm(), DelayedPunch()
     config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=2, batch_size=8, lr=0.03, rounds=1,
                                bouts_per_round=1, validation_bouts=1, test_bouts=1)
     train_value(model, 5, env, config, tmp_path / "default", seed=0, progress=False)
     more = dataclasses.replace(config, rounds=2)
-    _start_from(tmp_path / "variant", tmp_path / "default")
+    start_from(tmp_path / "variant", tmp_path / "default")
     copied = train_value(model, 5, env, more, tmp_path / "variant", seed=0, progress=False)["curve"]
     scratch = train_value(model, 5, env, more, tmp_path / "scratch", seed=0, progress=False)["curve"]
     strip = [{k: v for k, v in c.items() if k != "loss"} for c in scratch]
@@ -237,5 +237,23 @@ def test_a_variant_that_adds_rounds_starts_from_a_copy_and_matches_a_run_from_sc
     assert [c["loss"] for c in copied] == pytest.approx([c["loss"] for c in scratch])
     # once the variant has a checkpoint of its own, the default's is never copied over it
     before = (tmp_path / "variant" / "value.pt").read_bytes()
-    _start_from(tmp_path / "variant", tmp_path / "default")
+    start_from(tmp_path / "variant", tmp_path / "default")
     assert (tmp_path / "variant" / "value.pt").read_bytes() == before
+
+
+def test_the_discounted_sum_target_discounts_each_reward_and_the_plain_sum_does_not(tmp_path):
+    from wmthesis.planet.value import _dataset
+
+    model, env = frozen_rssm(), DelayedPunch()
+    with EpisodeStore(tmp_path / "episodes.h5", "a", preprocessing="planet", seed=0,
+                      obs_shape=env.observation_space.shape) as store:
+        for index in range(2):
+            store.append_episode(**play_random_episode(env, 0, index))
+        rewards = [store.episode(i)["rewards"] for i in range(2)]
+    assert any(r.sum() > 0 for r in rewards)
+    base = LatentValueConfig(reward_steps=4, discount=0.5)
+    discounted = _dataset(model, tmp_path / "episodes.h5", dataclasses.replace(base, target="discounted-sum"), 5, [])
+    plain = _dataset(model, tmp_path / "episodes.h5", base, 5, [])
+    for r, d, p in zip(rewards, discounted, plain):
+        by_hand = [sum(0.5 ** k * r[t + k] for k in range(4) if t + k < len(r)) for t in range(len(r))]
+        assert np.allclose(d["sums"].numpy(), by_hand) and np.allclose(p["sums"].numpy(), reward_sums(r, 4))

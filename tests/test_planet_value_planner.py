@@ -172,14 +172,14 @@ def test_a_planner_cache_from_before_a_field_was_added_reads_as_its_default(tmp_
     import json
 
     from wmthesis.config import ValuePlannerConfig
-    from wmthesis.experiments.planet_boxing_value import _cached
+    from wmthesis.experiments.planet_value import cached_for
 
     path = tmp_path / "value_planner.json"
     path.write_text(json.dumps({"key": {"round": 2, "planner": {"horizon": 3, "discount": 1.0}}, "scores": {"x": 1}}))
     default = {"round": 2, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3))}
-    assert _cached(path, default)["scores"] == {"x": 1}
-    assert _cached(path, {**default, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, imagine="mean"))}) is None
-    assert _cached(path, {**default, "round": 3}) is None
+    assert cached_for(path, default)["scores"] == {"x": 1}
+    assert cached_for(path, {**default, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, imagine="mean"))}) is None
+    assert cached_for(path, {**default, "round": 3}) is None
 
 
 def test_the_planner_levers_table_is_paired_against_the_first_lever():

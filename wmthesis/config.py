@@ -139,7 +139,9 @@ class LatentValueConfig:
     of their own), ``test_bouts`` greedy bouts score each round. The defaults are the sizes measured on Boxing
     (issue 13, session 14): a punch lands two steps after it is thrown, so three rewards.
 
-    ``target``: ``reward-sum`` (the sum above, the agent of notebook 09) or ``td``: temporal
+    ``target``: ``reward-sum`` (the sum above, the agent of notebook 09), ``discounted-sum`` (each
+    of the ``n`` rewards discounted by ``discount`` per step: a long window for rewards far
+    apart, such as Freeway's crossings) or ``td``: temporal
     differences through the frozen model, ``r_t + ... + discount^(n-1) r_{t+n-1} + discount^n
     max_a Q(h_{t+n}, s_{t+n}, a)``, the bootstrap from the value fitted before (a fitted-Q
     iteration whose target network is the previous fit), refreshed ``td_iterations`` times per

@@ -4,7 +4,9 @@ One module per experiment: :mod:`~wmthesis.experiments.sokoban_world_models` (5.
 :mod:`~wmthesis.experiments.world_models` (Boxing, 5.4.1), :mod:`~wmthesis.experiments.alphazero`
 (5.4.2), :mod:`~wmthesis.experiments.planet` (5.5, 5.6), :mod:`~wmthesis.experiments.planet_boxing`
 (5.6.1-5.6.4 measured: the model study and the agent), :mod:`~wmthesis.experiments.planet_boxing_value`
-(beyond the thesis: a learned value on that model, alone and at the end of CEM's horizon) and
+(beyond the thesis: a learned value on that model, alone and at the end of CEM's horizon; the
+same recipe, :mod:`~wmthesis.experiments.planet_value`, on Freeway in
+:mod:`~wmthesis.experiments.planet_freeway_value`) and
 :mod:`~wmthesis.experiments.sokoban_search` (beyond the thesis: Sokoban solved by search in a
 learned model); :mod:`~wmthesis.experiments.results`
 holds what they share to write their results.
@@ -25,6 +27,7 @@ from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLA
                                          planet_experiment, planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
 from wmthesis.experiments.planet_boxing_value import planet_boxing_value
+from wmthesis.experiments.planet_freeway_value import planet_freeway_value
 from wmthesis.experiments.sokoban_search import SOKOBAN_SEARCH_REFERENCE, sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,
@@ -34,8 +37,9 @@ from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.utils import check_choice, set_threads
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
-               "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "sokoban-search")
-NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent")
+               "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value", "sokoban-search")
+NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent",
+               "planet-freeway-value")
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
@@ -60,6 +64,8 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
         return planet_boxing_agent(profile, seed, progress)
     if name == "planet-boxing-value":
         return planet_boxing_value(profile, seed, progress, variant)
+    if name == "planet-freeway-value":
+        return planet_freeway_value(profile, seed, progress)
     if name == "boxing-wm-alphazero":
         return boxing_wm_alphazero(profile, seed, variant, progress)
     if name in PLANET_GAMES:
@@ -98,5 +104,6 @@ __all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", "SOKOB
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES", "BOXING_REFERENCE",
            "boxing_wm_alphazero", "ALPHAZERO_REFERENCE", "ALPHAZERO_DIAGNOSIS_DEPTH", "RECORDING_STEPS",
            "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "planet_boxing_value",
+           "planet_freeway_value",
            "PLANET_GAMES", "PLANET_REFERENCE", "ATARI_CHANGES",
            "SOKOBAN_CHANGES", "PLANET_EVAL_EPISODES", "PLANET_OPEN_LOOP"]

@@ -8,17 +8,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 import time
-from pathlib import Path
 
 import numpy as np
 
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE
-from wmthesis.experiments.planet_boxing import AGENT, FIRST_STEPS, GAME, _score_cell, planet_boxing_agent
-from wmthesis.experiments.results import _read_json, _run_header
-from wmthesis.utils import atomic_path, check_choice, data_dir, hold, parallel_calls, releasing_holds
+from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
+from wmthesis.experiments.planet_value import (cached_for, fit_and_compare, start_from,  # noqa: F401 (value_planner_bout:
+                                               value_planner_bout, value_planner_scores)  # jobs pickled by name)
+from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
 from wmthesis.viz import save_figure
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
@@ -27,59 +26,6 @@ from wmthesis.viz import save_figure
 # (a variant that only adds rounds starts from a copy of the default's bouts and values: the
 # same seeds give the same first rounds).
 VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10), "rounds-10": dict(rounds=10)}
-
-
-def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int, mind_seed: int) -> dict:
-    """One full bout of CEM with the chosen value at its end
-    (:func:`~wmthesis.planet.value_planner.play_value_planner`) on the PlaNet agent's frozen
-    model: its ``return``, the return of its first :data:`FIRST_STEPS` steps and its ``steps``."""
-    from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import load_value
-    from wmthesis.planet.value_planner import play_value_planner
-
-    model, planet, _ = load_planet(planet_run)
-    env = make_planet_env(GAME, planet)
-    try:
-        rewards = play_value_planner(env, model, load_value(value_run, model), planet, planner, env_seed, mind_seed)
-    finally:
-        env.close()
-    return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
-
-
-def _value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool,
-                          cache: Path | None = None) -> dict:
-    """The planner with value over ``bouts`` (the evaluation bouts by default): full-bout and
-    first-500-step scores, cached in ``cache`` (``value_run/value_planner.json`` by default) for
-    the chosen round ``best``, the planner's config and the bouts."""
-    from wmthesis.metrics import score_summary
-
-    key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
-    cache = value_run / "value_planner.json" if cache is None else cache
-    cached = _cached(cache, key)
-    if cached is not None:
-        return cached["scores"]
-    plays = parallel_calls([(value_planner_bout, planet_run, value_run, planner, *bout) for bout in bouts], progress)
-    scores = {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
-              "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
-              "config": dataclasses.asdict(planner)}
-    with atomic_path(cache) as tmp:
-        tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
-    return scores
-
-
-def _cached(path: Path, key: dict) -> dict | None:
-    """The JSON cache at ``path`` if it was written for ``key`` (a planner config saved before a
-    field was added reads as that field's default: what it did), else None."""
-    from wmthesis.config import ValuePlannerConfig
-    from wmthesis.training import with_added_defaults
-
-    cached = _read_json(path)
-    if cached is None or not isinstance(cached.get("key"), dict):
-        return None
-    saved = dict(cached["key"])
-    if isinstance(saved.get("planner"), dict):
-        saved["planner"] = with_added_defaults(ValuePlannerConfig, saved["planner"])
-    return cached if saved == key else None
 
 
 @releasing_holds
@@ -98,10 +44,6 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     its own, on the same model and bouts (a ``td`` value is discounted in the planner as in its
     targets)."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
-    from wmthesis.metrics import score_difference, score_summary
-    from wmthesis.planet.figures import learning_curve_figure
-    from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import train_value
 
     if variant is not None:
         check_choice("planet-boxing-value variant", variant, tuple(VALUE_VARIANTS))
@@ -111,56 +53,15 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = hold(data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}"))
     out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
-    model, planet, _ = load_planet(planet_run)
     config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"], **VALUE_VARIANTS.get(variant, {}))
     if set(VALUE_VARIANTS.get(variant, {})) == {"rounds"}:
-        _start_from(work, data_dir(profile, "planet-boxing-value", f"seed{seed}"))
-    env = make_planet_env(GAME, planet)
-    try:
-        run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS)
-    finally:
-        env.close()
-    chosen = run["curve"][run["best_round"]]
-    returns = chosen["returns"]
-    discount = {"discount": config.discount} if config.target == "td" else {}
-    planner = _value_planner_scores(planet_run, work, for_profile(ValuePlannerConfig, profile, **discount), agent["bouts"],
-                                    run["best_round"], progress)
-    references = {"random play": agent["random"]["full"]["mean"], "PlaNet (CEM)": agent["agent"]["full"]["mean"],
-                  f"CEM, H{planner['config']['horizon']}, with the value at its end": planner["full"]["mean"],
-                  "human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
-    figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
-                                               references=references, x="episodes",
-                                               title="Boxing: the value agent after each round"),
-                         out / "value_curve.png")
-    value = score_summary(returns)
-    metrics = {**_run_header("planet-boxing-value", profile, seed, time.time() - started, env=GAME,
-                             **({} if variant is None else {"variant": variant})),
-               "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} bouts "
-                           f"(the value of round {chosen['round']}, chosen on {len(chosen['validation'])} validation bouts) "
-                           f"(random play {agent['random']['full']['mean']:.1f}, PlaNet's CEM "
-                           f"{agent['agent']['full']['mean']:.1f})",
-               "value": value, "returns": returns, "random": agent["random"]["full"],
-               **({"value_first": score_summary(chosen["first_returns"])} if "first_returns" in chosen else {}),
-               "difference": score_difference(returns, agent["random"]["returns"]), "planet": agent["agent"]["full"],
-               "value_planner": planner,
-               "bouts": agent["bouts"], "curve": run["curve"], "best_round": run["best_round"],
-               "config": dataclasses.asdict(config),
-               "files": {"figures": [str(figure)]}}
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1))
-    return metrics
-
-
-def _start_from(work: Path, default: Path) -> None:
-    """A variant that only adds rounds starts from a copy of the default run's bouts and values
-    (once: not over a checkpoint of its own); the rounds it shares are the same rounds."""
-    from wmthesis.planet.value import CHECKPOINT, STORE
-
-    if (work / CHECKPOINT).exists() or not (default / CHECKPOINT).exists():
-        return
-    for name in (STORE, CHECKPOINT):  # the checkpoint last: it marks the copy done
-        with atomic_path(work / name) as tmp:
-            shutil.copyfile(default / name, tmp)
+        start_from(work, data_dir(profile, "planet-boxing-value", f"seed{seed}"))
+    discount = {"discount": config.discount} if config.target != "reward-sum" else {}
+    planner = for_profile(ValuePlannerConfig, profile, **discount)
+    references = {"human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
+    return fit_and_compare("planet-boxing-value", GAME, planet_run, work, out, config, planner,
+                           {"random": agent["random"], "planet": agent["agent"]}, agent["bouts"], profile=profile,
+                           seed=seed, progress=progress, references=references, variant=variant, started=started)
 
 
 PLAN_STEPS = {"smoke": 5, "quick": 300, "thesis": 500}  # steps of a bout on which the planners are compared
@@ -192,7 +93,7 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
         bout = store.episode(-1)
     frames, taken = bout["observations"][:steps], bout["actions"][:steps]
     key = {"round": metrics["best_round"], "steps": len(taken), "planner": dataclasses.asdict(planner)}
-    cached = _cached(work / "plan_choices.json", key)
+    cached = cached_for(work / "plan_choices.json", key)
     if cached is None:
         choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
         cached = {"key": key, "choices": {name: c.tolist() for name, c in choices.items()}}
@@ -251,8 +152,8 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     for lever in levers:
         planner = for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever])
         folder = data_dir(profile, "planet-boxing-value", f"seed{seed}", "planner-validation", _slug(lever))
-        results[lever] = _value_planner_scores(planet_run, work, planner, validation, metrics["best_round"], progress,
-                                               cache=folder / "scores.json")
+        results[lever] = value_planner_scores(planet_run, work, planner, validation, metrics["best_round"], progress,
+                                              cache=folder / "scores.json")
     return results
 
 

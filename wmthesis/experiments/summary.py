@@ -31,6 +31,11 @@ _BOXING = [("random", 0.1, "iris results/data/RANDOM.json"), ("human", 12.1, "ir
 _ATARI_100K_BOXING = [("SimPLe (Atari 100k)", 7.8, "iris results/data/SIMPLE.json"),
                       ("IRIS (Atari 100k)", 70.1, "eloialonso/iris results/data/IRIS.json"),
                       ("DreamerV3 (Atari 100k)", 78.0, "danijar/dreamerv3 scores")]
+_FREEWAY = [("random", 0.0, "iris results/data/RANDOM.json"), ("human", 29.6, "iris results/data/HUMAN.json"),
+            ("thesis PlaNet", 0.0, "thesis 5.6.5"), ("SimPLe (Atari 100k)", 16.7, "iris results/data/SIMPLE.json"),
+            ("IRIS (Atari 100k)", 31.1, "eloialonso/iris results/data/IRIS.json"),
+            ("DIAMOND (Atari 100k)", 33.3, "eloialonso/diamond results/data/DIAMOND.json"),
+            ("DreamerV3 (Atari 100k)", 0.0, "danijar/dreamerv3 scores")]
 # Experiment -> the published numbers shown beside its rows: (name, value or words, source).
 PUBLISHED = {
     "boxing-wm": [*_BOXING, ("thesis World Models", "above 18 on average across 5 runs", "thesis 5.4.1")],
@@ -39,12 +44,8 @@ PUBLISHED = {
     "planet-boxing": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
     "planet-boxing-agent": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
     "planet-boxing-value": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
-    "planet-freeway": [("random", 0.0, "iris results/data/RANDOM.json"), ("human", 29.6, "iris results/data/HUMAN.json"),
-                       ("thesis PlaNet", 0.0, "thesis 5.6.5"),
-                       ("SimPLe (Atari 100k)", 16.7, "iris results/data/SIMPLE.json"),
-                       ("IRIS (Atari 100k)", 31.1, "eloialonso/iris results/data/IRIS.json"),
-                       ("DIAMOND (Atari 100k)", 33.3, "eloialonso/diamond results/data/DIAMOND.json"),
-                       ("DreamerV3 (Atari 100k)", 0.0, "danijar/dreamerv3 scores")],
+    "planet-freeway": _FREEWAY,
+    "planet-freeway-value": _FREEWAY,
     "sokoban-search": [("thesis", "0 levels solved", "thesis 5.3"),
                        ("DRC(3,3), 2e9 steps, Boxoban unfiltered test", 99.3,
                         "AlignmentResearch/learned-planner plot/data/drc33_*_success_across_thinking_steps.csv"),
@@ -55,6 +56,7 @@ PUBLISHED = {
 # Experiment -> what its headline score is.
 MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels (generated; boxoban-*: Boxoban valid 005-009)",
            "planet-boxing-value": "full-bout score, the value's chosen round",
+           "planet-freeway-value": "full-episode score, the value's chosen round",
            "planet-boxing-agent": "full-bout score, CEM planner"}
 DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
 
@@ -80,7 +82,7 @@ def run_scores(metrics: dict) -> dict[str | None, float]:
         return {v: float(metrics["scores"][f"AlphaZero {v}"]["mean"]) for v in metrics["variants"]}
     if name == "planet-boxing-study":
         return {}
-    if name == "planet-boxing-value":  # the value agent; and CEM with the value at its end, where measured
+    if name in ("planet-boxing-value", "planet-freeway-value"):  # the value; and CEM with it at its end, where measured
         planner, variant = metrics.get("value_planner"), metrics.get("variant")
         return {variant: float(metrics["value"]["mean"]),
                 **({"cem-with-value" if variant is None else f"{variant}, cem-with-value": float(planner["full"]["mean"])}

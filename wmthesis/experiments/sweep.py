@@ -33,7 +33,8 @@ from wmthesis.experiments.summary import run_scores
 from wmthesis.utils import atomic_path, check_choice, data_dir
 
 # Experiment -> the experiment whose artifacts it reuses for the same seed (run first).
-PREREQUISITE = {"boxing-wm-alphazero": "boxing-wm", "planet-boxing-value": "planet-boxing-agent"}
+PREREQUISITE = {"boxing-wm-alphazero": "boxing-wm", "planet-boxing-value": "planet-boxing-agent",
+                "planet-freeway-value": "planet-freeway"}
 
 
 class SweepRun(NamedTuple):

@@ -9,6 +9,9 @@ over the next few steps:
     Q(h_t, s_t, a) = value(h_{t+1}, mean of p(s_{t+1} | h_{t+1})),   h_{t+1} = f(h_t, s_t, a)
     target: r_t + r_{t+1} + ... + r_{t+n-1}   (n = ``reward_steps``, within the episode)
 
+(or each reward discounted, ``gamma^k r_{t+k}``: the ``discounted-sum`` target, for games whose
+rewards lie far apart, such as Freeway's crossings; or temporal differences, ``td``)
+
 where ``r_t`` is the reward of taking ``a_t``. The features are the one-step prior of the
 planner's first imagined step, so the action enters through the RSSM's own transition. The
 agent (:class:`ValueMind`) filters ``(h_t, s_t)`` with the posterior mean and takes the argmax
@@ -39,7 +42,7 @@ from wmthesis.training import gradient_step, with_added_defaults
 from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint
 
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
-TARGETS = ("reward-sum", "td")
+TARGETS = ("reward-sum", "discounted-sum", "td")
 
 
 def reward_sums(rewards: np.ndarray, steps: int, discount: float = 1.0) -> np.ndarray:
@@ -156,7 +159,7 @@ def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int, cach
     ``td``) reward sums ``sums`` (T,), and each step's ``beliefs`` (T, H) and ``states`` (T, S)
     for the bootstrap. ``cache`` holds the episodes already read (the model is frozen), so each
     round computes only its new bouts."""
-    discount = config.discount if config.target == "td" else 1.0
+    discount = config.discount if config.target in ("td", "discounted-sum") else 1.0
     with EpisodeStore(path, "r") as store:
         for index in range(len(cache), len(store)):
             episode = store.episode(index)
@@ -172,7 +175,7 @@ def _fit_round(value: LatentValue, model: RSSM, episodes: list[dict], config: La
     targets bootstrapped from the value as it stands (nothing to bootstrap from before its first
     fit, ``fitted`` False). Returns the last fit's loss."""
     features = torch.cat([e["features"] for e in episodes])
-    if config.target == "reward-sum":
+    if config.target != "td":  # the (discounted) sums themselves
         return fit_value(value, features, torch.cat([e["sums"] for e in episodes]), config, seed)
     share = dataclasses.replace(config, fit_updates=max(1, config.fit_updates // config.td_iterations))
     loss = 0.0

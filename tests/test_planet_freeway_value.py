@@ -1,0 +1,36 @@
+"""Issue 31 on Freeway: the value starts from the PlaNet agent's own episodes, fits the
+discounted sum of a long window of rewards, and is compared with the thesis's CEM and random
+play on the same episodes; a re-run computes nothing again."""
+import numpy as np
+import pytest
+
+from wmthesis.data import EpisodeStore
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
+
+
+def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_episodes(tmp_path, monkeypatch):
+    from wmthesis.experiments import reproduce
+    from wmthesis.experiments.planet_freeway_value import EPISODES, FREEWAY_VALUE
+    from wmthesis.experiments.summary import run_scores
+    from wmthesis.planet.value import evaluation_seeds
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    metrics = reproduce("planet-freeway-value", "smoke", 0, progress=False)
+    planet_run, work = tmp_path / "smoke" / "planet-freeway" / "freeway-tuned-seed0", tmp_path / "smoke" / "planet-freeway-value" / "seed0"
+    with EpisodeStore(planet_run / "episodes.h5") as planet, EpisodeStore(work / "episodes.h5") as value:
+        first = len(planet)
+        assert len(value) == first + metrics["curve"][-1]["episodes"]  # the agent's episodes, then its own
+        for i in (0, first - 1):
+            assert np.array_equal(planet.episode(i)["actions"], value.episode(i)["actions"])
+    config = metrics["config"]
+    assert config["random_bouts"] == first and {k: config[k] for k in FREEWAY_VALUE} == FREEWAY_VALUE
+    assert metrics["value_planner"]["config"]["discount"] == FREEWAY_VALUE["discount"]  # discounted as its targets
+    bouts = [list(evaluation_seeds(0, k)) for k in range(EPISODES["smoke"])]
+    assert metrics["bouts"] == bouts and len(metrics["value_planner"]["returns"]) == len(bouts)
+    assert metrics["random"]["episodes"] == metrics["planet"]["episodes"] == len(bouts)
+    assert set(run_scores(metrics)) == {None, "cem-with-value"}
+    cached = {p.name: p.stat().st_mtime_ns for p in work.glob("*.json")}
+    again = reproduce("planet-freeway-value", "smoke", 0, progress=False)  # resumes: nothing played again
+    assert {p.name: p.stat().st_mtime_ns for p in work.glob("*.json")} == cached
+    assert again["value_planner"] == metrics["value_planner"] and again["curve"] == metrics["curve"]

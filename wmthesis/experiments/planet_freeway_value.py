@@ -1,0 +1,82 @@
+"""Beyond the thesis on PlaNet's Freeway model (issue 31): the model of ``planet-freeway`` in its
+tuned variant (:func:`~wmthesis.experiments.planet.planet_experiment`, thesis 5.6.5-5.6.6)
+frozen, a latent action value fitted on it, and CEM with that value at the end of its horizon,
+beside the thesis's CEM and random play on the same 10 evaluation episodes
+(:func:`~wmthesis.experiments.planet_value.fit_and_compare`).
+
+Freeway pays one point per crossing, about 90 agent steps apart, and random play hardly ever
+crosses. So the value differs from Boxing's in two ways (:data:`FREEWAY_VALUE`): its target is
+the discounted sum of the next 150 rewards (``discounted-sum``: a crossing 90 steps ahead still
+counts 0.97^90 = 0.06 of a point), and its first data are the PlaNet agent's own episodes (its
+seed episodes and the bouts it collected), copied from the PlaNet run, not random play.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from wmthesis.config import profile_name
+from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
+from wmthesis.experiments.planet_boxing import play_bout
+from wmthesis.experiments.planet_value import fit_and_compare, start_from
+from wmthesis.experiments.results import _read_json
+from wmthesis.utils import atomic_path, data_dir, hold, parallel_calls, releasing_holds
+
+GAME, VARIANT = "freeway", "freeway-tuned"
+FREEWAY_VALUE = dict(target="discounted-sum", reward_steps=150, discount=0.97)
+EPISODES = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation episodes
+
+
+def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -> dict:
+    """The thesis's CEM (the model of ``planet_run``) and random play on the same ``bouts``:
+    ``planet`` and ``random``, each ``full`` and ``first``-500-step scores with their returns;
+    cached in ``work/baselines.json`` for the bouts."""
+    from wmthesis.metrics import score_summary
+    from wmthesis.planet.train import load_planet
+
+    key = {"bouts": [list(b) for b in bouts], "planet_run": str(planet_run)}
+    cached = _read_json(work / "baselines.json")
+    if cached is not None and cached.get("key") == key:
+        return cached["scores"]
+    _, config, _ = load_planet(planet_run)
+    plays = parallel_calls([(play_bout, GAME, config, who, *bout) for who in (planet_run, None) for bout in bouts],
+                           progress)
+    scores = {name: {"full": score_summary([p["return"] for p in part]), "first": score_summary([p["first"] for p in part]),
+                     "returns": [p["return"] for p in part], "first_returns": [p["first"] for p in part]}
+              for name, part in (("planet", plays[:len(bouts)]), ("random", plays[len(bouts):]))}
+    with atomic_path(work / "baselines.json") as tmp:
+        tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
+    return scores
+
+
+@releasing_holds
+def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+    """PlaNet's Freeway agent (``planet-freeway``, ``freeway-tuned``, trained first if need be)
+    frozen; a value fitted on its episodes, then rounds of its own (:data:`FREEWAY_VALUE`); the
+    value alone, CEM with the value and the thesis's CEM on :data:`EPISODES` evaluation episodes
+    beside random play. Returns the metrics of
+    :func:`~wmthesis.experiments.planet_value.fit_and_compare`."""
+    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
+    from wmthesis.data import EpisodeStore
+    from wmthesis.planet.value import STORE, evaluation_seeds
+
+    profile = profile_name(profile)
+    started = time.time()
+    planet_experiment("planet-freeway", profile, seed, VARIANT, progress)
+    planet_run = data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}")
+    work = hold(data_dir(profile, "planet-freeway-value", f"seed{seed}"))
+    out = data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}")
+    start_from(work, planet_run, (STORE,))  # the agent's own episodes are the value's first data
+    with EpisodeStore(planet_run / STORE) as store:  # a finished run's store: it holds no more
+        first = len(store)
+    config = for_profile(LatentValueConfig, profile, test_bouts=EPISODES[profile], random_bouts=first, **FREEWAY_VALUE)
+    bouts = [evaluation_seeds(seed, k) for k in range(EPISODES[profile])]
+    baselines = baseline_scores(planet_run, bouts, work, progress)
+    planner = for_profile(ValuePlannerConfig, profile, discount=config.discount)
+    references = {"human": PLANET_REFERENCE["planet-freeway"]["human"]}
+    return fit_and_compare("planet-freeway-value", GAME, planet_run, work, out, config, planner, baselines, bouts,
+                           profile=profile, seed=seed, progress=progress, references=references, started=started)
+
+
+__all__ = ["planet_freeway_value", "baseline_scores", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]

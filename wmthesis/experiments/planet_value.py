@@ -1,0 +1,139 @@
+"""Beyond the thesis (issue 31), for any PlaNet game: a learned value on a frozen PlaNet model
+(:mod:`~wmthesis.planet.value`), alone and at the end of CEM's horizon
+(:mod:`~wmthesis.planet.value_planner`), beside the thesis's CEM and random play on the same
+evaluation bouts. :mod:`~wmthesis.experiments.planet_boxing_value` (Boxing) and
+:mod:`~wmthesis.experiments.planet_freeway_value` (Freeway) are this recipe with their model,
+value and bouts.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import time
+from pathlib import Path
+
+from wmthesis.experiments.planet_boxing import FIRST_STEPS
+from wmthesis.experiments.results import _read_json, _run_header
+from wmthesis.utils import atomic_path, parallel_calls
+from wmthesis.viz import save_figure
+
+
+def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int, mind_seed: int,
+                       game: str = "boxing") -> dict:
+    """One full episode of ``game``, CEM with the chosen value at its end
+    (:func:`~wmthesis.planet.value_planner.play_value_planner`) on the frozen model of
+    ``planet_run``: its ``return``, the return of its first :data:`FIRST_STEPS` steps and its
+    ``steps``."""
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import load_value
+    from wmthesis.planet.value_planner import play_value_planner
+
+    model, planet, _ = load_planet(planet_run)
+    env = make_planet_env(game, planet)
+    try:
+        rewards = play_value_planner(env, model, load_value(value_run, model), planet, planner, env_seed, mind_seed)
+    finally:
+        env.close()
+    return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
+
+
+def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool,
+                         cache: Path | None = None, game: str = "boxing") -> dict:
+    """The planner with value over ``bouts`` ((env, mind) seeds): full-episode and
+    first-500-step scores, cached in ``cache`` (``value_run/value_planner.json`` by default)
+    for the chosen round ``best``, the planner's config and the bouts."""
+    from wmthesis.metrics import score_summary
+
+    key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
+    cache = value_run / "value_planner.json" if cache is None else cache
+    cached = cached_for(cache, key)
+    if cached is not None:
+        return cached["scores"]
+    plays = parallel_calls([(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts], progress)
+    scores = {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
+              "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
+              "config": dataclasses.asdict(planner)}
+    with atomic_path(cache) as tmp:
+        tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
+    return scores
+
+
+def cached_for(path: Path, key: dict) -> dict | None:
+    """The JSON cache at ``path`` if it was written for ``key`` (a planner config saved before a
+    field was added reads as that field's default: what it did), else None."""
+    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.training import with_added_defaults
+
+    cached = _read_json(path)
+    if cached is None or not isinstance(cached.get("key"), dict):
+        return None
+    saved = dict(cached["key"])
+    if isinstance(saved.get("planner"), dict):
+        saved["planner"] = with_added_defaults(ValuePlannerConfig, saved["planner"])
+    return cached if saved == key else None
+
+
+def start_from(work: Path, default: Path, names: tuple[str, ...] | None = None) -> None:
+    """Start a value run in ``work`` from a copy of files of ``default`` (by default a value
+    run's bouts and values: a variant that only adds rounds; the rounds it shares are the same
+    rounds), once: never over a checkpoint of its own. The last name marks the copy done."""
+    from wmthesis.planet.value import CHECKPOINT, STORE
+
+    names = (STORE, CHECKPOINT) if names is None else names
+    if (work / names[-1]).exists() or not (default / names[-1]).exists():
+        return
+    for name in names:
+        with atomic_path(work / name) as tmp:
+            shutil.copyfile(default / name, tmp)
+
+
+def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, out: Path, config, planner,
+                    baselines: dict, bouts: list, *, profile: str, seed: int, progress: bool,
+                    references: dict, variant: str | None = None, started: float | None = None) -> dict:
+    """Fit the value (``config``, :func:`~wmthesis.planet.value.train_value`) on the frozen
+    model of ``planet_run`` in ``work``; play CEM with the chosen value at its end (``planner``)
+    on the evaluation ``bouts``; write and return ``out/metrics.json``: ``value`` (the chosen
+    round's evaluation bouts) and ``value_first`` (their first 500 steps), ``random`` and
+    ``planet`` (``baselines``' full-episode scores on the same bouts), ``difference`` (value -
+    random), ``value_planner``, the ``curve`` of rounds and its figure (with ``references``)."""
+    from wmthesis.metrics import score_difference, score_summary
+    from wmthesis.planet.figures import learning_curve_figure
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import train_value
+
+    started = time.time() if started is None else started
+    model, planet, _ = load_planet(planet_run)
+    env = make_planet_env(game, planet)
+    try:
+        run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS)
+    finally:
+        env.close()
+    chosen = run["curve"][run["best_round"]]
+    returns = chosen["returns"]
+    scores = value_planner_scores(planet_run, work, planner, bouts, run["best_round"], progress, game=game)
+    lines = {"random play": baselines["random"]["full"]["mean"], "PlaNet (CEM)": baselines["planet"]["full"]["mean"],
+             f"CEM, H{planner.horizon}, with the value at its end": scores["full"]["mean"], **references}
+    figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
+                                               references=lines, x="episodes",
+                                               title=f"{game.capitalize()}: the value agent after each round"),
+                         out / "value_curve.png")
+    value, unit = score_summary(returns), "bouts" if game == "boxing" else "episodes"
+    metrics = {**_run_header(experiment, profile, seed, time.time() - started, env=game,
+                             **({} if variant is None else {"variant": variant})),
+               "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} {unit} "
+                           f"(the value of round {chosen['round']}, chosen on {len(chosen['validation'])} validation "
+                           f"{unit}) (random play {baselines['random']['full']['mean']:.1f}, PlaNet's CEM "
+                           f"{baselines['planet']['full']['mean']:.1f})",
+               "value": value, "returns": returns, "random": baselines["random"]["full"],
+               **({"value_first": score_summary(chosen["first_returns"])} if "first_returns" in chosen else {}),
+               "difference": score_difference(returns, baselines["random"]["returns"]),
+               "planet": baselines["planet"]["full"], "value_planner": scores,
+               "bouts": [list(b) for b in bouts], "curve": run["curve"], "best_round": run["best_round"],
+               "config": dataclasses.asdict(config), "files": {"figures": [str(figure)]}}
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1))
+    return metrics
+
+
+__all__ = ["value_planner_bout", "value_planner_scores", "cached_for", "start_from", "fit_and_compare"]
