@@ -15,8 +15,7 @@ import numpy as np
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
-from wmthesis.experiments.planet_value import (cached_for, fit_and_compare, start_from,  # noqa: F401 (value_planner_bout:
-                                               value_planner_bout, value_planner_scores)  # jobs pickled by name)
+from wmthesis.experiments.planet_value import cached_for, fit_and_compare, start_from, value_planner_scores
 from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
 from wmthesis.viz import save_figure
 
@@ -215,5 +214,5 @@ def value_table(metrics: dict) -> str:
         f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
 
 
-__all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "value_planner_bout", "planner_rows", "value_table",
+__all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",
            "VALUE_VARIANTS", "PLAN_STEPS"]
