@@ -244,7 +244,7 @@ def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None) -> l
             on_done(index, results[-1])
         return results
     context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=set_threads,
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=worker_init,
                                                 initargs=(1,)) as executor:
         futures = {executor.submit(fn, *args): index for index, (fn, *args) in enumerate(calls)}
         for future in tqdm(concurrent.futures.as_completed(futures), total=len(futures), desc="runs",
@@ -254,5 +254,18 @@ def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None) -> l
 
 
 def set_threads(threads: int) -> None:
-    """torch's intra-op threads in this process (a pool's initializer)."""
+    """torch's intra-op threads in this process."""
     torch.set_num_threads(threads)
+
+
+def worker_init(threads: int) -> None:
+    """A pool worker's initializer: ``threads`` torch threads, and (on Linux) an end with its
+    parent: a driver killed by a signal leaves no orphan workers computing on."""
+    set_threads(threads)
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # 1: PR_SET_PDEATHSIG
+        if os.getppid() == 1:  # the parent died before the call above
+            os._exit(1)

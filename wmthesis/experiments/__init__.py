@@ -34,7 +34,7 @@ from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOB
                                                        sokoban_wm_configs, sokoban_world_models)
 from wmthesis.experiments.world_models import BOXING_REFERENCE, DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
-from wmthesis.utils import check_choice, set_threads
+from wmthesis.utils import check_choice, worker_init
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
                "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value", "sokoban-search")
@@ -92,7 +92,7 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
         return {run: reproduce(run[0], profile, seed, variant=run[1], progress=False) for run in runs}
     threads = max(1, (os.cpu_count() or 1) // workers)
     with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                                initializer=set_threads, initargs=(threads,)) as executor:
+                                                initializer=worker_init, initargs=(threads,)) as executor:
         futures = {run: executor.submit(reproduce, run[0], profile, seed, variant=run[1], progress=False)
                    for run in runs}
         return {run: future.result() for run, future in futures.items()}
