@@ -68,13 +68,18 @@ def best_values(model: RSSM, value: nn.Module, beliefs: torch.Tensor, states: to
                 chunk: int = 4096) -> torch.Tensor:
     """``max_a Q(h, s, a)`` (T,) of beliefs (T, H) and states (T, S), every action through the
     model's transition (:func:`after_action`), ``chunk`` beliefs at a time."""
-    count, out = model.n_actions, []
+    return torch.cat([action_values(model, value, beliefs[start:start + chunk], states[start:start + chunk]).amax(-1)
+                      for start in range(0, len(beliefs), chunk)])
+
+
+def action_values(model: RSSM, value: nn.Module, beliefs: torch.Tensor, states: torch.Tensor) -> torch.Tensor:
+    """Q of every action (T, A) from beliefs (T, H) and states (T, S), each action through the
+    model's transition (:func:`after_action`)."""
+    count = model.n_actions
     every = torch.arange(count, device=beliefs.device)
-    for start in range(0, len(beliefs), chunk):
-        h, s = beliefs[start:start + chunk], states[start:start + chunk]
-        features = after_action(model, h.repeat_interleave(count, 0), s.repeat_interleave(count, 0), every.repeat(len(h)))
-        out.append(value(features).reshape(len(h), count).amax(-1))
-    return torch.cat(out)
+    features = after_action(model, beliefs.repeat_interleave(count, 0), states.repeat_interleave(count, 0),
+                            every.repeat(len(beliefs)))
+    return value(features).reshape(len(beliefs), count)
 
 
 def after_action(model: RSSM, belief: torch.Tensor, state: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
@@ -125,14 +130,11 @@ class ValueMind(BeliefFilter):
     def __init__(self, model: RSSM, value: LatentValue, bits: int = 5, seed: int = 0):
         super().__init__(model, bits, torch.Generator(next(model.parameters()).device).manual_seed(int(seed)))
         self.value = value
-        self.actions = torch.arange(model.n_actions, device=self.generator.device)
 
     @torch.inference_mode()
     def plan(self, frame: np.ndarray, train_mode: bool = True, debug_mode: bool = False) -> np.ndarray:
         self.observe(frame, sample=False)
-        count = self.model.n_actions
-        features = after_action(self.model, self.belief.expand(count, -1), self.state.expand(count, -1), self.actions)
-        return self.value(features).cpu().numpy()
+        return action_values(self.model, self.value, self.belief, self.state)[0].cpu().numpy()
 
 
 def fit_value(value: LatentValue, features: torch.Tensor, targets: torch.Tensor,
@@ -310,4 +312,4 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
 
 
 __all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
-           "reward_sums", "td_targets", "best_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value"]
+           "reward_sums", "td_targets", "best_values", "action_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value"]

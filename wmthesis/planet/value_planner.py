@@ -32,7 +32,7 @@ from wmthesis.data import EpisodeBuffer
 from wmthesis.planet.cem import cem_belief
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.train import BeliefFilter, PlanetMind
-from wmthesis.planet.value import LatentValue, after_action
+from wmthesis.planet.value import LatentValue, action_values
 
 
 IMAGINE = ("sample", "mean")
@@ -61,8 +61,7 @@ def value_scores(model: RSSM, value: LatentValue, belief: torch.Tensor, state: t
                  scale: float, horizon: int) -> torch.Tensor:
     """CEM's first mean (H, A) seeded by the value: the first row ``scale`` times the z-scores
     of Q(h, s, a) over the A actions from ``belief`` (1, B) and ``state`` (1, S); the later rows zero."""
-    every = torch.arange(model.n_actions, device=belief.device)
-    q = value(after_action(model, belief.expand(model.n_actions, -1), state.expand(model.n_actions, -1), every))
+    q = action_values(model, value, belief, state)[0]
     mean = q.new_zeros(horizon, model.n_actions)
     mean[0] = scale * (q - q.mean()) / q.std().clamp_min(1e-6)
     return mean
@@ -126,7 +125,6 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
     generator = torch.Generator(next(model.parameters()).device).manual_seed(int(seed))
     track = BeliefFilter(model, planet.bits, generator)
     sizes = dict(candidates=planet.candidates, top_k=planet.top_k, iterations=planet.iterations, generator=generator)
-    every = torch.arange(model.n_actions, device=generator.device)
     chosen = {name: [] for name in PLANNERS}
     for frame, action in zip(frames, actions):
         track.observe(frame, sample=False)
@@ -136,7 +134,7 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
         first = value_scores(model, value, belief, state, planner.value_prior, planner.horizon) if planner.value_prior else None
         ours = cem_belief(lambda a: value_returns(model, value, belief, state, a, generator, planner.discount,
                                                   planner.imagine), model.n_actions, planner.horizon, mean=first, **sizes)
-        q = value(after_action(model, belief.expand(model.n_actions, -1), state.expand(model.n_actions, -1), every))
+        q = action_values(model, value, belief, state)[0]
         for name, pick in zip(PLANNERS, (thesis.mean[0].argmax(), ours.mean[0].argmax(), q.argmax())):
             chosen[name].append(int(pick))
         track.prev_action = F.one_hot(torch.tensor([int(action)], device=belief.device), model.n_actions).float()
