@@ -13,6 +13,7 @@ import pytest
 
 from wmthesis.__main__ import main
 from wmthesis.experiments import reproduce
+from wmthesis.experiments.results import _first_run_seconds
 from wmthesis.experiments.summary import aggregate, read_runs, write_summary
 from wmthesis.experiments.sweep import SweepRun, finished, parse_runs, parse_seeds, start_ray, sweep
 
@@ -91,8 +92,8 @@ def _write_run(folder, experiment, seed, score, profile="quick", **extra):
 
 def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    for seed, score in enumerate([10.0, 14.0, 21.0]):
-        _write_run(tmp_path, "boxing-wm", seed, score)
+    for seed, score in enumerate([10.0, 14.0, 21.0]):  # seed 2 was resumed: its first run's time counts
+        _write_run(tmp_path, "boxing-wm", seed, score, **({"first_run_wall_seconds": 3600.0} if seed == 2 else {}))
     _write_run(tmp_path, "planet-freeway", 0, 23.0, variant="freeway-tuned")
     value = _write_run(tmp_path, "planet-boxing-value", 4, 0.0)  # its headline is the value's score, not "score"
     value.write_text(json.dumps({**json.loads(value.read_text()), "value": {"mean": 26.8},
@@ -105,7 +106,7 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert box["std"] == pytest.approx(math.sqrt(31.0))
     half = 4.302652729911275 * math.sqrt(31.0) / math.sqrt(3)
     assert (box["ci_low"], box["ci_high"]) == (pytest.approx(15.0 - half), pytest.approx(15.0 + half))
-    assert box["wall_seconds"] == [0.0, 60.0, 120.0]
+    assert box["wall_seconds"] == [0.0, 60.0, 3600.0]
     assert any(p["value"] == "above 18 on average across 5 runs" and p["source"] == "thesis 5.4.1"
                for p in box["published"])
     one = by_name["planet-freeway"]
@@ -121,6 +122,17 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert json.loads((tmp_path / "results" / "summary.json").read_text())["rows"][0]["n"] == 3
     assert (tmp_path / "results" / "summary.png").stat().st_size > 5000
     assert aggregate([2.0, 2.0])["ci_low"] == 2.0  # no spread, no width
+
+
+def test_a_run_called_again_keeps_the_wall_time_of_the_run_that_computed_it(tmp_path):
+    path = tmp_path / "metrics.json"
+    assert _first_run_seconds(path, 21.9) == 21.9  # no earlier run
+    path.write_text(json.dumps({"wall_seconds": 7200.0}))  # written before first_run_wall_seconds existed
+    assert _first_run_seconds(path, 21.9) == 7200.0
+    path.write_text(json.dumps({"wall_seconds": 30.0, "first_run_wall_seconds": 5400.0}))
+    assert _first_run_seconds(path, 21.9) == 5400.0
+    path.write_text("{not json")
+    assert _first_run_seconds(path, 21.9) == 21.9
 
 
 def test_the_summary_skips_corrupt_and_foreign_files_naming_them(tmp_path):

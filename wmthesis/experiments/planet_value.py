@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from wmthesis.experiments.planet_boxing import FIRST_STEPS
-from wmthesis.experiments.results import _read_json, _run_header
+from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header
 from wmthesis.utils import atomic_path, parallel_calls
 from wmthesis.viz import save_figure
 
@@ -50,13 +50,30 @@ def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list
     cached = cached_for(cache, key)
     if cached is not None:
         return cached["scores"]
-    plays = parallel_calls([(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts], progress)
+    plays = _played_bouts(cache.with_name(cache.stem + "-bouts.json"), key, progress,
+                          [(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts])
     scores = {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
               "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
               "config": dataclasses.asdict(planner)}
     with atomic_path(cache) as tmp:
         tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
     return scores
+
+
+def _played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple]) -> list[dict]:
+    """``calls`` (one bout each), each bout saved in ``path`` as it ends: a run cut off plays
+    only the bouts it had not finished (those saved for the same ``key``)."""
+    saved = cached_for(path, key)
+    done = {int(i): play for i, play in (saved or {}).get("plays", {}).items()}
+    todo = [i for i in range(len(calls)) if i not in done]
+
+    def save(index: int, play: dict) -> None:
+        done[todo[index]] = play
+        with atomic_path(path) as tmp:
+            tmp.write_text(json.dumps({"key": key, "plays": done}, indent=1))
+
+    parallel_calls([calls[i] for i in todo], progress, on_done=save)
+    return [done[i] for i in range(len(calls))]
 
 
 def cached_for(path: Path, key: dict) -> dict | None:
@@ -119,8 +136,10 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                                                title=f"{game.capitalize()}: the value agent after each round"),
                          out / "value_curve.png")
     value, unit = score_summary(returns), "bouts" if game == "boxing" else "episodes"
-    metrics = {**_run_header(experiment, profile, seed, time.time() - started, env=game,
+    seconds = time.time() - started
+    metrics = {**_run_header(experiment, profile, seed, seconds, env=game,
                              **({} if variant is None else {"variant": variant})),
+               "first_run_wall_seconds": round(_first_run_seconds(out / "metrics.json", seconds), 1),
                "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} {unit} "
                            f"(the value of round {chosen['round']}, chosen on {len(chosen['validation'])} validation "
                            f"{unit}) (random play {baselines['random']['full']['mean']:.1f}, PlaNet's CEM "

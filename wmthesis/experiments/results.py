@@ -20,11 +20,13 @@ def _run_header(experiment: str, profile: str, seed: int, seconds: float, **run)
 
 
 def _first_run_seconds(path: Path, seconds: float) -> float:
-    """The wall time of the run that computed everything: kept from an earlier metrics file
-    (a resumed or cached run is faster), else this run's."""
+    """The wall time of the run that computed everything: kept from an earlier metrics file at
+    ``path`` (its ``first_run_wall_seconds``, or the ``wall_seconds`` of a file written before
+    that field; a resumed or cached run is faster), else this run's ``seconds``."""
     try:
-        return json.loads(path.read_text())["first_run_wall_seconds"]
-    except (OSError, ValueError, KeyError):
+        earlier = json.loads(path.read_text())
+        return float(earlier.get("first_run_wall_seconds", earlier["wall_seconds"]))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return seconds
 
 

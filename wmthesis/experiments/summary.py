@@ -110,7 +110,8 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             metrics = json.loads(path.read_text())
             if metrics["experiment"] not in EXPERIMENTS:
                 raise ValueError(f"unknown experiment {metrics['experiment']!r}")
-            header = (str(metrics["profile"]), int(metrics["seed"]), metrics.get("wall_seconds"))
+            header = (str(metrics["profile"]), int(metrics["seed"]),
+                      metrics.get("first_run_wall_seconds", metrics.get("wall_seconds")))
             scores = run_scores(metrics)
         except (ValueError, KeyError, TypeError) as error:
             warnings.warn(f"{path}: skipped, not a run's metrics ({type(error).__name__}: {error})", stacklevel=2)
