@@ -491,6 +491,26 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
     for row in starved["rows"].values():  # one node a search, each weight, each replan
         assert row["solve_rate"] == 0 and row["nodes_per_level"] <= len(cfg.weights) * (1 + cfg.replans)
     assert starved["env_steps"] == baseline["env_steps"] and starved["changes"] == {"budget": 1}
+    # a policy prior fitted once on the baseline's own solutions, searched with, nothing else trained
+    with pytest.raises(ValueError, match="solved no level"):  # the smoke run solves none
+        experiment.validate("prior-afterwards", "smoke", seed=2, levels=2, progress=False)
+    run = experiment.load_run(pixels, cfg)
+    solver = SearchAgent(Simulator(), budget=5000)
+    with Experience(pixels / "experience.h5") as experience:  # as if it had solved these
+        for seed in range(6):
+            play = solver.play(grid_env("sokoban-small"), seed)
+            experience.add("solutions", 1, states=run.inputs.from_grid(play.transitions["states"]),
+                           actions=play.transitions["actions"])
+    experiment.validate("prior-afterwards", "smoke", seed=2, levels=2, progress=False)
+    assert (pixels / "state.pt").stat().st_mtime_ns == trained
+    assert len(searched) == 8 and all(args[-1] == dataclasses.replace(cfg, prior_weight=1.0) for _, args in searched[4:])
+    run = experiment.load_run(pixels, cfg)
+    fitted = (pixels / "policy-afterwards.pt").stat().st_mtime_ns
+    policy = experiment.policy_afterwards(pixels, run, cfg)
+    assert (pixels / "policy-afterwards.pt").stat().st_mtime_ns == fitted  # read back, not fitted again
+    assert run.agent(dataclasses.replace(cfg, prior_weight=1.0)).prior is None  # the run itself has none...
+    run.policy = policy
+    assert run.agent(dataclasses.replace(cfg, prior_weight=1.0)).prior is not None  # ...the fitted one is used
 
 
 # ---------------------------------------------------------------------------- pixels

@@ -19,7 +19,7 @@ from wmthesis.sokoban_search.cells import GRID, code_table
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
                                                 play_levels, random_board_row, random_row, replay_states)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution
-from wmthesis.sokoban_search.iteration import load_run, schedule, train_search_agent
+from wmthesis.sokoban_search.iteration import load_run, policy_afterwards, schedule, train_search_agent
 from wmthesis.sokoban_search.search import Simulator
 from wmthesis.utils import atomic_path, data_dir, hold, parallel_calls, releasing_holds
 from wmthesis.viz import save_figure
@@ -183,7 +183,9 @@ LEVERS = {
     # the search alone, on the baseline's model and value (no training): where do its failures come from?
     "bigger-budget": dict(budget=40_000),  # twice the nodes for each search
     "third-weight": dict(weights=(3.0, 1.5, 0.75)),  # one more search, nearer breadth first, after two fail
+    "prior-afterwards": dict(prior_weight=1.0),  # a policy fitted once on the baseline's own solutions
 }
+AFTERWARDS = ("prior-afterwards",)  # levers on the baseline's run with a policy prior fitted after it
 SEARCH_FIELDS = ("budget", "batch", "weights", "doubt", "replans")  # a lever of these alone needs no training
 VALIDATION_LEVELS = {"smoke": 2, "quick": 200, "thesis": 1000}  # the first of each validation set
 
@@ -200,11 +202,13 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     profile = profile_name(profile)
     levels = VALIDATION_LEVELS[profile] if levels is None else int(levels)
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels", **LEVERS[lever])
-    search_only = set(LEVERS[lever]) <= set(SEARCH_FIELDS)  # the baseline's run, searched otherwise
+    search_only = set(LEVERS[lever]) <= set(SEARCH_FIELDS) or lever in AFTERWARDS  # the baseline's run
     trained = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels") if search_only else cfg
     folder = hold(work_folder(profile, seed) / ("pixels" if search_only else f"lever-{lever}"))
     if not _trained(folder, trained):
         train_search_agent(folder, trained, progress)
+    if lever in AFTERWARDS:
+        policy_afterwards(folder, load_run(folder, trained), trained, progress)  # once, before the jobs share it
     name = "validation" if lever == "baseline" or not search_only else f"validation-{lever}"
     jobs = {(kind, part): (folder / f"{name}-{kind}-{levels}-{part}.json",
                            (_evaluate_boxoban, folder, trained, source, levels, part, False, cfg))
@@ -288,6 +292,8 @@ def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, sim
     levels = list(range(count))[part::EVAL_PARTS]
     boards = load_levels(source)
     run, search = load_run(folder, cfg), cfg if search is None else search
+    if search.prior_weight > 0 and run.policy is None:  # a run trained without a prior: the one fitted after it
+        run.policy = policy_afterwards(folder, run, cfg, progress=False)
     agent = run.agent(search, Simulator(), GRID) if simulator else run.agent(search)
     return {"plays": solve_boards(agent, [boards[i] for i in levels], progress=False, levels=levels)}
 

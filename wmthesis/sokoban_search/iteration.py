@@ -38,6 +38,7 @@ from wmthesis.utils import atomic_path, check_choice, device, half_precision
 N_ACTIONS = 8
 STATE_VERSION = 3  # 2: the model keeps the count changes it has seen; 3: and the boards at ends
 INPUTS = ("grid", "pixels")
+AFTERWARDS = "policy-afterwards.pt"  # a policy prior fitted on a finished run's solutions
 
 
 @dataclasses.dataclass
@@ -238,6 +239,26 @@ def fit_policy(policy: Policy, experience: Experience, cfg: SokobanSearchConfig,
     return _optimise(policy, policy.losses, batches, cfg.value_updates, cfg.lr, desc, progress)["accuracy"]
 
 
+def policy_afterwards(folder: str | Path, run: Run, cfg: SokobanSearchConfig, progress: bool = True) -> Policy:
+    """A policy prior for ``run``, the finished run in ``folder`` trained with ``cfg`` (and no
+    prior), fitted once on its own solutions (:func:`fit_policy`) and saved as
+    ``folder/policy-afterwards.pt``, read from there after. What a prior adds to the search with
+    the model and the value as they are, no round played again."""
+    path = Path(folder) / AFTERWARDS
+    policy = Policy(run.model.n_codes, N_ACTIONS, cfg.value_channels, cfg.value_blocks).to(device())
+    if path.exists():
+        policy.load_state_dict(torch.load(path, map_location=device()))
+        return policy
+    with Experience(Path(folder) / "experience.h5") as experience:
+        if not experience.count("solutions"):
+            raise ValueError(f"{folder}: the run solved no level, no policy can be learned from its solutions")
+        torch.manual_seed(cfg.seed + 10_000)
+        fit_policy(policy, experience, cfg, np.random.default_rng([cfg.seed, 10_000]), "policy (afterwards)", progress)
+    with atomic_path(path) as tmp:
+        torch.save(policy.state_dict(), tmp)
+    return policy
+
+
 def _turned_batch(batch: dict, quarter_turns: int, mirrored: bool) -> dict:
     return {"states": turned(batch["states"], quarter_turns, mirrored),
             "actions": turned_actions(batch["actions"], quarter_turns, mirrored)}
@@ -300,4 +321,5 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
 
 
 __all__ = ["Run", "train_search_agent", "load_run", "save_run", "schedule", "fit_model", "fit_heuristic", "fit_policy",
+           "policy_afterwards",
            "held_out_exactness"]
