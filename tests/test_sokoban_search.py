@@ -375,6 +375,21 @@ def test_solve_boards_plays_levels_of_any_size_from_text():
     assert results[1]["steps"] == len(results[1]["actions"]) > 0
 
 
+def test_a_rounds_levels_played_in_parallel_parts_are_played_as_each_alone_in_seed_order():
+    from wmthesis.sokoban_search.iteration import Run, play_levels
+
+    run = Run(Simulator(), None, [], 0)  # breadth first in the true rules
+    cfg = for_profile(SokobanSearchConfig, "smoke", budget=3000)
+    seeds = level_seeds(0, 1, 11)  # more levels than parts, not a multiple of them
+    plays = play_levels(run, cfg, "sokoban-small", seeds, progress=False)
+    alone = SearchAgent(Simulator(), budget=3000, weights=cfg.weights, replans=cfg.replans)
+    env = grid_env("sokoban-small")
+    expected = [alone.play(env, s) for s in seeds]
+    assert [p.seed for p in plays] == seeds
+    assert [(p.solved, p.actions, p.expanded) for p in plays] == [(p.solved, p.actions, p.expanded) for p in expected]
+    assert all(np.array_equal(p.transitions["states"], e.transitions["states"]) for p, e in zip(plays, expected))
+
+
 def test_experience_drops_the_rounds_of_an_interrupted_round(tmp_path):
     rows = random_play("sokoban-small", 0, 2)
     with Experience(tmp_path / "e.h5") as experience:
@@ -443,11 +458,11 @@ def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own
     import wmthesis.sokoban_search.iteration as iteration
 
     budgets = []
-    real = iteration.SearchAgent.play
-    monkeypatch.setattr(iteration.SearchAgent, "play", lambda self, *a, **k: budgets.append(self.budget) or real(self, *a, **k))
+    real = iteration.play_levels
+    monkeypatch.setattr(iteration, "play_levels", lambda run, cfg, *a: budgets.append(cfg.budget) or real(run, cfg, *a))
     cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",), budget=50, round_budget=150)
     run = train_search_agent(tmp_path, cfg, progress=False)
-    assert budgets == [150] * cfg.levels_per_round and run.agent(cfg).budget == 50
+    assert budgets == [150] and run.agent(cfg).budget == 50  # the round's levels with 150, the evaluation 50
 
 
 def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, monkeypatch):

@@ -33,7 +33,7 @@ from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.policy import Policy, turned_actions
 from wmthesis.training import check_same_config, gradient_step, with_added_defaults
-from wmthesis.utils import atomic_path, check_choice, device, half_precision
+from wmthesis.utils import atomic_path, check_choice, device, half_precision, parallel_calls
 
 N_ACTIONS = 8
 STATE_VERSION = 3  # 2: the model keeps the count changes it has seen; 3: and the boards at ends
@@ -116,13 +116,30 @@ def n_codes(cfg: SokobanSearchConfig) -> int:
     return cfg.codes if cfg.inputs == "pixels" else len(CELL_NAMES)
 
 
+ROUND_PARTS = 8  # a round's levels in parts, played two at a time on 2 cores (a bar over the parts)
+
+
+def play_levels(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int], progress: bool = True) -> list:
+    """The agent of ``run`` searching as ``cfg`` says on the levels of ``variant`` that ``seeds``
+    generate: one :class:`~wmthesis.sokoban_search.agent.Play` per seed, in order. The levels
+    are played in :data:`ROUND_PARTS` parts in parallel processes
+    (:func:`~wmthesis.utils.parallel_calls`); each level is played as it would be alone."""
+    parts = [seeds[p::ROUND_PARTS] for p in range(min(ROUND_PARTS, len(seeds)))]
+    played = parallel_calls([(_play_part, run, cfg, variant, part) for part in parts], progress)
+    return [played[i % len(parts)][i // len(parts)] for i in range(len(seeds))]
+
+
+def _play_part(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int]) -> list:
+    agent = run.agent(cfg)
+    env = agent.env(variant)
+    return [agent.play(env, s) for s in seeds]
+
+
 def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: int, variant: str, r: int,
            progress: bool) -> None:
     """Round ``number``: play levels, keep what was seen, train the model and the value."""
-    agent = run.agent(dataclasses.replace(cfg, budget=cfg.round_budget or cfg.budget))  # the expert in training
-    env = agent.env(variant)
-    seeds = level_seeds(cfg.seed, 1 + number, cfg.levels_per_round)
-    plays = [agent.play(env, s) for s in tqdm(seeds, desc=f"round {number} ({variant})", disable=not progress)]
+    expert = dataclasses.replace(cfg, budget=cfg.round_budget or cfg.budget)  # the expert in training
+    plays = play_levels(run, expert, variant, level_seeds(cfg.seed, 1 + number, cfg.levels_per_round), progress)
     for play in plays:
         experience.add("transitions", number, **play.transitions)
         if play.solved:
@@ -321,5 +338,5 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
 
 
 __all__ = ["Run", "train_search_agent", "load_run", "save_run", "schedule", "fit_model", "fit_heuristic", "fit_policy",
-           "policy_afterwards",
+           "policy_afterwards", "play_levels",
            "held_out_exactness"]
