@@ -390,6 +390,32 @@ def test_a_rounds_levels_played_in_parallel_parts_are_played_as_each_alone_in_se
     assert all(np.array_equal(p.transitions["states"], e.transitions["states"]) for p, e in zip(plays, expected))
 
 
+def test_a_store_from_before_solutions_were_kept_reads_them_off_its_transitions(tmp_path):
+    from wmthesis.sokoban_search.heuristic import steps_to_go
+
+    solver, starved = SearchAgent(Simulator(), budget=5000), SearchAgent(Simulator(), budget=3, replans=0)
+    env = grid_env("sokoban-small")
+    plays = [(starved if seed % 3 == 0 else solver).play(env, seed) for seed in range(7)]
+    assert 0 < sum(p.solved for p in plays) < 7
+    with Experience(tmp_path / "now.h5") as now, Experience(tmp_path / "before.h5") as before:
+        for store in (now, before):
+            store.add("transitions", 0, **random_play("sokoban-small", 0, 2))
+        for number, play in enumerate(plays, 1):  # as the rounds add them; only "now" keeps solutions
+            for store in (now, before):
+                store.add("transitions", number, **play.transitions)
+                if play.solved:
+                    states = play.transitions["states"]
+                    store.add("to_go", number, states=states, labels=steps_to_go(states))
+            if play.solved:
+                now.add("solutions", number, states=play.transitions["states"], actions=play.transitions["actions"])
+        kept, read = now.solutions(), before.solutions()
+        assert before.count("solutions") == 0 and kept.keys() == read.keys()
+        for key in kept:
+            assert np.array_equal(kept[key]["states"], read[key]["states"])
+            assert np.array_equal(kept[key]["actions"], read[key]["actions"])
+        assert len(kept["5x5"]["actions"]) == sum(len(p.actions) for p in plays if p.solved)
+
+
 def test_experience_drops_the_rounds_of_an_interrupted_round(tmp_path):
     rows = random_play("sokoban-small", 0, 2)
     with Experience(tmp_path / "e.h5") as experience:

@@ -76,6 +76,29 @@ class Experience:
         return {k: {name: self.file[kind][k][name][()] for name in self.file[kind][k]}
                 for k in keys if k in self.file[kind]}
 
+    def solutions(self) -> dict[str, dict[str, np.ndarray]]:
+        """Every (state, action) along the levels solved in the rounds, ``{"HxW": {"states",
+        "actions"}}``: the ``solutions`` rows, or for a store written before they were kept, the
+        same read off the transitions. A solved play's rows are consecutive and end with the
+        only ``done`` of the play, and its ``to_go`` rows (labels T, T-1, ..., 1) are its states
+        in order, solved plays in the same order."""
+        kept = self.arrays("solutions")
+        if kept:
+            return {k: {"states": g["states"], "actions": g["actions"]} for k, g in kept.items()}
+        found = {}
+        for key, labelled in self.arrays("to_go").items():
+            moves = self.arrays("transitions", tuple(int(n) for n in key.split("x")))[key]
+            ends = np.flatnonzero(moves["dones"] & (moves["rounds"] > 0))
+            starts = np.flatnonzero(np.r_[True, np.diff(labelled["labels"]) != -1])
+            if len(ends) != len(starts):
+                raise ValueError(f"{self.path}: {len(starts)} solved plays of {key} labelled, {len(ends)} in the transitions")
+            rows = np.concatenate([np.arange(end - int(labelled["labels"][start]) + 1, end + 1)
+                                   for start, end in zip(starts, ends)]) if len(ends) else np.zeros(0, int)
+            if not np.array_equal(moves["states"][rows], labelled["states"]):
+                raise ValueError(f"{self.path}: the labelled states of {key} are not the solved plays' transitions")
+            found[key] = {"states": moves["states"][rows], "actions": moves["actions"][rows]}
+        return found
+
     def count(self, kind: str = "transitions", round_: int | None = None) -> int:
         """Rows of ``kind`` (of one round, if given)."""
         total = 0

@@ -249,7 +249,7 @@ def fit_policy(policy: Policy, experience: Experience, cfg: SokobanSearchConfig,
     updates (each batch in a random one of the board's symmetries, states and actions turned
     together, if ``cfg.value_symmetries``); returns how often its likeliest action is the one
     taken, over the last tenth of the updates."""
-    groups = {k: {"states": g["states"], "actions": g["actions"]} for k, g in experience.arrays("solutions").items()}
+    groups = experience.solutions()
     batches = _batches(groups, cfg.batch_size, rng)
     if cfg.value_symmetries:
         batches = (_turned_batch(batch, int(rng.integers(4)), bool(rng.integers(2))) for batch in batches)
@@ -267,7 +267,7 @@ def policy_afterwards(folder: str | Path, run: Run, cfg: SokobanSearchConfig, pr
         policy.load_state_dict(torch.load(path, map_location=device()))
         return policy
     with Experience(Path(folder) / "experience.h5") as experience:
-        if not experience.count("solutions"):
+        if not sum(len(g["actions"]) for g in experience.solutions().values()):
             raise ValueError(f"{folder}: the run solved no level, no policy can be learned from its solutions")
         torch.manual_seed(cfg.seed + 10_000)
         fit_policy(policy, experience, cfg, np.random.default_rng([cfg.seed, 10_000]), "policy (afterwards)", progress)
