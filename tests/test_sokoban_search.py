@@ -523,7 +523,7 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
     starved = experiment.validate("one-node", "smoke", seed=2, levels=2, progress=False)
     # every job loads the baseline's run as it was trained, and searches with one node
     cfg = experiment.for_profile(experiment.SokobanSearchConfig, "smoke", seed=2, inputs="pixels")
-    assert len(searched) == 4 and all(args[2] == cfg and args[-1] == dataclasses.replace(cfg, budget=1)
+    assert len(searched) == 4 and all(args[2] == cfg and args[7] == dataclasses.replace(cfg, budget=1)
                                       for _, args in searched)
     assert (pixels / "state.pt").stat().st_mtime_ns == trained  # nothing trained again
     assert not (experiment.work_folder("smoke", 2) / "lever-one-node").exists()
@@ -544,11 +544,19 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
                            actions=play.transitions["actions"])
     experiment.validate("prior-afterwards", "smoke", seed=2, levels=2, progress=False)
     assert (pixels / "state.pt").stat().st_mtime_ns == trained
-    assert len(searched) == 8 and all(args[-1] == dataclasses.replace(cfg, prior_weight=1.0) for _, args in searched[4:])
+    assert len(searched) == 8 and all(args[7] == dataclasses.replace(cfg, prior_weight=1.0) for _, args in searched[4:])
     run = experiment.load_run(pixels, cfg)
     fitted = (pixels / "policy-afterwards.pt").stat().st_mtime_ns
     policy = experiment.policy_afterwards(pixels, run, cfg)
     assert (pixels / "policy-afterwards.pt").stat().st_mtime_ns == fitted  # read back, not fitted again
+    assert not list(pixels.glob("*.partial.json"))  # each part's levels, saved one by one, now in its file
+    # a part cut off after its first level plays only the others
+    partial = tmp_path / "cut.partial.json"
+    partial.write_text(json.dumps({"plays": [{"level": 0, "solved": True, "expanded": -1}]}))
+    source = experiment.BOXOBAN_SPLITS["validation"]["unfiltered"]
+    plays = experiment._evaluate_boxoban(pixels, cfg, source, 4, 0, False, None, partial)["plays"]
+    assert [p["level"] for p in plays] == [0, 2] and plays[0]["expanded"] == -1 and plays[1]["expanded"] >= 0
+    assert [p["level"] for p in json.loads(partial.read_text())["plays"]] == [0, 2]
     assert run.agent(dataclasses.replace(cfg, prior_weight=1.0)).prior is None  # the run itself has none...
     run.policy = policy
     assert run.agent(dataclasses.replace(cfg, prior_weight=1.0)).prior is not None  # ...the fitted one is used

@@ -210,8 +210,8 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     if lever in AFTERWARDS:
         policy_afterwards(folder, load_run(folder, trained), trained, progress)  # once, before the jobs share it
     name = "validation" if lever == "baseline" or not search_only else f"validation-{lever}"
-    jobs = {(kind, part): (folder / f"{name}-{kind}-{levels}-{part}.json",
-                           (_evaluate_boxoban, folder, trained, source, levels, part, False, cfg))
+    jobs = {(kind, part): _boxoban_job(folder / f"{name}-{kind}-{levels}-{part}.json",
+                                       folder, trained, source, levels, part, False, cfg)
             for kind, source in BOXOBAN_SPLITS["validation"].items() for part in range(EVAL_PARTS)}
     _run_saved(jobs, progress)
     rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
@@ -256,10 +256,17 @@ def _run_saved(jobs: dict, progress: bool) -> None:
     missing = [key for key, (path, _) in jobs.items() if _read_json(path) is None]
 
     def keep(index: int, result: dict) -> None:
-        with atomic_path(jobs[missing[index]][0]) as tmp:
+        path = jobs[missing[index]][0]
+        with atomic_path(path) as tmp:
             tmp.write_text(json.dumps(result))
+        _partial(path).unlink(missing_ok=True)  # the levels it saved one by one, now in the whole
 
     parallel_calls([jobs[key][1] for key in missing], progress, keep)
+
+
+def _partial(path: Path) -> Path:
+    """Where a job saving to ``path`` keeps what it has done so far (a job cut off resumes there)."""
+    return path.with_name(path.stem + ".partial.json")
 
 
 def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
@@ -271,8 +278,8 @@ def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
     for kind, source in BOXOBAN_SPLITS["report"].items():
         for name, (folder, cfg, simulator) in agents.items():
             count = (BOXOBAN_LEVELS if name == "pixels" else BOXOBAN_REFERENCE_LEVELS)[profile]
-            jobs.update({(name, kind, part): (work / f"eval-boxoban-{name}-{kind}-{count}-{part}.json",
-                                              (_evaluate_boxoban, folder, cfg, source, count, part, simulator))
+            jobs.update({(name, kind, part): _boxoban_job(work / f"eval-boxoban-{name}-{kind}-{count}-{part}.json",
+                                                          folder, cfg, source, count, part, simulator)
                          for part in range(EVAL_PARTS)})
         count = BOXOBAN_LEVELS[profile]
         for name, row in (("random", random_board_row), ("astar", astar_board_row)):
@@ -280,12 +287,20 @@ def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
     return jobs
 
 
+def _boxoban_job(path: Path, folder: Path, cfg, source: str, count: int, part: int, simulator: bool = False,
+                 search=None) -> tuple:
+    """A :func:`_run_saved` job saving to ``path``: :func:`_evaluate_boxoban` with these
+    arguments, level by level in ``path``'s :func:`_partial` file."""
+    return path, (_evaluate_boxoban, folder, cfg, source, count, part, simulator, search, _partial(path))
+
+
 def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, simulator: bool = False,
-                      search=None) -> dict:
+                      search=None, partial: Path | None = None) -> dict:
     """The run in ``folder`` (trained with ``cfg``; with the true rules in place of its model if
     ``simulator``) on part ``part`` (every :data:`EVAL_PARTS`-th) of the first ``count`` levels of
     a Boxoban source, searching as ``search`` says (a config; ``cfg`` by default): ``plays``, one
-    record (level, solved, actions, ...) per level."""
+    record (level, solved, actions, ...) per level. Each level is saved in ``partial`` as it
+    ends, and a part cut off plays only the levels it had not."""
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.sokoban_search.evaluation import solve_boards
 
@@ -295,7 +310,17 @@ def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, sim
     if search.prior_weight > 0 and run.policy is None:  # a run trained without a prior: the one fitted after it
         run.policy = policy_afterwards(folder, run, cfg, progress=False)
     agent = run.agent(search, Simulator(), GRID) if simulator else run.agent(search)
-    return {"plays": solve_boards(agent, [boards[i] for i in levels], progress=False, levels=levels)}
+    done = {r["level"]: r for r in (_read_json(partial) or {}).get("plays", [])} if partial is not None else {}
+
+    def keep(record: dict) -> None:
+        done[record["level"]] = record
+        if partial is not None:
+            with atomic_path(partial) as tmp:
+                tmp.write_text(json.dumps({"plays": list(done.values())}))
+
+    todo = [i for i in levels if i not in done]
+    solve_boards(agent, [boards[i] for i in todo], progress=False, levels=todo, on_level=keep)
+    return {"plays": [done[i] for i in levels]}
 
 
 def _boxoban_reference(row, source: str, count: int) -> dict:

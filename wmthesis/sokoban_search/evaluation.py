@@ -104,11 +104,12 @@ def replay_states(variant: str, records: list[dict]) -> list[tuple[np.ndarray, n
     return out
 
 
-def solve_boards(agent, boards, max_steps: int = 120, progress: bool = True, levels=None) -> list[dict]:
+def solve_boards(agent, boards, max_steps: int = 120, progress: bool = True, levels=None, on_level=None) -> list[dict]:
     """The agent on given boards (codes (h, w), any size the model runs on), each in a real
     environment of the board's size that ends the episode after ``max_steps`` steps, every
     replan counted: one ``{"level", "solved", "steps", "actions", "expanded", "seconds", ...}``
-    per board (:meth:`Play.record`), ``level`` its index in ``levels`` (default 0, 1, ...)."""
+    per board (:meth:`Play.record`), ``level`` its index in ``levels`` (default 0, 1, ...);
+    ``on_level(record)`` is called as each ends (to save it at once)."""
     results = []
     levels = range(len(boards)) if levels is None else levels
     for index, board in zip(levels, tqdm(boards, desc="levels", disable=not progress)):
@@ -116,6 +117,8 @@ def solve_boards(agent, boards, max_steps: int = 120, progress: bool = True, lev
         record = play.record()
         del record["seed"]
         results.append({"level": int(index), **record})
+        if on_level is not None:
+            on_level(results[-1])
     return results
 
 
