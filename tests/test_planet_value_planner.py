@@ -168,7 +168,7 @@ def test_a_seeded_planner_over_one_step_is_still_the_value_agent():
         assert choice == int(q.argmax())
 
 
-def test_a_planner_cache_from_before_a_field_was_added_reads_as_its_default(tmp_path):
+def test_a_planner_cache_from_before_a_field_was_added_reads_as_what_it_did(tmp_path):
     import json
 
     from wmthesis.config import ValuePlannerConfig
@@ -176,10 +176,14 @@ def test_a_planner_cache_from_before_a_field_was_added_reads_as_its_default(tmp_
 
     path = tmp_path / "value_planner.json"
     path.write_text(json.dumps({"key": {"round": 2, "planner": {"horizon": 3, "discount": 1.0}}, "scores": {"x": 1}}))
-    default = {"round": 2, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3))}
-    assert cached_for(path, default)["scores"] == {"x": 1}
-    assert cached_for(path, {**default, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, imagine="mean"))}) is None
-    assert cached_for(path, {**default, "round": 3}) is None
+    # written before imagine and value_prior existed: it imagined samples (imagine's default) from
+    # CEM's zero mean (value_prior 0, no longer the default)
+    did = {"round": 2, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, value_prior=0.0))}
+    assert cached_for(path, did)["scores"] == {"x": 1}
+    assert cached_for(path, {**did, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3))}) is None  # seeded
+    assert cached_for(path, {**did, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, imagine="mean",
+                                                                                       value_prior=0.0))}) is None
+    assert cached_for(path, {**did, "round": 3}) is None
 
 
 def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_rest(tmp_path):
@@ -200,15 +204,18 @@ def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_re
 
 
 def test_the_planner_levers_table_is_paired_against_the_first_lever():
+    from wmthesis.config import ValuePlannerConfig
     from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS, planner_lever_rows
     from wmthesis.metrics import score_summary
 
     def scores(returns, first):
         return {"returns": returns, "full": score_summary(returns), "first": score_summary(first)}
 
-    rows = planner_lever_rows({"H3": scores([2.0, 4.0, 0.0], [1.0, 1.0, 1.0]),
+    rows = planner_lever_rows({"value seeds CEM": scores([2.0, 4.0, 0.0], [1.0, 1.0, 1.0]),
                                "prior's mean": scores([5.0, 5.0, 5.0], [2.0, 3.0, 4.0])})
-    assert rows[0] == ["H3", "(as evaluated)", "2.0 ± 1.6", "1.0", "+0.0 ± 0.0"]
+    assert rows[0] == ["value seeds CEM", "(as evaluated)", "2.0 ± 1.6", "1.0", "+0.0 ± 0.0"]
     # differences 3, 1, 5: mean 3, standard error 2 / sqrt(3)
-    assert rows[1] == ["prior's mean", "imagine=mean", "5.0 ± 0.0", "3.0", "+3.0 ± 1.2"]
-    assert set(PLANNER_LEVERS["prior's mean, value seeds CEM"]) == {"imagine", "value_prior"}
+    assert rows[1] == ["prior's mean", "imagine=mean, value_prior=0.0", "5.0 ± 0.0", "3.0", "+3.0 ± 1.2"]
+    # the levers are stated against the default planner: the first is the thesis's CEM start
+    default = ValuePlannerConfig()
+    assert default.value_prior > 0 and dataclasses.replace(default, **PLANNER_LEVERS["H3 from a zero mean"]).value_prior == 0

@@ -68,8 +68,10 @@ def config_dict(config) -> dict:
 
 def with_added_defaults(cls, saved: dict) -> dict:
     """A config dict saved by a run, with every field of dataclass ``cls`` that it lacks (added
-    after the run was saved) set to its default: what the run did."""
-    added = {f.name: f.default for f in dataclasses.fields(cls) if f.name not in saved}
+    after the run was saved) set to what the run did: the field's default, or the value in
+    ``cls.ADDED_AS`` where the default has changed since the field was added."""
+    before = getattr(cls, "ADDED_AS", {})
+    added = {f.name: before.get(f.name, f.default) for f in dataclasses.fields(cls) if f.name not in saved}
     return {**saved, **added}
 
 

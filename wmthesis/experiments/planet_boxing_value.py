@@ -120,9 +120,11 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
 
 # Issue 31's levers on CEM with the value, each measured on the value's validation bouts (never
 # on the evaluation bouts): its horizon, its imagined states, the value seeding its search.
-PLANNER_LEVERS = {"H3": {}, "H2": dict(horizon=2), "prior's mean": dict(imagine="mean"),
-                  "value seeds CEM": dict(value_prior=1.0),
-                  "prior's mean, value seeds CEM": dict(imagine="mean", value_prior=1.0)}
+# Each is stated against the default planner (``{}``: as evaluated, the value seeding CEM); the
+# first, CEM from the thesis's zero mean, is the row the others are paired against.
+PLANNER_LEVERS = {"H3 from a zero mean": dict(value_prior=0.0), "H2 from a zero mean": dict(horizon=2, value_prior=0.0),
+                  "prior's mean": dict(imagine="mean", value_prior=0.0), "value seeds CEM": {},
+                  "prior's mean, value seeds CEM": dict(imagine="mean")}
 LEVER_BOUTS = {"smoke": 1, "quick": 10, "thesis": 10}  # validation bouts per lever
 
 
