@@ -184,8 +184,9 @@ LEVERS = {
     "bigger-budget": dict(budget=40_000),  # twice the nodes for each search
     "third-weight": dict(weights=(3.0, 1.5, 0.75)),  # one more search, nearer breadth first, after two fail
     "prior-afterwards": dict(prior_weight=1.0),  # a policy fitted once on the baseline's own solutions
+    "prior-afterwards-3": dict(prior_weight=3.0),  # the same policy, three times the weight
 }
-AFTERWARDS = ("prior-afterwards",)  # levers on the baseline's run with a policy prior fitted after it
+AFTERWARDS = ("prior-afterwards", "prior-afterwards-3")  # on the baseline's run with a policy prior fitted after it
 SEARCH_FIELDS = ("budget", "batch", "weights", "doubt", "replans")  # a lever of these alone needs no training
 VALIDATION_LEVELS = {"smoke": 2, "quick": 200, "thesis": 1000}  # the first of each validation set
 
