@@ -1,6 +1,7 @@
 """Sokoban solved by search in a learned model: levels as text, the search, the model, the
 experience file, resuming, saved solutions and bad input."""
 import json
+import shutil
 import zlib
 
 import numpy as np
@@ -549,6 +550,13 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
     fitted = (pixels / "policy-afterwards.pt").stat().st_mtime_ns
     policy = experiment.policy_afterwards(pixels, run, cfg)
     assert (pixels / "policy-afterwards.pt").stat().st_mtime_ns == fitted  # read back, not fitted again
+    again = tmp_path / "again"  # the same run fitted again, whatever the process's random state: the same policy
+    again.mkdir()
+    for name in ("state.pt", "experience.h5"):
+        shutil.copyfile(pixels / name, again / name)
+    torch.manual_seed(123)
+    refitted = experiment.policy_afterwards(again, run, cfg)
+    assert all(torch.equal(a, b) for a, b in zip(policy.state_dict().values(), refitted.state_dict().values()))
     assert not list(pixels.glob("*.partial.json"))  # each part's levels, saved one by one, now in its file
     # a part cut off after its first level plays only the others
     partial = tmp_path / "cut.partial.json"
