@@ -29,6 +29,20 @@ def test_solve_sokoban_refuses_the_held_out_boxoban_sets(capsys):
     assert "kept for an external check" in capsys.readouterr().err
 
 
+def test_validate_sokoban_refuses_an_unknown_lever_before_any_runs_and_reports_each_lever(capsys, monkeypatch):
+    import importlib
+
+    experiment = importlib.import_module("wmthesis.experiments.sokoban_search")  # the module, not its function
+    called = []
+    row = {"solved": 92, "levels": 100, "solve_rate": 0.92, "nodes_per_level": 7229.4, "seconds_per_level": 6.04}
+    monkeypatch.setattr(experiment, "validate", lambda *args: called.append(args) or {"rows": {"unfiltered": row}})
+    assert main(["validate-sokoban", "baseline", "bigger-brain", "--profile", "smoke"]) == 2
+    assert "unknown lever 'bigger-brain'; valid: baseline," in capsys.readouterr().err and not called
+    assert main(["validate-sokoban", "baseline", "prior-afterwards", "--profile", "smoke", "--levels", "3"]) == 0
+    assert called == [("baseline", "smoke", 0, 3), ("prior-afterwards", "smoke", 0, 3)]
+    assert "baseline (seed 0): unfiltered 92/100 (92.0%), 7,229 nodes and 6.0 s a level" in capsys.readouterr().out
+
+
 def test_alphazero_experiment_is_on_the_command_line(capsys):
     assert main(["reproduce", "boxing-wm-alphazero", "--variant", "nope", "--profile", "smoke"]) == 2
     assert "valid: unchanged, improved" in capsys.readouterr().err

@@ -11,6 +11,10 @@
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
         writes a JSON list of {level, solved, steps, actions}.
+    validate-sokoban LEVER ... [--profile P] [--seed S] [--levels N]
+        Issue 30's levers of the pixel agent (baseline, prior-afterwards, boxoban-curriculum, ...)
+        on the first N levels of Boxoban's validation files (unfiltered and medium valid
+        000-001), each trained first if it needs its own run; resumable level by level.
     search planet-boxing|planet-freeway --trials N [--workers K] [--storage URL] [--profile P]
         Random search over KL scale x free nats (optuna); re-running continues the study, and
         any optuna storage URL (e.g. PostgreSQL) lets workers on many machines share it.
@@ -147,6 +151,21 @@ def cmd_solve_sokoban(args) -> int:
     return 0
 
 
+def cmd_validate_sokoban(args) -> int:
+    from wmthesis.experiments.sokoban_search import LEVERS, validate
+
+    unknown = [lever for lever in args.levers if lever not in LEVERS]
+    if unknown:
+        raise ValueError(f"unknown lever {unknown[0]!r}; valid: {', '.join(LEVERS)}")
+    for lever in args.levers:
+        result = validate(lever, args.profile, args.seed, args.levels)
+        print(f"{lever} (seed {args.seed}): " + "; ".join(
+            f"{kind} {row['solved']}/{row['levels']} ({100 * row['solve_rate']:.1f}%), "
+            f"{row['nodes_per_level']:,.0f} nodes and {row['seconds_per_level']:.1f} s a level"
+            for kind, row in result["rows"].items()))
+    return 0
+
+
 def cmd_search(args) -> int:
     import matplotlib
 
@@ -254,6 +273,14 @@ def parser() -> argparse.ArgumentParser:
     solve.add_argument("--inputs", choices=("pixels", "grid"), default="pixels",
                        help="the agent that sees pixels (default) or grid states")
     solve.set_defaults(run=cmd_solve_sokoban)
+
+    validate = commands.add_parser("validate-sokoban", help="levers of the Sokoban pixel agent on Boxoban's validation files")
+    validate.add_argument("levers", nargs="+", metavar="LEVER", help="baseline, prior-afterwards, boxoban-curriculum, ...")
+    validate.add_argument("--profile", choices=PROFILES)
+    validate.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
+    validate.add_argument("--levels", type=at_least(1), help="the first N levels of each validation set "
+                                                             "(default: the profile's)")
+    validate.set_defaults(run=cmd_validate_sokoban)
 
     search = commands.add_parser("search", help="random search over KL scale x free nats (optuna)")
     search.add_argument("name", choices=("planet-boxing", "planet-freeway"))
