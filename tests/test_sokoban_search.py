@@ -377,12 +377,12 @@ def test_solve_boards_plays_levels_of_any_size_from_text():
 
 
 def test_a_rounds_levels_played_in_parallel_parts_are_played_as_each_alone_in_seed_order():
-    from wmthesis.sokoban_search.iteration import Run, play_levels
+    from wmthesis.sokoban_search.iteration import Run, play_in_parts
 
     run = Run(Simulator(), None, [], 0)  # breadth first in the true rules
     cfg = for_profile(SokobanSearchConfig, "smoke", budget=3000)
     seeds = level_seeds(0, 1, 11)  # more levels than parts, not a multiple of them
-    plays = play_levels(run, cfg, "sokoban-small", seeds, progress=False)
+    plays = play_in_parts(run, cfg, "sokoban-small", seeds, progress=False)
     alone = SearchAgent(Simulator(), budget=3000, weights=cfg.weights, replans=cfg.replans)
     env = grid_env("sokoban-small")
     expected = [alone.play(env, s) for s in seeds]
@@ -485,8 +485,8 @@ def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own
     import wmthesis.sokoban_search.iteration as iteration
 
     budgets = []
-    real = iteration.play_levels
-    monkeypatch.setattr(iteration, "play_levels", lambda run, cfg, *a: budgets.append(cfg.budget) or real(run, cfg, *a))
+    real = iteration.play_in_parts
+    monkeypatch.setattr(iteration, "play_in_parts", lambda run, cfg, *a: budgets.append(cfg.budget) or real(run, cfg, *a))
     cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",), budget=50, round_budget=150)
     run = train_search_agent(tmp_path, cfg, progress=False)
     assert budgets == [150] and run.agent(cfg).budget == 50  # the round's levels with 150, the evaluation 50

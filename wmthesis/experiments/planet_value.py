@@ -78,7 +78,7 @@ def _played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple]) -> 
 
 def cached_for(path: Path, key: dict) -> dict | None:
     """The JSON cache at ``path`` if it was written for ``key`` (a planner config saved before a
-    field was added reads as that field's default: what it did), else None."""
+    field was added reads as what it did: :func:`~wmthesis.training.with_added_defaults`), else None."""
     from wmthesis.config import ValuePlannerConfig
     from wmthesis.training import with_added_defaults
 

@@ -28,6 +28,7 @@ from wmthesis.config import SokobanSearchConfig
 from wmthesis.envs.sokoban import CELL_NAMES
 from wmthesis.sokoban_search.agent import SearchAgent, level_seeds, random_play, variant_options
 from wmthesis.sokoban_search.cells import GRID, CellCoder, GridInputs, PixelInputs, fit_coder, render_cells
+from wmthesis.sokoban_search.evaluation import play_levels
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
 from wmthesis.sokoban_search.model import SokobanModel
@@ -119,27 +120,26 @@ def n_codes(cfg: SokobanSearchConfig) -> int:
 ROUND_PARTS = 8  # a round's levels in parts, played two at a time on 2 cores (a bar over the parts)
 
 
-def play_levels(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int], progress: bool = True) -> list:
+def play_in_parts(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int], progress: bool = True) -> list:
     """The agent of ``run`` searching as ``cfg`` says on the levels of ``variant`` that ``seeds``
-    generate: one :class:`~wmthesis.sokoban_search.agent.Play` per seed, in order. The levels
-    are played in :data:`ROUND_PARTS` parts in parallel processes
-    (:func:`~wmthesis.utils.parallel_calls`); each level is played as it would be alone."""
+    generate (:func:`~wmthesis.sokoban_search.evaluation.play_levels`): one
+    :class:`~wmthesis.sokoban_search.agent.Play` per seed, in order. The levels are played in
+    :data:`ROUND_PARTS` parts in parallel processes (:func:`~wmthesis.utils.parallel_calls`);
+    each level is played as it would be alone."""
     parts = [seeds[p::ROUND_PARTS] for p in range(min(ROUND_PARTS, len(seeds)))]
     played = parallel_calls([(_play_part, run, cfg, variant, part) for part in parts], progress)
     return [played[i % len(parts)][i // len(parts)] for i in range(len(seeds))]
 
 
 def _play_part(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int]) -> list:
-    agent = run.agent(cfg)
-    env = agent.env(variant)
-    return [agent.play(env, s) for s in seeds]
+    return play_levels(run.agent(cfg), variant, seeds, progress=False)
 
 
 def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: int, variant: str, r: int,
            progress: bool) -> None:
     """Round ``number``: play levels, keep what was seen, train the model and the value."""
     expert = dataclasses.replace(cfg, budget=cfg.round_budget or cfg.budget)  # the expert in training
-    plays = play_levels(run, expert, variant, level_seeds(cfg.seed, 1 + number, cfg.levels_per_round), progress)
+    plays = play_in_parts(run, expert, variant, level_seeds(cfg.seed, 1 + number, cfg.levels_per_round), progress)
     for play in plays:
         experience.add("transitions", number, **play.transitions)
         if play.solved:
@@ -338,5 +338,5 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
 
 
 __all__ = ["Run", "train_search_agent", "load_run", "save_run", "schedule", "fit_model", "fit_heuristic", "fit_policy",
-           "policy_afterwards", "play_levels",
+           "policy_afterwards", "play_in_parts",
            "held_out_exactness"]
