@@ -199,6 +199,78 @@ def test_the_search_stops_at_its_budget_and_says_it_found_nothing():
     assert not result.found and result.expanded <= 30 and result.info["exhausted"]
 
 
+def test_backed_up_values_solve_bellmans_equation_over_the_search_graph():
+    from wmthesis.sokoban_search.heuristic import backed_up
+    from wmthesis.sokoban_search.search import GOAL, UNSEEN, SearchGraph
+
+    # 0 -> 1, 2, 1 (two actions to one child count once); 1 -> the end, or back to 0;
+    # 2 -> 3 (never expanded, estimated 5), 4 (never expanded, estimated 0: a floor of 1e-6),
+    # and one action not looked at; 5 -> itself only: a region with no way out.
+    graph = SearchGraph(states=np.zeros((6, 1, 1), np.uint8), expanded=np.array([0, 1, 2, 5]),
+                        children=np.array([[1, 2, 1], [GOAL, 0, 0], [3, 4, UNSEEN], [5, 5, 5]]),
+                        estimates=np.array([9, 9, 9, 5, 0, 9], np.float32))
+    assert np.allclose(backed_up(graph, cap=50.0), [2, 1, 1, 50], atol=1e-5)
+    graph.estimates[4] = 7.0
+    assert np.allclose(backed_up(graph, cap=50.0), [2, 1, 6, 50])  # 2 goes through 3 now
+
+
+def test_a_breadth_first_graph_backs_up_the_shortest_solution_and_a_dead_level_to_the_cap():
+    from wmthesis.sokoban_search.heuristic import backed_up
+
+    level = parse_levels(LEVELS)[1]
+    level = level[1:-1, 1:-1]
+    far = lambda states: np.full(len(states), 1000.0)  # every unexpanded node far: only the ends count
+    result = best_first(Simulator().expand, level, heuristic=far, budget=50_000, graph=True)
+    graph = result.info["graph"]
+    assert result.found and graph.expanded[0] == 0 and np.array_equal(graph.states[0], level)
+    labels = backed_up(graph, cap=500.0)
+    assert labels[0] == len(result.actions)  # breadth first: its plan is a shortest one
+    on_plan = [next(i for i, s in enumerate(graph.states) if np.array_equal(s, state)) for state in result.states[:-1]]
+    assert [labels[list(graph.expanded).index(i)] for i in on_plan] == list(range(len(result.actions), 0, -1))
+    stuck = parse_level("#####\n#$  #\n#@ .#\n#####")[1:-1, 1:-1]  # the box in a corner: searched to the end
+    dead = best_first(Simulator().expand, stuck, heuristic=far, budget=1000, graph=True)
+    assert not dead.found and dead.info["exhausted"]
+    assert np.all(backed_up(dead.info["graph"], cap=120.0) == 120.0)
+
+
+def test_an_agent_keeping_backups_labels_what_its_searches_expanded_and_plays_as_before():
+    stuck = parse_level("#####\n#$  #\n#@ .#\n#####")
+    env = SokobanEnv((4, 5), 1, observation="grid")
+    plain = SearchAgent(Simulator(), budget=1000).play(env, board=stuck)
+    kept = SearchAgent(Simulator(), budget=1000, backups=4, cap=99.0).play(env, board=stuck)
+    assert not kept.solved and kept.expanded == plain.expanded and len(plain.backed_up["labels"]) == 0
+    assert kept.backed_up["states"].shape == (4, 2, 3) and np.all(kept.backed_up["labels"] == 99.0)
+    first = parse_levels(LEVELS)[0]
+    solver = SearchAgent(Simulator(), budget=50_000, backups=10_000)
+    play = solver.play(SokobanEnv((10, 10), 2, observation="grid"), board=first)
+    again = solver.play(SokobanEnv((10, 10), 2, observation="grid"), board=first)
+    assert play.solved and play.actions == again.actions
+    assert np.array_equal(play.backed_up["labels"], again.backed_up["labels"])  # the draw is seeded
+    root = np.flatnonzero([np.array_equal(s, first[1:-1, 1:-1]) for s in play.backed_up["states"]])
+    assert len(root) == 1 and play.backed_up["labels"][root[0]] <= len(play.actions)
+
+
+def test_the_value_trains_on_the_last_rounds_backed_up_states_beside_the_solved_ones(tmp_path):
+    from wmthesis.sokoban_search.iteration import _batches, _last_round, _with_backed_up
+
+    with Experience(tmp_path / "experience.h5") as experience:
+        experience.add("backed_up", 1, states=np.zeros((3, 4, 4), np.uint8), labels=np.full(3, 1.0, np.float32))
+        experience.add("backed_up", 2, states=np.ones((2, 4, 4), np.uint8), labels=np.full(2, 2.0, np.float32))
+        experience.add("backed_up", 2, states=np.ones((2, 5, 5), np.uint8), labels=np.full(2, 3.0, np.float32))
+        last = _last_round(experience.arrays("backed_up"))
+    assert sorted(last) == ["4x4", "5x5"] and np.all(last["4x4"]["to_go"] == 2.0)
+    solved = {"4x4": {"states": np.full((6, 4, 4), 2, np.uint8), "to_go": np.full(6, 9.0, np.float32)},
+              "3x3": {"states": np.full((6, 3, 3), 2, np.uint8), "to_go": np.full(6, 9.0, np.float32)}}
+    rng = np.random.default_rng(0)
+    batches = _with_backed_up(_batches(solved, 6, rng), last, 2, rng)
+    for _ in range(20):
+        batch = next(batches)
+        if batch["states"].shape[1] == 4:  # 6 solved rows and 2 of the last round, of the same size
+            assert batch["to_go"].tolist() == [9.0] * 6 + [2.0] * 2
+        else:  # no backed-up board of this size: the solved rows alone
+            assert batch["to_go"].tolist() == [9.0] * 6
+
+
 # ---------------------------------------------------------------------------- the learned model
 
 def test_the_model_expands_every_action_on_any_board_size():

@@ -338,6 +338,10 @@ class SokobanSearchConfig:
     A policy prior learned from the agent's own solutions (:mod:`~wmthesis.sokoban_search.policy`,
     the value's sizes and updates) adds ``prior_weight`` per nat of ``-log pi`` to a step's cost
     (0: none, and none is trained).
+    Backed-up values: in the rounds each search keeps ``backups`` of the states it expanded,
+    labelled with what the search found below them (:func:`~wmthesis.sokoban_search.heuristic.backed_up`,
+    at most ``backup_cap`` steps), and ``backup_fraction`` of each of the value's batches is
+    drawn among the last round's (0: only the states of solved levels, as before).
     Evaluation: ``eval_levels`` unseen levels per generated variant.
     """
 
@@ -367,6 +371,9 @@ class SokobanSearchConfig:
     replans: int = 4
     round_budget: int = 0
     prior_weight: float = 0.0
+    backups: int = 0
+    backup_cap: float = 120.0
+    backup_fraction: float = 0.5
     eval_levels: int = 500
     seed: int = 0
 

@@ -180,6 +180,7 @@ LEVERS = {
     "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
     "more-rounds": dict(rounds=5),
     "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
+    "backed-up-value": dict(backups=200),  # the value also learns from its searches' graphs: dead ends
     # the search alone, on the baseline's model and value (no training): where do its failures come from?
     "bigger-budget": dict(budget=40_000),  # twice the nodes for each search
     "third-weight": dict(weights=(3.0, 1.5, 0.75)),  # one more search, nearer breadth first, after two fail

@@ -24,6 +24,7 @@ import numpy as np
 from wmthesis.envs import SOKOBAN_VARIANTS
 from wmthesis.envs.sokoban import SokobanEnv
 from wmthesis.sokoban_search.cells import GRID
+from wmthesis.sokoban_search.heuristic import backed_up
 from wmthesis.sokoban_search.search import best_first
 from wmthesis.utils import check_choice, derive_seeds
 
@@ -32,8 +33,10 @@ from wmthesis.utils import check_choice, derive_seeds
 class Play:
     """One level played: its ``seed`` (None for a given board), whether it was ``solved``, the
     ``actions`` taken, the search's ``expanded`` nodes and ``generated`` model transitions,
-    ``searches`` run, ``seconds``, and the ``transitions`` seen (arrays of
-    :class:`~wmthesis.sokoban_search.experience.Experience`)."""
+    ``searches`` run, ``seconds``, the ``transitions`` seen (arrays of
+    :class:`~wmthesis.sokoban_search.experience.Experience`), and ``backed_up``: states its
+    searches expanded with their backed-up steps to go (``states`` uint8 (n, h, w), ``labels``
+    float32 (n,); empty unless the agent keeps some)."""
 
     seed: int | None
     solved: bool
@@ -43,6 +46,7 @@ class Play:
     searches: int
     seconds: float
     transitions: dict = field(repr=False, default_factory=dict)
+    backed_up: dict = field(repr=False, default_factory=dict)
 
     def record(self) -> dict:
         """What is saved of the play (JSON-ready): everything but the transitions."""
@@ -107,11 +111,13 @@ class SearchAgent:
     ``prior_weight`` on a policy prior's ``-log pi`` (``prior``: states -> log pi, or None)
     (:func:`~wmthesis.sokoban_search.search.best_first`); ``inputs``
     (:mod:`~wmthesis.sokoban_search.cells`: grid states or pixels) turns what the env shows into
-    the model's state, and makes envs that show it."""
+    the model's state, and makes envs that show it. With ``backups``, each search keeps that
+    many of the states it expanded (drawn evenly, seeded by the level), labelled with their
+    :func:`~wmthesis.sokoban_search.heuristic.backed_up` steps to go (at most ``cap``)."""
 
     def __init__(self, model, *, inputs=GRID, heuristic=None, budget: int = 20_000,
                  batch: int = 64, weights: tuple = (1.0,), doubt: float = 0.0, replans: int = 4,
-                 prior=None, prior_weight: float = 0.0):
+                 prior=None, prior_weight: float = 0.0, backups: int = 0, cap: float = 120.0):
         if not weights or min(weights) < 0:
             raise ValueError(f"weights must be one or more non-negative numbers, got {weights!r}")
         if prior_weight < 0:
@@ -119,6 +125,7 @@ class SearchAgent:
         self.model, self.inputs = model, inputs
         self.heuristic, self.budget, self.batch, self.weights, self.replans = heuristic, budget, batch, weights, replans
         self.doubt, self.prior, self.prior_weight = doubt, prior, prior_weight
+        self.backups, self.cap = backups, cap
 
     def env(self, variant: str) -> SokobanEnv:
         """Variant ``variant`` showing what this agent sees."""
@@ -131,13 +138,16 @@ class SearchAgent:
         state = self.inputs.observe(env, observation)
         rows = {k: [] for k in ("states", "actions", "next_states", "rewards", "dones")}
         taken, expanded, generated, searches, solved, over = [], 0, 0, 0, False, False
-        model = Remembered(self.model)
+        model, backed_up = Remembered(self.model), []
+        rng = np.random.default_rng([0 if seed is None else seed, 7])
         while not (solved or over) and searches <= self.replans:
             for weight in self.weights:
                 result = best_first(model.expand, state, heuristic=self.heuristic, budget=self.budget,
                                     batch=self.batch, weight=weight, doubt=self.doubt, prior=self.prior,
-                                    prior_weight=self.prior_weight)
+                                    prior_weight=self.prior_weight, graph=self.backups > 0)
                 expanded, generated = expanded + result.expanded, generated + result.generated
+                if self.backups:
+                    backed_up.append(self._backed_up(result.info["graph"], rng))
                 if result.found or result.info["exhausted"] or self.heuristic is None:
                     break  # found; or every weight would search the same (all reachable seen, no value)
             searches += 1
@@ -159,7 +169,20 @@ class SearchAgent:
             shape = (0, *state.shape)
             transitions.update(states=np.zeros(shape, np.uint8), next_states=np.zeros(shape, np.uint8))
         return Play(seed, bool(solved), taken, expanded, generated, searches, time.perf_counter() - start,
-                    transitions)
+                    transitions, _joined(backed_up, state.shape))
+
+    def _backed_up(self, graph, rng: np.random.Generator) -> dict:
+        """``self.backups`` expanded states of one search's graph and their backed-up labels."""
+        labels = backed_up(graph, self.cap)
+        kept = np.sort(rng.choice(len(labels), size=min(self.backups, len(labels)), replace=False))
+        return {"states": graph.states[graph.expanded[kept]], "labels": labels[kept]}
+
+
+def _joined(parts: list[dict], shape: tuple) -> dict:
+    """Rows of several searches as one: ``states`` (n, h, w) uint8, ``labels`` (n,) float32."""
+    if not parts:
+        return {"states": np.zeros((0, *shape), np.uint8), "labels": np.zeros(0, np.float32)}
+    return {k: np.concatenate([p[k] for p in parts]) for k in ("states", "labels")}
 
 
 def random_play(name: str, seed: int, levels: int, max_steps: int | None = None) -> dict[str, np.ndarray]:

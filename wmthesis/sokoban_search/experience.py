@@ -8,7 +8,9 @@ Groups by kind and board shape (boards of several sizes train the same networks)
   levels the agent solved; ``rounds`` int16 (N,);
 - ``solutions/HxW``: ``states`` uint8 (N, h, w), ``actions`` uint8 (N,) the action the agent
   then played, from the levels it solved; ``rounds`` int16 (N,) (files from before 2026-11-24
-  have none).
+  have none);
+- ``backed_up/HxW``: ``states`` uint8 (N, h, w) its searches expanded, ``labels`` float32 (N,)
+  their backed-up steps to go (runs that keep them); ``rounds`` int16 (N,).
 
 States are the env's grid observations (the board's inner cells); pixel frames are their
 rendering (:func:`wmthesis.envs.sokoban.grid_frames` is exact), so they are not stored twice.
@@ -24,7 +26,8 @@ import numpy as np
 
 FIELDS = {"transitions": ("states", "actions", "next_states", "rewards", "dones"),
           "to_go": ("states", "labels"),
-          "solutions": ("states", "actions")}
+          "solutions": ("states", "actions"),
+          "backed_up": ("states", "labels")}
 
 
 class Experience:

@@ -15,14 +15,29 @@ symmetries (:func:`turned`), as AlphaGo Zero showed its Go positions. On the sol
 quick run (seed 0, 20,941 labelled states, 1,500 updates), the value trained with them solved
 135, 141 and 138 of 150 unseen 10x10 levels with the true rules (budget 20,000, three seeds)
 expanding 3,800 nodes a level; without, 137, 133 and 136, expanding 4,700.
+
+Dead ends: states along solutions are all states from which the level can still be solved. A
+search spends most of its nodes elsewhere: in the failed searches of 6 medium Boxoban validation
+levels (the grid run of a quick run, with the true rules, weight 3), 52-77% of the expanded
+states had a box pushed into a corner off its target (counted by an analysis script with the
+rules; the agent knows none), and the value put them nearer the end (a median of 15-21 steps)
+than the level's start (23-50). So the value may also learn from the searches themselves
+(:func:`backed_up`): an expanded state is 1 step more than the best of its children, a state the
+search did not expand is its estimate; solved by Dijkstra's algorithm over the search's graph.
+What a search found below a state (a region that went nowhere) lifts its label, as a search
+tree's backed-up values teach a game's evaluation (Veness et al. 2009, "Bootstrapping from game
+tree search").
 """
 from __future__ import annotations
 
 import numpy as np
 import torch
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
 from torch import nn
 from torch.nn import functional as F
 
+from wmthesis.sokoban_search.search import GOAL, UNSEEN
 from wmthesis.utils import half_precision
 
 
@@ -60,6 +75,31 @@ class Heuristic(nn.Module):
                 "abs_error": (estimate - batch["to_go"]).abs().mean().detach()}
 
 
+def backed_up(graph, cap: float) -> np.ndarray:
+    """The steps to go of each expanded node of a search's
+    :class:`~wmthesis.sokoban_search.search.SearchGraph`, float32 (E,): Bellman's equation over
+    the graph, ``v(s) = 1 + min_a v(child(s, a))``, where a child predicted to end the episode
+    counts 0, a node not expanded its estimate, and an action not looked at nothing. The least
+    solution (every path's cost counted), by Dijkstra's algorithm backwards from the ends and the
+    frontier (:func:`scipy.sparse.csgraph.dijkstra`); at most ``cap`` (a region with no way out
+    in the graph: infinite)."""
+    n, (parents, actions) = len(graph.states), np.nonzero(graph.children != UNSEEN)
+    source = n  # one extra node, the ends and the frontier's estimates hang from it
+    children = graph.children[parents, actions]
+    frontier = np.setdiff1d(np.arange(n), graph.expanded)
+    to_goal = np.unique(graph.expanded[parents[children == GOAL]])
+    rows = np.concatenate([children[children >= 0], np.full(len(to_goal) + len(frontier), source)])
+    cols = np.concatenate([graph.expanded[parents[children >= 0]], to_goal, frontier])
+    weights = np.concatenate([np.ones((children >= 0).sum() + len(to_goal)),
+                              np.maximum(graph.estimates[frontier], 1e-6)])  # an explicit 0 is no edge
+    order = np.lexsort((weights, cols, rows))  # one edge per pair, the cheapest (CSR would add them up)
+    rows, cols, weights = rows[order], cols[order], weights[order]
+    first = np.r_[True, (np.diff(rows) != 0) | (np.diff(cols) != 0)]
+    edges = csr_matrix((weights[first], (rows[first], cols[first])), shape=(n + 1, n + 1))
+    distance = dijkstra(edges, directed=True, indices=source)
+    return np.minimum(distance[graph.expanded], cap).astype(np.float32)
+
+
 def turned(states: torch.Tensor, quarter_turns: int, mirrored: bool) -> torch.Tensor:
     """Boards (B, h, w) turned by ``quarter_turns`` quarter turns, then mirrored about the
     diagonal if ``mirrored``: one of the square's 8 symmetries, (B, h, w) or (B, w, h)."""
@@ -72,4 +112,4 @@ def steps_to_go(states: np.ndarray) -> np.ndarray:
     return np.arange(len(states), 0, -1, dtype=np.float32)
 
 
-__all__ = ["Heuristic", "steps_to_go", "turned"]
+__all__ = ["Heuristic", "backed_up", "steps_to_go", "turned"]

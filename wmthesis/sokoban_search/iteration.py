@@ -57,13 +57,15 @@ class Run:
     inputs: GridInputs = GRID
     policy: Policy | None = None
 
-    def agent(self, cfg: SokobanSearchConfig, model=None, inputs=None) -> SearchAgent:
-        """The search agent of this run (``model``, ``inputs``: e.g. the simulator on grid states)."""
+    def agent(self, cfg: SokobanSearchConfig, model=None, inputs=None, backups: int = 0) -> SearchAgent:
+        """The search agent of this run (``model``, ``inputs``: e.g. the simulator on grid states;
+        ``backups``: states each search keeps with their backed-up labels, as in the rounds)."""
         heuristic = self.heuristic.estimate if self.heuristic is not None else None
         prior = self.policy.log_probs if self.policy is not None and cfg.prior_weight > 0 else None
         return SearchAgent(model if model is not None else self.model, inputs=inputs or self.inputs,
                            heuristic=heuristic, budget=cfg.budget, batch=cfg.batch, weights=cfg.weights,
-                           doubt=cfg.doubt, replans=cfg.replans, prior=prior, prior_weight=cfg.prior_weight)
+                           doubt=cfg.doubt, replans=cfg.replans, prior=prior, prior_weight=cfg.prior_weight,
+                           backups=backups, cap=cfg.backup_cap)
 
 
 def schedule(cfg: SokobanSearchConfig) -> list[tuple[str, int]]:
@@ -132,7 +134,7 @@ def play_in_parts(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[
 
 
 def _play_part(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int]) -> list:
-    return play_levels(run.agent(cfg), variant, seeds, progress=False)
+    return play_levels(run.agent(cfg, backups=cfg.backups), variant, seeds, progress=False)
 
 
 def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: int, variant: str, r: int,
@@ -146,6 +148,8 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
             states = play.transitions["states"]
             experience.add("to_go", number, states=states, labels=steps_to_go(states))
             experience.add("solutions", number, states=states, actions=play.transitions["actions"])
+        if len(play.backed_up.get("labels", ())):
+            experience.add("backed_up", number, **play.backed_up)
     rng = np.random.default_rng([cfg.seed, number])
     losses = fit_model(run.model, experience, cfg, cfg.round_updates, rng, f"model (round {number})", progress)
     if experience.count("to_go"):  # a fresh value each round (see the module's docstring)
@@ -232,10 +236,16 @@ def fit_model(model: SokobanModel, experience: Experience, cfg: SokobanSearchCon
 
 def fit_heuristic(heuristic: Heuristic, experience: Experience, cfg: SokobanSearchConfig,
                   rng: np.random.Generator, desc: str = "value", progress: bool = True) -> float:
-    """Train the value on every labelled state (each batch in a random one of the board's
-    symmetries if ``cfg.value_symmetries``); returns its mean absolute error (steps)."""
+    """Train the value on every labelled state of the solved levels, and, if the run keeps
+    backed-up states (``cfg.backups``), on the last round's: ``cfg.backup_fraction`` of each
+    batch (each batch in a random one of the board's symmetries if ``cfg.value_symmetries``);
+    returns its mean absolute error (steps)."""
     groups = {k: {"states": g["states"], "to_go": g["labels"]} for k, g in experience.arrays("to_go").items()}
-    batches = _batches(groups, cfg.batch_size, rng)
+    backed = _last_round(experience.arrays("backed_up")) if cfg.backups else {}
+    share = int(round(cfg.backup_fraction * cfg.batch_size)) if backed else 0
+    batches = _batches(groups, cfg.batch_size - share, rng)
+    if share:
+        batches = _with_backed_up(batches, backed, share, rng)
     if cfg.value_symmetries:
         batches = ({**batch, "states": turned(batch["states"], int(rng.integers(4)), bool(rng.integers(2)))}
                    for batch in batches)
@@ -274,6 +284,25 @@ def policy_afterwards(folder: str | Path, run: Run, cfg: SokobanSearchConfig, pr
     with atomic_path(path) as tmp:
         torch.save(policy.state_dict(), tmp)
     return policy
+
+
+def _last_round(groups: dict) -> dict:
+    """``{"HxW": {"states", "to_go"}}``: the rows of the last round in ``groups`` (of ``backed_up``)."""
+    last = max((int(g["rounds"].max()) for g in groups.values()), default=None)
+    return {k: {"states": g["states"][g["rounds"] == last], "to_go": g["labels"][g["rounds"] == last]}
+            for k, g in groups.items() if (g["rounds"] == last).any()}
+
+
+def _with_backed_up(batches, backed: dict, share: int, rng: np.random.Generator):
+    """Each batch of ``batches`` with ``share`` rows of ``backed`` ({"HxW": {"states", "to_go"}})
+    added, drawn uniformly among those of its board size (none where there are none)."""
+    for batch in batches:
+        group = backed.get("x".join(str(n) for n in batch["states"].shape[1:]))
+        if group is not None:
+            picked = rng.integers(len(group["states"]), size=share)
+            batch = {k: torch.cat([batch[k], torch.as_tensor(group[k][picked], device=batch[k].device)])
+                     for k in batch}
+        yield batch
 
 
 def _turned_batch(batch: dict, quarter_turns: int, mirrored: bool) -> dict:

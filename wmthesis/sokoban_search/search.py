@@ -16,6 +16,10 @@ may add ``prior_weight * -log pi(a | s)`` to a step's cost. A step costs ``1 + d
 the model's rare mistakes and prefers the ones that help it (a box that vanishes is a box
 solved), so a transition the model is unsure of costs more, in proportion to its doubt. The goal
 is a transition the model predicts to end the episode.
+
+With ``graph=True`` the search also returns what it saw (:class:`SearchGraph`): the nodes, and
+the children of each node it expanded, from which the value learns what the search found below
+a state (:func:`~wmthesis.sokoban_search.heuristic.backed_up`).
 """
 from __future__ import annotations
 
@@ -47,14 +51,33 @@ class SearchResult:
         return self.actions is not None
 
 
+GOAL, UNSEEN = -1, -2  # a transition predicted to end the episode; one not looked at
+
+
+@dataclass
+class SearchGraph:
+    """What a search saw: ``states`` uint8 (N, h, w), its nodes in the order found (the root
+    first); ``expanded`` (E,) the nodes it expanded, in order; ``children`` (E, A) the node each
+    action leads to from each of them (:data:`GOAL` for a transition predicted to end the
+    episode, :data:`UNSEEN` for one the search stopped before looking at); ``estimates`` (N,)
+    the value's steps to go of each node (0 without a value)."""
+
+    states: np.ndarray
+    expanded: np.ndarray
+    children: np.ndarray
+    estimates: np.ndarray
+
+
 def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000, batch: int = 64,
-               weight: float = 1.0, doubt: float = 0.0, prior=None, prior_weight: float = 0.0) -> SearchResult:
+               weight: float = 1.0, doubt: float = 0.0, prior=None, prior_weight: float = 0.0,
+               graph: bool = False) -> SearchResult:
     """Search from ``root`` (uint8 (h, w)) for a transition that ``expand`` predicts to end the
     episode, expanding at most ``budget`` nodes, ``batch`` at a time (the lowest ``f`` first,
     first-in first-out on ties). ``heuristic(states (B, h, w)) -> steps to go (B,)``; ``doubt``
     the cost of one nat of the model's surprise; ``prior(states (B, h, w)) -> log pi (B, A)``, a
     policy whose unlikely actions cost ``prior_weight`` per nat of ``-log pi`` more (a policy
-    prior orders the expansions, as in Levin tree search)."""
+    prior orders the expansions, as in Levin tree search). With ``graph``, ``info["graph"]`` is
+    the :class:`SearchGraph`."""
     start = time.perf_counter()
     root = np.ascontiguousarray(root, dtype=np.uint8)
     states, parents, actions, cost, estimate = [root], [-1], [-1], [0.0], [0.0]
@@ -62,6 +85,13 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
     order = itertools.count()
     frontier = [(0.0, next(order), 0)]
     expanded = generated = 0
+    seen = ([], []) if graph else None  # the expanded nodes, and their children (A,) each
+
+    def result(actions=None, path_states=None, **info) -> SearchResult:
+        if graph:
+            info["graph"] = _graph(states, estimate, *seen)
+        return SearchResult(actions, path_states, expanded, generated, time.perf_counter() - start, info)
+
     while frontier and expanded < budget:
         picked = []
         while frontier and len(picked) < min(batch, budget - expanded):
@@ -78,15 +108,22 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
         unlikely = (-prior_weight * np.asarray(prior(parents_now), dtype=np.float64) if prior is not None and prior_weight
                     else np.zeros(dones.shape))
         fresh, improved = [], set()
+        if graph:
+            seen[0].extend(picked)
+            seen[1].extend(np.full((len(picked), dones.shape[1]), UNSEEN, np.int64))
         for (k, action), child in zip(np.ndindex(dones.shape), children.reshape(-1, *root.shape)):
             parent = picked[k]
             if dones[k, action]:
+                if graph:
+                    seen[1][len(seen[1]) - len(picked) + k][action] = GOAL
                 plan = _path(parents, actions, parent) + [action]
                 path_states = np.stack([states[i] for i in _nodes(parents, parent)] + [child])
-                return SearchResult(plan, path_states, expanded, generated, time.perf_counter() - start)
+                return result(plan, path_states)
             through = (cost[parent] + 1.0 + doubt * float(surprises[k, action])  # the cost of reaching child this way
                        + float(unlikely[k, action]))
             key = child.tobytes()
+            if graph:
+                seen[1][len(seen[1]) - len(picked) + k][action] = index.get(key, len(states))
             if key not in index:
                 index[key] = len(states)
                 states.append(child)
@@ -104,8 +141,14 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
                 estimate[i] = float(h)
         for i in fresh + sorted(improved - set(fresh)):
             heapq.heappush(frontier, (cost[i] + weight * estimate[i], next(order), i))
-    return SearchResult(None, None, expanded, generated, time.perf_counter() - start,
-                        {"exhausted": expanded < budget})  # the frontier ran dry first
+    return result(exhausted=expanded < budget)  # exhausted: the frontier ran dry first
+
+
+def _graph(states: list, estimate: list, expanded: list, children: list) -> SearchGraph:
+    shape = (len(expanded), children[0].shape[0]) if children else (0, 0)
+    return SearchGraph(np.stack(states), np.asarray(expanded, np.int64),
+                       np.stack(children) if children else np.zeros(shape, np.int64),
+                       np.asarray(estimate, np.float32))
 
 
 def _nodes(parents: list[int], node: int) -> list[int]:
@@ -152,4 +195,4 @@ class Simulator:
         return boards[:, 1:-1, 1:-1].copy(), rewards, dones
 
 
-__all__ = ["best_first", "SearchResult", "Simulator"]
+__all__ = ["best_first", "SearchResult", "SearchGraph", "Simulator", "GOAL", "UNSEEN"]
