@@ -272,11 +272,12 @@ def policy_afterwards(folder: str | Path, run: Run, cfg: SokobanSearchConfig, pr
     ``folder/policy-afterwards.pt``, read from there after. What a prior adds to the search with
     the model and the value as they are, no round played again."""
     path = Path(folder) / AFTERWARDS
-    torch.manual_seed(cfg.seed + 10_000)  # its first weights, from the run's seed
-    policy = Policy(run.model.n_codes, N_ACTIONS, cfg.value_channels, cfg.value_blocks).to(device())
     if path.exists():
+        policy = Policy(run.model.n_codes, N_ACTIONS, cfg.value_channels, cfg.value_blocks).to(device())
         policy.load_state_dict(torch.load(path, map_location=device()))
         return policy
+    torch.manual_seed(cfg.seed + 10_000)  # its first weights, from the run's seed
+    policy = Policy(run.model.n_codes, N_ACTIONS, cfg.value_channels, cfg.value_blocks).to(device())
     with Experience(Path(folder) / "experience.h5") as experience:
         if not sum(len(g["actions"]) for g in experience.solutions().values()):
             raise ValueError(f"{folder}: the run solved no level, no policy can be learned from its solutions")
