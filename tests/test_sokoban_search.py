@@ -522,6 +522,21 @@ def test_a_run_resumes_to_the_same_result_and_refuses_another_config(tmp_path):
         train_search_agent(tmp_path / "a", dataclasses.replace(cfg, budget=7), progress=False)
 
 
+def test_a_run_saved_before_backed_up_values_reads_as_one_without_them(tmp_path):
+    import dataclasses
+
+    cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",), backups=0)
+    assert for_profile(SokobanSearchConfig, "smoke").backups > 0  # the default keeps them now
+    train_search_agent(tmp_path, cfg, progress=False)
+    saved = torch.load(tmp_path / "state.pt", weights_only=False)
+    for name in ("backups", "backup_cap", "backup_fraction"):  # as a run saved before they existed
+        del saved["config"][name]
+    torch.save(saved, tmp_path / "state.pt")
+    assert load_run(tmp_path, cfg).rounds_done == 1
+    with pytest.raises(ValueError, match="'backups': \\(0, 200\\)"):
+        load_run(tmp_path, dataclasses.replace(cfg, backups=200))
+
+
 def test_a_corrupt_checkpoint_is_named_and_left_alone(tmp_path):
     (tmp_path / "state.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match="delete it to start over"):
@@ -567,7 +582,7 @@ def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own
 def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, monkeypatch):
     from wmthesis.experiments.sokoban_search import BOXOBAN_SPLITS, lever_rows, validate
 
-    with pytest.raises(ValueError, match="valid: baseline, boxoban-curriculum"):
+    with pytest.raises(ValueError, match="valid: baseline, no-backups, boxoban-curriculum"):
         validate("bigger-brain", "smoke")
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     result = validate("strong-expert", "smoke", seed=1, levels=3, progress=False)

@@ -341,7 +341,9 @@ class SokobanSearchConfig:
     Backed-up values: in the rounds each search keeps ``backups`` of the states it expanded,
     labelled with what the search found below them (:func:`~wmthesis.sokoban_search.heuristic.backed_up`,
     at most ``backup_cap`` steps), and ``backup_fraction`` of each of the value's batches is
-    drawn among the last round's (0: only the states of solved levels, as before).
+    drawn among the last round's (``backups`` 0: only the states of solved levels, as before).
+    Chosen on the first 100 levels of Boxoban's unfiltered and medium valid 000-001 (quick, seed
+    0, pixels): 99 and 86 solved with them against 92 and 56 without, with 40% and 47% of the nodes.
     Evaluation: ``eval_levels`` unseen levels per generated variant.
     """
 
@@ -371,11 +373,13 @@ class SokobanSearchConfig:
     replans: int = 4
     round_budget: int = 0
     prior_weight: float = 0.0
-    backups: int = 0
+    backups: int = 200
     backup_cap: float = 120.0
     backup_fraction: float = 0.5
     eval_levels: int = 500
     seed: int = 0
+    # what a run saved before a field was added did, where the field's default has changed since
+    ADDED_AS: ClassVar[dict] = {"backups": 0}
 
 
 # Per profile, per config class name: the fields that differ from the thesis defaults.

@@ -174,13 +174,15 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
 
 # Issue 30's levers: each a change to the pixel agent's config, trained in a folder of its own and
 # measured on the validation files only (``validate``), never on the report files.
+CURRICULUM = ("sokoban-small", "boxoban-unfiltered-train", "boxoban-medium-train")
 LEVERS = {
     "baseline": {},  # the pixel run of ``sokoban_search`` itself
-    "boxoban-curriculum": dict(variants=("sokoban-small", "boxoban-unfiltered-train", "boxoban-medium-train")),
+    "no-backups": dict(backups=0),  # its value from solved levels alone: the baseline before backed-up values
+    "boxoban-curriculum": dict(variants=CURRICULUM),  # through Boxoban's train files, not our 10x10 generator
+    "no-backups-curriculum": dict(backups=0, variants=CURRICULUM),  # the same, before backed-up values
     "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
     "more-rounds": dict(rounds=5),
     "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
-    "backed-up-value": dict(backups=200),  # the value also learns from its searches' graphs: dead ends
     # the search alone, on the baseline's model and value (no training): where do its failures come from?
     "bigger-budget": dict(budget=40_000),  # twice the nodes for each search
     "third-weight": dict(weights=(3.0, 1.5, 0.75)),  # one more search, nearer breadth first, after two fail
@@ -228,19 +230,21 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
 
 
 def lever_rows(profile: str | None = None, seed: int = 0) -> list[list]:
-    """The levers measured so far (``validation-LEVER.json`` of :func:`validate`) on the
-    validation files: (lever, its changes, unfiltered %, medium %, levels, seconds per level,
-    environment steps), the baseline first."""
+    """The levers measured so far on the validation files (every ``validation-*.json`` that
+    :func:`validate` wrote, or kept from an earlier baseline under its own name): (lever, its
+    changes, unfiltered %, medium %, levels, nodes per level, seconds per level, environment
+    steps), the baseline first."""
     folder = data_dir("results", "sokoban-search", f"{profile_name(profile)}-seed{seed}")
-    found = {lever: _read_json(folder / f"validation-{lever}.json") for lever in LEVERS}
+    found = [result for result in map(_read_json, folder.glob("validation-*.json")) if result and "lever" in result]
+    found.sort(key=lambda result: (result["lever"] != "baseline", result["lever"]))
     rows = []
-    for lever, result in found.items():
-        if result is not None:
-            measured = result["rows"]
-            rows.append([lever, ", ".join(f"{k}={v}" for k, v in result["changes"].items()) or "(quick as it is)",
-                         *(f"{100 * measured[k]['solve_rate']:.1f}" for k in ("unfiltered", "medium")),
-                         measured["unfiltered"]["levels"],
-                         f"{np.mean([m['seconds_per_level'] for m in measured.values()]):.2f}", f"{result['env_steps']:,}"])
+    for result in found:
+        measured = result["rows"]
+        rows.append([result["lever"], ", ".join(f"{k}={v}" for k, v in result["changes"].items()) or "(quick as it is)",
+                     *(f"{100 * measured[k]['solve_rate']:.1f}" for k in ("unfiltered", "medium")),
+                     measured["unfiltered"]["levels"],
+                     f"{np.mean([m['nodes_per_level'] for m in measured.values()]):,.0f}",
+                     f"{np.mean([m['seconds_per_level'] for m in measured.values()]):.2f}", f"{result['env_steps']:,}"])
     return rows
 
 
