@@ -15,8 +15,9 @@ Rows:
   variant with the learned-model interface (the random model above, its end logits pinned
   negative and its skip connection off: the search never finds an end and its children are new
   states, so every search expands its whole ``--budget``), the same with a policy prior
-  (:class:`Policy`, 32 channels x 2 blocks, weight 1: one more network call per batch), and with
-  the true rules (:class:`Simulator`, which stops when it solves the level): nodes expanded per
+  (:class:`Policy`, 32 channels x 2 blocks, weight 1: one more network call per batch), the
+  same keeping its graph and backing up its values as the training rounds do (:func:`backed_up`,
+  timed with the search), and with the true rules (:class:`Simulator`, which stops when it solves the level): nodes expanded per
   second, batch 64.
 
 The model runs in bfloat16 where the CPU computes it natively (:func:`wmthesis.utils.half_precision`),
@@ -37,6 +38,7 @@ import torch
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
 from wmthesis.sokoban_search.agent import grid_env, grid_state, level_seeds, random_play  # noqa: E402
+from wmthesis.sokoban_search.heuristic import backed_up  # noqa: E402
 from wmthesis.sokoban_search.model import SokobanModel  # noqa: E402
 from wmthesis.sokoban_search.policy import Policy  # noqa: E402
 from wmthesis.sokoban_search.search import Simulator, best_first  # noqa: E402
@@ -67,6 +69,7 @@ def search_rows(model: SokobanModel, levels: int, budget: int, seed: int) -> lis
     rows = []
     prior = Policy(7, 8).log_probs  # the policy prior's size in the experiment (the value's: 32 x 2)
     searches = {"learned model": (model.expand, {}), "learned model, policy prior": (model.expand, dict(prior=prior, prior_weight=1.0)),
+                "learned model, graph backed up": (model.expand, dict(graph=True)),
                 "true rules": (Simulator().expand, {})}
     for variant in SIZES:
         env = grid_env(variant)
@@ -75,7 +78,11 @@ def search_rows(model: SokobanModel, levels: int, budget: int, seed: int) -> lis
             expanded, seconds = 0, 0.0
             for root in roots:
                 result = best_first(expand, root, budget=budget, batch=64, **options)
-                expanded, seconds = expanded + result.expanded, seconds + result.seconds
+                start = time.perf_counter()
+                if "graph" in result.info:  # the rounds' labels from the search's graph
+                    backed_up(result.info["graph"], cap=120.0)
+                expanded = expanded + result.expanded
+                seconds = seconds + result.seconds + time.perf_counter() - start
             rows.append(dict(row=f"search, {name}", variant=variant, levels=levels,
                              nodes_per_level=expanded / levels, nodes_per_s=expanded / seconds))
     return rows
