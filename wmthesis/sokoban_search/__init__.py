@@ -3,7 +3,7 @@ and 5.5 stopped at 0 solved levels).
 
 Read in this order: ``model`` (the learned model over a grid of discrete cells), ``cells`` (the
 cell codes: the grid's types, or learned from pixels), ``search`` (batched best-first search in
-any model, and the true rules as one), ``heuristic`` (the learned steps-to-go value), ``agent``
+any model, and the true rules as one), ``heuristic`` (the learned steps-to-go value, and the labels it backs up from a search's graph), ``agent``
 (plan, play, replan in the real game), ``experience`` and ``iteration`` (expert iteration:
 random play, then rounds of the agent's own play), ``accuracy``, ``evaluation``, ``figures``.
 
