@@ -595,6 +595,33 @@ def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, m
     assert row[2] == f"{100 * result['rows']['unfiltered']['solve_rate']:.1f}"
 
 
+def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smaller_one_did_not(tmp_path, monkeypatch):
+    import importlib
+    import os
+
+    experiment = importlib.import_module("wmthesis.experiments.sokoban_search")  # the module, not its function
+    evaluation = importlib.import_module("wmthesis.sokoban_search.evaluation")
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    monkeypatch.setattr(os, "cpu_count", lambda: 1)  # the parts in this process, so that the spy sees them
+    with pytest.raises(ValueError, match="no trained pixel agent"):
+        experiment.evaluate_report("smoke", seed=3, levels=2, progress=False)
+    cfg = for_profile(SokobanSearchConfig, "smoke", seed=3, inputs="pixels")
+    train_search_agent(experiment.work_folder("smoke", 3) / "pixels", cfg, progress=False)
+    played, real = [], evaluation.solve_boards
+    monkeypatch.setattr(evaluation, "solve_boards", lambda agent, boards, **kw: played.append(kw["levels"]) or real(agent, boards, **kw))
+    first = experiment.evaluate_report("smoke", seed=3, levels=2, progress=False)
+    assert played == [[0], [1]] * 2  # unfiltered, then medium: each kind's two parts
+    played.clear()
+    more = experiment.evaluate_report("smoke", seed=3, levels=5, progress=False)
+    assert played == [[2, 4], [3]] * 2  # the first two levels of each kind come from the smaller evaluation
+    for kind, row in more["rows"].items():
+        assert row["levels"] == 5 and row["source"].startswith(experiment.BOXOBAN_SPLITS["report"][kind])
+        assert set(first["rows"][kind]["failed_levels"]) <= set(row["failed_levels"]) | {0, 1}
+        assert row["replayed"] == row["solved"]
+    saved = json.loads((tmp_path / "results" / "sokoban-search" / "smoke-seed3" / "boxoban-report-5.json").read_text())
+    assert saved["rows"]["medium"]["levels"] == 5 and saved["levels"] == 5
+
+
 def test_a_search_only_lever_searches_the_baselines_run_without_training_another(tmp_path, monkeypatch):
     import dataclasses
     import importlib

@@ -15,6 +15,10 @@
         Issue 30's levers of the pixel agent (baseline, prior-afterwards, boxoban-curriculum, ...)
         on the first N levels of Boxoban's validation files (unfiltered and medium valid
         000-001), each trained first if it needs its own run; resumable level by level.
+    evaluate-sokoban [--levels N] [--profile P] [--seed S]
+        The pixel agent ``reproduce sokoban-search`` trained on the first N (1000) levels of each
+        of Boxoban's report files (unfiltered and medium valid 005-009): the closing figures;
+        resumable level by level, reusing the experiment's own smaller evaluation.
     search planet-boxing|planet-freeway --trials N [--workers K] [--storage URL] [--profile P]
         Random search over KL scale x free nats (optuna); re-running continues the study, and
         any optuna storage URL (e.g. PostgreSQL) lets workers on many machines share it.
@@ -159,11 +163,24 @@ def cmd_validate_sokoban(args) -> int:
         raise ValueError(f"unknown lever {unknown[0]!r}; valid: {', '.join(LEVERS)}")
     for lever in args.levers:
         result = validate(lever, args.profile, args.seed, args.levels)
-        print(f"{lever} (seed {args.seed}): " + "; ".join(
-            f"{kind} {row['solved']}/{row['levels']} ({100 * row['solve_rate']:.1f}%), "
-            f"{row['nodes_per_level']:,.0f} nodes and {row['seconds_per_level']:.1f} s a level"
-            for kind, row in result["rows"].items()))
+        print(_solved_line(f"{lever} (seed {args.seed})", result["rows"]))
     return 0
+
+
+def cmd_evaluate_sokoban(args) -> int:
+    from wmthesis.experiments.sokoban_search import evaluate_report
+
+    result = evaluate_report(args.profile, args.seed, args.levels)
+    print(_solved_line(f"pixel agent (seed {args.seed}), report files", result["rows"]))
+    return 0
+
+
+def _solved_line(name: str, rows: dict) -> str:
+    """``name: kind solved/levels (rate%), nodes and seconds a level; ...``"""
+    return f"{name}: " + "; ".join(
+        f"{kind} {row['solved']}/{row['levels']} ({100 * row['solve_rate']:.1f}%), "
+        f"{row['nodes_per_level']:,.0f} nodes and {row['seconds_per_level']:.1f} s a level"
+        for kind, row in rows.items())
 
 
 def cmd_search(args) -> int:
@@ -281,6 +298,14 @@ def parser() -> argparse.ArgumentParser:
     validate.add_argument("--levels", type=at_least(1), help="the first N levels of each validation set "
                                                              "(default: the profile's)")
     validate.set_defaults(run=cmd_validate_sokoban)
+
+    report = commands.add_parser("evaluate-sokoban", help="the trained Sokoban pixel agent on more of Boxoban's "
+                                                          "report files than the experiment plays")
+    report.add_argument("--levels", type=at_least(1), default=1000, help="the first N levels of each report set "
+                                                                         "(default 1000)")
+    report.add_argument("--profile", choices=PROFILES)
+    report.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
+    report.set_defaults(run=cmd_evaluate_sokoban)
 
     search = commands.add_parser("search", help="random search over KL scale x free nats (optuna)")
     search.add_argument("name", choices=("planet-boxing", "planet-freeway"))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import time
 from pathlib import Path
 
@@ -229,6 +230,37 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     return result
 
 
+@releasing_holds
+def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 1000, progress: bool = True) -> dict:
+    """The pixel agent that :func:`sokoban_search` trained on the first ``levels`` levels of each
+    report set (:data:`BOXOBAN_SPLITS`), beyond the experiment's own :data:`BOXOBAN_LEVELS`: the
+    closing figures. Resumable level by level, and the levels a smaller evaluation of the same
+    run played are taken from it. Returns, and writes to the run's results folder as
+    ``boxoban-report-LEVELS.json``, each kind's row (solve rate, nodes and seconds per level,
+    solutions replayed, failed levels)."""
+    from wmthesis.envs.boxoban import load_levels
+
+    profile = profile_name(profile)
+    cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
+    work = hold(work_folder(profile, seed))
+    if not _trained(work / "pixels", cfg):
+        raise ValueError(f"no trained pixel agent in {work / 'pixels'}: run `python -m wmthesis reproduce "
+                         f"sokoban-search --profile {profile} --seed {seed}` first")
+    jobs = {("pixels", kind, part): _boxoban_job(work / f"eval-boxoban-pixels-{kind}-{levels}-{part}.json",
+                                                 work / "pixels", cfg, source, levels, part)
+            for kind, source in BOXOBAN_SPLITS["report"].items() for part in range(EVAL_PARTS)}
+    _run_saved(jobs, progress)
+    run = load_run(work / "pixels", cfg)
+    result = {"profile": profile, "seed": seed, "levels": levels,
+              "env_steps": int(sum(h["env_steps"] for h in run.history)),
+              "rows": {kind: _boxoban_row(_level_plays(jobs, "pixels", kind), source, load_levels(source))
+                       for kind, source in BOXOBAN_SPLITS["report"].items()}}
+    out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
+    with atomic_path(out / f"boxoban-report-{levels}.json") as tmp:
+        tmp.write_text(json.dumps(_jsonable(result), indent=1))
+    return result
+
+
 def lever_rows(profile: str | None = None, seed: int = 0) -> list[list]:
     """The levers measured so far on the validation files (every ``validation-*.json`` that
     :func:`validate` wrote, or kept from an earlier baseline under its own name): (lever, its
@@ -316,7 +348,9 @@ def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, sim
     if search.prior_weight > 0 and run.policy is None:  # a run trained without a prior: the one fitted after it
         run.policy = policy_afterwards(folder, run, cfg, progress=False)
     agent = run.agent(search, Simulator(), GRID) if simulator else run.agent(search)
-    done = {r["level"]: r for r in (_read_json(partial) or {}).get("plays", [])} if partial is not None else {}
+    done = {}
+    if partial is not None:  # what this part, or a smaller evaluation of the same, has played already
+        done = {**_smaller_evaluations(partial), **{r["level"]: r for r in (_read_json(partial) or {}).get("plays", [])}}
 
     def keep(record: dict) -> None:
         done[record["level"]] = record
@@ -327,6 +361,23 @@ def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, sim
     todo = [i for i in levels if i not in done]
     solve_boards(agent, [boards[i] for i in todo], progress=False, levels=todo, on_level=keep)
     return {"plays": [done[i] for i in levels]}
+
+
+def _smaller_evaluations(partial: Path) -> dict:
+    """The plays, by level, of the finished evaluations of the same run, source and part as the
+    one keeping ``partial`` (``STEM-COUNT-PART.partial.json``), over fewer levels: a part's levels
+    (``range(count)[part::EVAL_PARTS]``) begin with those of every smaller count, and a level is
+    played the same every time."""
+    match = re.fullmatch(r"(.+)-(\d+)-(\d+)\.partial\.json", partial.name)
+    if match is None:
+        return {}
+    stem, count, part = match.group(1), int(match.group(2)), match.group(3)
+    found = {}
+    for path in partial.parent.glob(f"{stem}-*-{part}.json"):
+        smaller = re.fullmatch(rf"{re.escape(stem)}-(\d+)-{part}\.json", path.name)
+        if smaller is not None and int(smaller.group(1)) < count:
+            found.update({r["level"]: r for r in (_read_json(path) or {}).get("plays", [])})
+    return found
 
 
 def _boxoban_reference(row, source: str, count: int) -> dict:
@@ -347,20 +398,26 @@ def _boxoban_table(kind: str, jobs: dict, profile: str) -> dict:
     merged in level order, with its source and how many solutions an independent replay
     confirmed."""
     from wmthesis.envs.boxoban import load_levels
-    from wmthesis.sokoban_search.evaluation import check_board_solutions
 
     source, rows = BOXOBAN_SPLITS["report"][kind], {}
     boards = load_levels(source)
     rows["random play"] = _read_json(jobs["random", kind, 0][0])
     rows["thesis"] = {"solve_rate": THESIS_SOLVED}
     for name, title in BOXOBAN_AGENTS.items():
-        plays = _level_plays(jobs, name, kind)
-        solved = [r for r in plays if r["solved"]]
-        rows[title] = {**agent_row(plays), "source": f"{source}, its first {len(plays)} levels",
-                       "replayed": int(sum(check_board_solutions(boards, solved))),
-                       "failed_levels": [r["level"] for r in plays if not r["solved"]]}
+        rows[title] = _boxoban_row(_level_plays(jobs, name, kind), source, boards)
     rows["A* (reference)"] = _read_json(jobs["astar", kind, 0][0])
     return rows
+
+
+def _boxoban_row(plays: list[dict], source: str, boards) -> dict:
+    """An agent's row on the first levels of a Boxoban source: solve rate and costs, how many of
+    its solutions an independent replay confirmed, and the levels it failed."""
+    from wmthesis.sokoban_search.evaluation import check_board_solutions
+
+    solved = [r for r in plays if r["solved"]]
+    return {**agent_row(plays), "source": f"{source}, its first {len(plays)} levels",
+            "replayed": int(sum(check_board_solutions(boards, solved))),
+            "failed_levels": [r["level"] for r in plays if not r["solved"]]}
 
 
 def boxoban_rows(metrics: dict) -> list[list]:
@@ -439,5 +496,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "validate", "lever_rows", "LEVERS", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+__all__ = ["sokoban_search", "validate", "evaluate_report", "lever_rows", "LEVERS", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
            "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]
