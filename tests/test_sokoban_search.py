@@ -212,6 +212,11 @@ def test_backed_up_values_solve_bellmans_equation_over_the_search_graph():
     assert np.allclose(backed_up(graph, cap=50.0), [2, 1, 1, 50], atol=1e-5)
     graph.estimates[4] = 7.0
     assert np.allclose(backed_up(graph, cap=50.0), [2, 1, 6, 50])  # 2 goes through 3 now
+    # the end found in mid-batch: node 3 was picked with 0..2 but none of its children looked at
+    stopped = SearchGraph(graph.states, np.array([0, 1, 2, 3]),
+                          np.array([[1, 2, 1], [GOAL, UNSEEN, UNSEEN], [3, 4, UNSEEN], [UNSEEN] * 3]),
+                          np.array([9, 9, 9, 5, 7, 9], np.float32))
+    assert np.allclose(backed_up(stopped, cap=50.0), [2, 1, 6, 5])  # 3 is its estimate, not a dead end
 
 
 def test_a_breadth_first_graph_backs_up_the_shortest_solution_and_a_dead_level_to_the_cap():

@@ -79,17 +79,20 @@ def backed_up(graph, cap: float) -> np.ndarray:
     """The steps to go of each expanded node of a search's
     :class:`~wmthesis.sokoban_search.search.SearchGraph`, float32 (E,): Bellman's equation over
     the graph, ``v(s) = 1 + min_a v(child(s, a))``, where a child predicted to end the episode
-    counts 0, a node not expanded its estimate, and an action not looked at nothing. The least
+    counts 0, a node not expanded its estimate (so does one whose children the search never looked
+    at, having found the end first), and an action not looked at nothing. The least
     solution (every path's cost counted), by Dijkstra's algorithm backwards from the ends and the
     frontier (:func:`scipy.sparse.csgraph.dijkstra`); at most ``cap`` (a region with no way out
     in the graph: infinite)."""
-    n, (parents, actions) = len(graph.states), np.nonzero(graph.children != UNSEEN)
+    looked = (graph.children != UNSEEN).any(1)  # a search that ends at a goal stops in mid-batch:
+    expanded = graph.expanded[looked]            # the nodes after it count as not expanded
+    n, (parents, actions) = len(graph.states), np.nonzero(graph.children[looked] != UNSEEN)
     source = n  # one extra node, the ends and the frontier's estimates hang from it
-    children = graph.children[parents, actions]
-    frontier = np.setdiff1d(np.arange(n), graph.expanded)
-    to_goal = np.unique(graph.expanded[parents[children == GOAL]])
+    children = graph.children[looked][parents, actions]
+    frontier = np.setdiff1d(np.arange(n), expanded)
+    to_goal = np.unique(expanded[parents[children == GOAL]])
     rows = np.concatenate([children[children >= 0], np.full(len(to_goal) + len(frontier), source)])
-    cols = np.concatenate([graph.expanded[parents[children >= 0]], to_goal, frontier])
+    cols = np.concatenate([expanded[parents[children >= 0]], to_goal, frontier])
     weights = np.concatenate([np.ones((children >= 0).sum() + len(to_goal)),
                               np.maximum(graph.estimates[frontier], 1e-6)])  # an explicit 0 is no edge
     order = np.lexsort((weights, cols, rows))  # one edge per pair, the cheapest (CSR would add them up)
