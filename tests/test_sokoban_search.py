@@ -232,6 +232,14 @@ def test_a_breadth_first_graph_backs_up_the_shortest_solution_and_a_dead_level_t
     assert labels[0] == len(result.actions)  # breadth first: its plan is a shortest one
     on_plan = [next(i for i, s in enumerate(graph.states) if np.array_equal(s, state)) for state in result.states[:-1]]
     assert [labels[list(graph.expanded).index(i)] for i in on_plan] == list(range(len(result.actions), 0, -1))
+    def boxes_off_target(states):  # a test-only oracle: not something the agent is given
+        return 3.0 * (states == BOX).reshape(len(states), -1).sum(1)
+
+    roomy = parse_levels(LEVELS)[0][1:-1, 1:-1]
+    guided = best_first(Simulator().expand, roomy, heuristic=boxes_off_target, budget=50_000, batch=64, graph=True)
+    g = guided.info["graph"]
+    waiting = np.setdiff1d(np.arange(1, len(g.states)), g.expanded)  # some found in the last batch
+    assert guided.found and len(waiting) and np.array_equal(g.estimates[waiting], boxes_off_target(g.states[waiting]))
     stuck = parse_level("#####\n#$  #\n#@ .#\n#####")[1:-1, 1:-1]  # the box in a corner: searched to the end
     dead = best_first(Simulator().expand, stuck, heuristic=far, budget=1000, graph=True)
     assert not dead.found and dead.info["exhausted"]

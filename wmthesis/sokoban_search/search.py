@@ -87,6 +87,11 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
     expanded = generated = 0
     seen = ([], []) if graph else None  # the expanded nodes, and their children (A,) each
 
+    def estimated(nodes: list) -> None:  # the value's estimates of new nodes, one call for all
+        if nodes and heuristic is not None:
+            for i, h in zip(nodes, np.asarray(heuristic(np.stack([states[i] for i in nodes])), dtype=np.float64)):
+                estimate[i] = float(h)
+
     def result(actions=None, path_states=None, **info) -> SearchResult:
         if graph:
             info["graph"] = _graph(states, estimate, *seen)
@@ -114,8 +119,9 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
         for (k, action), child in zip(np.ndindex(dones.shape), children.reshape(-1, *root.shape)):
             parent = picked[k]
             if dones[k, action]:
-                if graph:
+                if graph:  # the graph's new nodes of this batch get their estimates too
                     seen[1][len(seen[1]) - len(picked) + k][action] = GOAL
+                    estimated(fresh)
                 plan = _path(parents, actions, parent) + [action]
                 path_states = np.stack([states[i] for i in _nodes(parents, parent)] + [child])
                 return result(plan, path_states)
@@ -136,9 +142,7 @@ def best_first(expand, root: np.ndarray, *, heuristic=None, budget: int = 20_000
                 j = index[key]
                 parents[j], actions[j], cost[j] = parent, action, through
                 improved.add(j)
-        if fresh and heuristic is not None:
-            for i, h in zip(fresh, np.asarray(heuristic(np.stack([states[i] for i in fresh])), dtype=np.float64)):
-                estimate[i] = float(h)
+        estimated(fresh)
         for i in fresh + sorted(improved - set(fresh)):
             heapq.heappush(frontier, (cost[i] + weight * estimate[i], next(order), i))
     return result(exhausted=expanded < budget)  # exhausted: the frontier ran dry first
