@@ -616,14 +616,13 @@ def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smalle
     evaluation = importlib.import_module("wmthesis.sokoban_search.evaluation")
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     monkeypatch.setattr(os, "cpu_count", lambda: 1)  # the parts in this process, so that the spy sees them
-    with pytest.raises(ValueError, match="no trained pixel agent"):
-        experiment.evaluate_report("smoke", seed=3, levels=2, progress=False)
-    cfg = for_profile(SokobanSearchConfig, "smoke", seed=3, inputs="pixels")
-    train_search_agent(experiment.work_folder("smoke", 3) / "pixels", cfg, progress=False)
     played, real = [], evaluation.solve_boards
     monkeypatch.setattr(evaluation, "solve_boards", lambda agent, boards, **kw: played.append(kw["levels"]) or real(agent, boards, **kw))
-    first = experiment.evaluate_report("smoke", seed=3, levels=2, progress=False)
+    first = experiment.evaluate_report("smoke", seed=3, levels=2, progress=False)  # trains the pixel agent first
     assert played == [[0], [1]] * 2  # unfiltered, then medium: each kind's two parts
+    cfg = for_profile(SokobanSearchConfig, "smoke", seed=3, inputs="pixels")
+    assert first["env_steps"] == sum(h["env_steps"] for h in load_run(experiment.work_folder("smoke", 3) / "pixels", cfg).history) > 0
+    assert not (experiment.work_folder("smoke", 3) / "grid").exists()  # the pixel run alone
     played.clear()
     more = experiment.evaluate_report("smoke", seed=3, levels=5, progress=False)
     assert played == [[2, 4], [3]] * 2  # the first two levels of each kind come from the smaller evaluation

@@ -299,8 +299,8 @@ def parser() -> argparse.ArgumentParser:
                                                              "(default: the profile's)")
     validate.set_defaults(run=cmd_validate_sokoban)
 
-    report = commands.add_parser("evaluate-sokoban", help="the trained Sokoban pixel agent on more of Boxoban's "
-                                                          "report files than the experiment plays")
+    report = commands.add_parser("evaluate-sokoban", help="the Sokoban pixel agent (trained first if need be) on "
+                                                          "more of Boxoban's report files than the experiment plays")
     report.add_argument("--levels", type=at_least(1), default=1000, help="the first N levels of each report set "
                                                                          "(default 1000)")
     report.add_argument("--profile", choices=PROFILES)

@@ -232,9 +232,9 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
 
 @releasing_holds
 def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 1000, progress: bool = True) -> dict:
-    """The pixel agent that :func:`sokoban_search` trained on the first ``levels`` levels of each
-    report set (:data:`BOXOBAN_SPLITS`), beyond the experiment's own :data:`BOXOBAN_LEVELS`: the
-    closing figures. Resumable level by level, and the levels a smaller evaluation of the same
+    """The pixel agent that :func:`sokoban_search` trains (trained here first, alone, if the
+    experiment has not) on the first ``levels`` levels of each report set (:data:`BOXOBAN_SPLITS`),
+    beyond the experiment's own :data:`BOXOBAN_LEVELS`: the closing figures. Resumable level by level, and the levels a smaller evaluation of the same
     run played are taken from it. Returns, and writes to the run's results folder as
     ``boxoban-report-LEVELS.json``, each kind's row (solve rate, nodes and seconds per level,
     solutions replayed, failed levels)."""
@@ -243,9 +243,8 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
     profile = profile_name(profile)
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
     work = hold(work_folder(profile, seed))
-    if not _trained(work / "pixels", cfg):
-        raise ValueError(f"no trained pixel agent in {work / 'pixels'}: run `python -m wmthesis reproduce "
-                         f"sokoban-search --profile {profile} --seed {seed}` first")
+    if not _trained(work / "pixels", cfg):  # the experiment's own pixel run, alone (resumable)
+        train_search_agent(work / "pixels", cfg, progress)
     jobs = {("pixels", kind, part): _boxoban_job(work / f"eval-boxoban-pixels-{kind}-{levels}-{part}.json",
                                                  work / "pixels", cfg, source, levels, part)
             for kind, source in BOXOBAN_SPLITS["report"].items() for part in range(EVAL_PARTS)}
