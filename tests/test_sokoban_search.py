@@ -414,6 +414,42 @@ def test_a_search_that_spends_its_budget_starts_again_with_the_next_weight():
         SearchAgent(Simulator(), weights=())
 
 
+def test_an_agent_asks_its_networks_about_a_state_once_per_level_and_plays_as_without_the_memo(monkeypatch):
+    from wmthesis.sokoban_search import agent as agent_module
+
+    level = parse_levels(LEVELS)[0]
+    env = SokobanEnv((10, 10), 2, observation="grid")
+    asked = {"model": [], "value": []}
+
+    class Counted(Simulator):
+        def expand(self, states):
+            asked["model"].extend(s.tobytes() for s in states)
+            return super().expand(states)
+
+    def noise(states):  # a misleading value, so that the first search fails and the second goes over its states
+        asked["value"].extend(s.tobytes() for s in states)
+        return np.array([zlib.crc32(s.tobytes()) % 1000 / 10.0 for s in states])
+
+    def play():
+        return SearchAgent(Counted(), heuristic=noise, budget=2_000, weights=(1.0, 0.0)).play(env, board=level)
+
+    memoised = play()
+    assert memoised.solved and memoised.expanded > 2_000
+    for name, states in asked.items():
+        assert len(states) == len(set(states)), name  # no state asked twice
+    model_calls = len(asked["model"])
+    asked["model"].clear()
+
+    class Forgetful(agent_module.Memo):  # the networks asked every time, as before the memo
+        def expand(self, states):
+            return self._expand(states)
+
+    monkeypatch.setattr(agent_module, "Memo", Forgetful)
+    plain = play()
+    assert (plain.solved, plain.actions, plain.expanded) == (memoised.solved, memoised.actions, memoised.expanded)
+    assert len(asked["model"]) == plain.expanded > model_calls  # the second search re-expanded states the first had
+
+
 @pytest.mark.slow
 def test_the_learned_model_becomes_exact_on_sokoban_small_in_a_short_run(tmp_path):
     cfg = SokobanSearchConfig(variants=("sokoban-small",), channels=32, batch_size=64, lr=3e-3)
