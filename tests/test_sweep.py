@@ -124,6 +124,25 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert aggregate([2.0, 2.0])["ci_low"] == 2.0  # no spread, no width
 
 
+def test_the_summary_aggregates_the_sokoban_agents_report_evaluations_over_seeds(tmp_path):
+    for seed, (unfiltered, medium) in enumerate([(0.99, 0.86), (0.97, 0.80), (0.98, 0.83)]):
+        folder = tmp_path / "results" / "sokoban-search" / f"quick-seed{seed}"
+        folder.mkdir(parents=True)
+        rows = {"unfiltered": {"solve_rate": unfiltered}, "medium": {"solve_rate": medium}}
+        (folder / "boxoban-report-1000.json").write_text(json.dumps({"profile": "quick", "seed": seed, "levels": 1000, "rows": rows}))
+    broken = tmp_path / "results" / "sokoban-search" / "quick-seed3" / "boxoban-report-1000.json"
+    broken.parent.mkdir()
+    broken.write_text(json.dumps({"profile": "quick", "seed": 3, "levels": 1000, "rows": ["unfiltered"]}))
+    with pytest.warns(UserWarning, match="quick-seed3.*skipped"):
+        rows = {row["variant"]: row for row in write_summary(tmp_path / "results")}
+    medium = rows["boxoban-medium, 1000 report levels"]
+    # by hand: mean 83, sample variance (3^2 + 3^2 + 0) / 2 = 9, t_{0.975, 2} = 4.302652729911275
+    assert (medium["experiment"], medium["n"], medium["seeds"]) == ("sokoban-search", 3, [0, 1, 2])
+    assert (medium["mean"], medium["std"]) == (pytest.approx(83.0), pytest.approx(3.0))
+    assert medium["ci_high"] == pytest.approx(83.0 + 4.302652729911275 * 3.0 / math.sqrt(3))
+    assert rows["boxoban-unfiltered, 1000 report levels"]["mean"] == pytest.approx(98.0)
+
+
 def test_a_run_called_again_keeps_the_wall_time_of_the_run_that_computed_it(tmp_path):
     path = tmp_path / "metrics.json"
     assert _first_run_seconds(path, 21.9) == 21.9  # no earlier run

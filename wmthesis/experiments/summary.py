@@ -99,7 +99,7 @@ def run_scores(metrics: dict) -> dict[str | None, float]:
 
 def read_runs(folder: str | Path | None = None) -> list[Run]:
     """Every run under ``folder`` (default ``data/results``), one :class:`Run` per variant in a
-    ``metrics.json``. A file that is not JSON or not a run's metrics is skipped with a warning
+    ``metrics.json``, and per kind of a Sokoban report evaluation (:func:`report_runs`). A file that is not JSON or not a run's metrics is skipped with a warning
     naming it; when two files hold the same run, the newer one counts."""
     from wmthesis.experiments import EXPERIMENTS
 
@@ -119,7 +119,26 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
         for variant, score in scores.items():
             run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path))
             runs[run[:4]] = run
+    for run in report_runs(folder):
+        runs[run[:4]] = run
     return sorted(runs.values(), key=lambda r: (r.experiment, str(r.variant), r.profile, r.seed))
+
+
+def report_runs(folder: Path) -> list[Run]:
+    """The Sokoban agent's closing evaluations on Boxoban's report files (``evaluate-sokoban``
+    writes ``sokoban-search/PROFILE-seedS/boxoban-report-N.json``): one :class:`Run` per kind,
+    variant ``boxoban-KIND, N report levels``, its score the percentage solved. A file of another
+    shape is skipped with a warning naming it."""
+    runs = []
+    for path in sorted(folder.glob("sokoban-search/*/boxoban-report-*.json")):
+        try:
+            report = json.loads(path.read_text())
+            runs += [Run("sokoban-search", f"boxoban-{kind}, {int(report['levels'])} report levels",
+                         str(report["profile"]), int(report["seed"]), 100.0 * float(row["solve_rate"]), None, str(path))
+                     for kind, row in report["rows"].items()]
+        except (ValueError, KeyError, TypeError, AttributeError) as error:
+            warnings.warn(f"{path}: skipped, not a Boxoban report ({type(error).__name__}: {error})", stacklevel=2)
+    return runs
 
 
 def aggregate(scores) -> dict:
@@ -223,5 +242,5 @@ def write_summary(folder: str | Path | None = None) -> list[dict]:
     return rows
 
 
-__all__ = ["Run", "run_scores", "read_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
+__all__ = ["Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
            "write_summary", "PUBLISHED", "INTERVAL"]
