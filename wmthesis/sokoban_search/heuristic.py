@@ -85,10 +85,10 @@ def backed_up(graph, cap: float) -> np.ndarray:
     frontier (:func:`scipy.sparse.csgraph.dijkstra`); at most ``cap`` (a region with no way out
     in the graph: infinite)."""
     looked = (graph.children != UNSEEN).any(1)  # a search that ends at a goal stops in mid-batch:
-    expanded = graph.expanded[looked]            # the nodes after it count as not expanded
-    n, (parents, actions) = len(graph.states), np.nonzero(graph.children[looked] != UNSEEN)
+    expanded, seen = graph.expanded[looked], graph.children[looked]  # the nodes after it count as not expanded
+    n, (parents, actions) = len(graph.states), np.nonzero(seen != UNSEEN)
     source = n  # one extra node, the ends and the frontier's estimates hang from it
-    children = graph.children[looked][parents, actions]
+    children = seen[parents, actions]
     frontier = np.setdiff1d(np.arange(n), expanded)
     to_goal = np.unique(expanded[parents[children == GOAL]])
     rows = np.concatenate([children[children >= 0], np.full(len(to_goal) + len(frontier), source)])
