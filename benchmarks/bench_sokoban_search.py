@@ -20,6 +20,12 @@ Rows:
   timed with the search), and with the true rules (:class:`Simulator`, which stops when it solves the level): nodes expanded per
   second, batch 64.
 
+With ``--agent FOLDER`` (a trained pixel run, e.g. ``data/quick/sokoban-search/seed0/pixels``, with
+its ``--profile``'s search settings), also ``trained agent``: that agent on the first
+``--agent-levels`` levels of each Boxoban validation set (unfiltered and medium valid 000-001,
+never the report files), on one thread, as the issue measures it ("seconds per level on one
+core"): levels solved, search nodes and seconds per level. Run it on a quiet machine.
+
 The model runs in bfloat16 where the CPU computes it natively (:func:`wmthesis.utils.half_precision`),
 as in the experiment; the JSON records which. Runs on torch's default threads (the machine's cores). Writes ``benchmarks/results/sokoban_search.json``.
 """
@@ -88,11 +94,36 @@ def search_rows(model: SokobanModel, levels: int, budget: int, seed: int) -> lis
     return rows
 
 
+def agent_rows(folder: str, profile: str, levels: int) -> list[dict]:
+    from wmthesis.config import SokobanSearchConfig, for_profile
+    from wmthesis.envs.boxoban import load_levels
+    from wmthesis.experiments.sokoban_search import BOXOBAN_SPLITS
+    from wmthesis.sokoban_search.evaluation import solve_boards
+    from wmthesis.sokoban_search.iteration import load_run
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    run = load_run(folder)
+    agent = run.agent(for_profile(SokobanSearchConfig, profile))  # the search settings; it sees what it was trained on
+    rows = []
+    for kind, source in BOXOBAN_SPLITS["validation"].items():
+        plays = solve_boards(agent, load_levels(source)[:levels], progress=False)
+        rows.append(dict(row="trained agent, one thread", variant=f"boxoban {kind} valid", levels=levels,
+                         solved=sum(p["solved"] for p in plays),
+                         nodes_per_level=float(np.mean([p["expanded"] for p in plays])),
+                         seconds_per_level=float(np.mean([p["seconds"] for p in plays]))))
+    torch.set_num_threads(threads)
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--levels", type=int, default=20)
     parser.add_argument("--budget", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--agent", help="a trained run's folder: also time that agent on Boxoban validation levels")
+    parser.add_argument("--agent-levels", type=int, default=10)
+    parser.add_argument("--profile", default="quick", help="the search settings of --agent's run")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "sokoban_search.json"))
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
@@ -105,7 +136,8 @@ def main(argv=None) -> int:
     checking.see_changes(played["states"], played["next_states"])
     rows = (expand_rows(model, np.random.default_rng(args.seed))
             + expand_rows(checking, np.random.default_rng(args.seed), "model expand, seen changes")
-            + search_rows(model, args.levels, args.budget, args.seed))
+            + search_rows(model, args.levels, args.budget, args.seed)
+            + (agent_rows(args.agent, args.profile, args.agent_levels) if args.agent else []))
     print_table(rows)
     precision = "float32" if isinstance(half_precision(device()), nullcontext) else "bfloat16"
     print(f"model precision: {precision} (wmthesis.utils.half_precision)")
