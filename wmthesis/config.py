@@ -343,8 +343,8 @@ class SokobanSearchConfig:
     at most ``backup_cap`` steps), and ``backup_fraction`` of each of the value's batches is
     drawn among the last round's (``backups`` 0: only the states of solved levels, as before).
     Chosen on the first 100 levels of Boxoban's unfiltered and medium valid 000-001 (quick, seed
-    0, pixels): 99 and 86 solved with them against 92 and 56 without, with 40% and 47% of the nodes
-    (a run with two errors, since fixed, in the labels of a successful search's last batch).
+    0, pixels): 99 and 82 solved with them against 92 and 56 without, with half the nodes (99 and
+    86 in a run with two errors, since fixed, in the labels of a successful search's last batch).
     Evaluation: ``eval_levels`` unseen levels per generated variant.
     """
 

@@ -234,8 +234,8 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
 def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 1000, progress: bool = True) -> dict:
     """The pixel agent that :func:`sokoban_search` trains (trained here first, alone, if the
     experiment has not) on the first ``levels`` levels of each report set (:data:`BOXOBAN_SPLITS`),
-    beyond the experiment's own :data:`BOXOBAN_LEVELS`: the closing figures. Resumable level by level, and the levels a smaller evaluation of the same
-    run played are taken from it. Returns, and writes to the run's results folder as
+    beyond the experiment's own :data:`BOXOBAN_LEVELS`: the closing figures. Resumable level by
+    level, and the levels a smaller evaluation of the same run played are taken from it. Returns, and writes to the run's results folder as
     ``boxoban-report-LEVELS.json``, each kind's row (solve rate, nodes and seconds per level,
     solutions replayed, failed levels)."""
     from wmthesis.envs.boxoban import load_levels

@@ -16,7 +16,8 @@ two seeds). Beside the solved levels' states, the value learns from the last rou
 :func:`~wmthesis.sokoban_search.heuristic.backed_up`): on the same rounds' levels (quick, seed 0,
 pixels), the agent of the last two 10x10 rounds solved 96.8% and 98.8% with them, at 4,456 and
 3,113 nodes a level; 91.2% and 95.6% without, at 8,473 and 4,758 (before the fix of
-:func:`~wmthesis.sokoban_search.heuristic.backed_up` for a search's last batch).
+:func:`~wmthesis.sokoban_search.heuristic.backed_up` for a search's last batch; after it, 93.6% and
+94.8% at 6,025 and 5,157 nodes, and its validation solved 99 / 82 against 99 / 86).
 """
 from __future__ import annotations
 
