@@ -59,6 +59,10 @@ def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, cap
     assert main(["reproduce", "sokoban-search", "--profile", "smoke", "--seed", "3"]) == 0
     assert "unseen levels solved" in capsys.readouterr().out
     metrics = json.loads((tmp_path / "data/results/sokoban-search/smoke-seed3/metrics.json").read_text())
+    trained = [h["variant"] for h in metrics["history"]["pixels"][1:]]  # the curriculum, our generator's 10x10 unplayed
+    assert trained == ["sokoban-small", "boxoban-unfiltered-train", "boxoban-medium-train"]
+    assert sorted(metrics["tables"]) == ["sokoban", "sokoban-small"]  # yet both of our variants are evaluated
+    assert metrics["tables"]["sokoban"]["agent, learned model (pixels)"]["levels"] == 4
     for kind in ("unfiltered", "medium"):  # the first 2 levels of the report files, played in the real game
         table = metrics["boxoban"]["tables"][kind]
         for title in ("agent, learned model (pixels)", "agent, learned model (grid)", "agent, true simulator (grid)"):

@@ -12,7 +12,7 @@
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
         writes a JSON list of {level, solved, steps, actions}.
     validate-sokoban LEVER ... [--profile P] [--seed S] [--levels N]
-        Issue 30's levers of the pixel agent (baseline, prior-afterwards, boxoban-curriculum, ...)
+        Issue 30's levers of the pixel agent (baseline, generated, prior-afterwards, ...)
         on the first N levels of Boxoban's validation files (unfiltered and medium valid
         000-001), each trained first if it needs its own run; resumable level by level.
     evaluate-sokoban [--levels N] [--profile P] [--seed S]
@@ -292,7 +292,7 @@ def parser() -> argparse.ArgumentParser:
     solve.set_defaults(run=cmd_solve_sokoban)
 
     validate = commands.add_parser("validate-sokoban", help="levers of the Sokoban pixel agent on Boxoban's validation files")
-    validate.add_argument("levers", nargs="+", metavar="LEVER", help="baseline, prior-afterwards, boxoban-curriculum, ...")
+    validate.add_argument("levers", nargs="+", metavar="LEVER", help="baseline, generated, prior-afterwards, ...")
     validate.add_argument("--profile", choices=PROFILES)
     validate.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
     validate.add_argument("--levels", type=at_least(1), help="the first N levels of each validation set "

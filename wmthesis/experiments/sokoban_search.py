@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
-from wmthesis.envs import SOKOBAN_VARIANTS
 from wmthesis.experiments.results import _first_run_seconds, _jsonable, _read_json, _run_header
 from wmthesis.metrics import score_summary
 from wmthesis.sokoban_search import accuracy
@@ -62,6 +61,7 @@ BOXOBAN_PUBLISHED = (
     ("A*, box-distance heuristic, true rules", "98.9 (test, 1M nodes)", "99.998 (valid, 5M nodes)", "",
      "AlignmentResearch/boxoban-astar-solutions"),
 )
+GENERATED = ("sokoban-small", "sokoban")  # our generator's variants: each evaluated on unseen levels
 EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
 EVAL_PARTS = 2  # each evaluation in parts (every other level), so that two processes share them evenly
 # Issue 14's targets in quick: (variant, inputs, lowest solve rate); fewer than 1M env steps.
@@ -112,7 +112,8 @@ def work_folder(profile: str, seed: int) -> Path:
 @releasing_holds
 def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """Train the search agent from grid states and from pixels (resumable), evaluate both on
-    ``eval_levels`` unseen levels of each variant beside random play, the thesis, the true
+    ``eval_levels`` unseen levels of each of our generator's variants (:data:`GENERATED`) and on
+    Boxoban's report files beside random play, the thesis, the true
     simulator and A*; return the metrics."""
     profile = profile_name(profile)
     started = time.time()
@@ -124,7 +125,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     runs = {name: load_run(work / name, cfg) for name, cfg in configs.items()}
     tables, model_accuracy, solutions = {}, {}, {}
     seeds = level_seeds(seed, EVAL_PURPOSE, grid_cfg.eval_levels)
-    generated = [v for v in grid_cfg.variants if v in SOKOBAN_VARIANTS]  # unseen levels; Boxoban's below
+    generated = list(GENERATED)  # unseen levels of our generator; Boxoban's below
     agents = {"grid": (work / "grid", grid_cfg, False), "pixels": (work / "pixels", configs["pixels"], False),
               "simulator": (work / "grid", grid_cfg, True)}  # the grid run's value with the true rules
     evaluations = {(name, variant, part): (work / f"eval-{name}-{variant}-{part}.json",
@@ -175,12 +176,11 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
 
 # Issue 30's levers: each a change to the pixel agent's config, trained in a folder of its own and
 # measured on the validation files only (``validate``), never on the report files.
-CURRICULUM = ("sokoban-small", "boxoban-unfiltered-train", "boxoban-medium-train")
 LEVERS = {
-    "baseline": {},  # the pixel run of ``sokoban_search`` itself
+    "baseline": {},  # the pixel run of ``sokoban_search`` itself: the curriculum through Boxoban's train files
     "no-backups": dict(backups=0),  # its value from solved levels alone: the baseline before backed-up values
-    "boxoban-curriculum": dict(variants=CURRICULUM),  # through Boxoban's train files, not our 10x10 generator
-    "no-backups-curriculum": dict(backups=0, variants=CURRICULUM),  # the same, before backed-up values
+    "generated": dict(variants=GENERATED),  # our 5x5 and 10x10 levels, not Boxoban's: the default until issue 30
+    "generated-no-backups": dict(backups=0, variants=GENERATED),  # the same, before backed-up values
     "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
     "more-rounds": dict(rounds=5),
     "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
@@ -495,5 +495,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "validate", "evaluate_report", "lever_rows", "LEVERS", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+__all__ = ["sokoban_search", "validate", "evaluate_report", "lever_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
            "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]
