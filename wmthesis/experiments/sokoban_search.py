@@ -210,10 +210,9 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     search_only = set(LEVERS[lever]) <= set(SEARCH_FIELDS) or lever in AFTERWARDS  # the baseline's run
     trained = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels") if search_only else cfg
     folder = hold(work_folder(profile, seed) / ("pixels" if search_only else f"lever-{lever}"))
-    if not _trained(folder, trained):
-        train_search_agent(folder, trained, progress)
+    run = _trained_run(folder, trained, progress)
     if lever in AFTERWARDS:
-        policy_afterwards(folder, load_run(folder, trained), trained, progress)  # once, before the jobs share it
+        policy_afterwards(folder, run, trained, progress)  # once, before the jobs share it
     name = "validation" if lever == "baseline" or not search_only else f"validation-{lever}"
     jobs = {(kind, part): _boxoban_job(folder / f"{name}-{kind}-{levels}-{part}.json",
                                        folder, trained, source, levels, part, False, cfg)
@@ -221,7 +220,6 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     _run_saved(jobs, progress)
     rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
             for kind, source in BOXOBAN_SPLITS["validation"].items()}
-    run = load_run(folder, trained)
     result = {"lever": lever, "changes": LEVERS[lever], "profile": profile, "seed": seed, "rows": rows,
               "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
     out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
@@ -243,13 +241,11 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
     profile = profile_name(profile)
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
     work = hold(work_folder(profile, seed))
-    if not _trained(work / "pixels", cfg):  # the experiment's own pixel run, alone (resumable)
-        train_search_agent(work / "pixels", cfg, progress)
+    run = _trained_run(work / "pixels", cfg, progress)  # the experiment's own pixel run, alone if need be
     jobs = {("pixels", kind, part): _boxoban_job(work / f"eval-boxoban-pixels-{kind}-{levels}-{part}.json",
                                                  work / "pixels", cfg, source, levels, part)
             for kind, source in BOXOBAN_SPLITS["report"].items() for part in range(EVAL_PARTS)}
     _run_saved(jobs, progress)
-    run = load_run(work / "pixels", cfg)
     result = {"profile": profile, "seed": seed, "levels": levels,
               "env_steps": int(sum(h["env_steps"] for h in run.history)),
               "rows": {kind: _boxoban_row(_level_plays(jobs, "pixels", kind), source, load_levels(source))
@@ -445,6 +441,13 @@ def _merged(parts: list[dict], seeds) -> dict:
 def _trained(folder: Path, cfg) -> bool:
     run = load_run(folder, cfg)
     return run is not None and run.rounds_done == len(schedule(cfg))
+
+
+def _trained_run(folder: Path, cfg, progress: bool):
+    """The run in ``folder`` trained with ``cfg``, trained (or finished: it resumes) here first if need be."""
+    if not _trained(folder, cfg):
+        train_search_agent(folder, cfg, progress)
+    return load_run(folder, cfg)
 
 
 def _accuracy(run, variant: str, seed: int, levels: int, plans: list[dict]) -> dict:
