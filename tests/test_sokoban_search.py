@@ -615,6 +615,7 @@ def test_a_curriculum_trains_on_boxoban_train_levels_and_never_on_the_valid_file
     run = train_search_agent(tmp_path / "run", cfg, progress=False)
     assert [h["variant"] for h in run.history] == ["random play", "boxoban-unfiltered-train:001"]
     assert run.history[1]["levels"] == cfg.levels_per_round
+    assert all(h["wall_seconds"] > 0 for h in run.history)  # each stage timed, random play and the round
 
 
 def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own(tmp_path, monkeypatch):

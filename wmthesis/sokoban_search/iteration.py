@@ -6,6 +6,7 @@ A run lives in one folder: ``experience.h5`` (:class:`~wmthesis.sokoban_search.e
 and ``state.pt``, written after random play and after every round (the model's and the value's
 weights, the optimisers, the round reached and the history). Re-running resumes after the last
 finished round; rows of a round that was cut off are dropped first, so the result is the same.
+Each stage's record in the history holds its wall time (``wall_seconds``: play and fits).
 
 The value starts afresh each round, trained on every level solved so far. Carrying it over from
 round to round (as the model is) left it fitted to the early rounds' short solutions: with the
@@ -24,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +103,7 @@ def train_search_agent(folder: str | Path, cfg: SokobanSearchConfig, progress: b
 
 
 def _random_stage(experience: Experience, cfg: SokobanSearchConfig, progress: bool) -> Run:
+    started = time.perf_counter()
     played = [random_play(variant, cfg.seed * 100 + v, cfg.random_levels) for v, variant in enumerate(cfg.variants)]
     inputs = GRID
     if cfg.inputs == "pixels":  # the codes are learned from random play's frames first
@@ -116,7 +119,8 @@ def _random_stage(experience: Experience, cfg: SokobanSearchConfig, progress: bo
     losses = fit_model(model, experience, cfg, cfg.model_updates, np.random.default_rng([cfg.seed, 0]),
                        "model (random play)", progress)
     record = dict(round=0, variant="random play", env_steps=steps, levels=cfg.random_levels * len(cfg.variants),
-                  solved=None, model_loss=losses, exactness=held_out_exactness(model, cfg, inputs))
+                  solved=None, model_loss=losses, exactness=held_out_exactness(model, cfg, inputs),
+                  wall_seconds=time.perf_counter() - started)
     return Run(model, None, [record], 0, inputs)
 
 
@@ -146,6 +150,7 @@ def _play_part(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int
 def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: int, variant: str, r: int,
            progress: bool) -> None:
     """Round ``number``: play levels, keep what was seen, train the model and the value."""
+    started = time.perf_counter()
     expert = dataclasses.replace(cfg, budget=cfg.round_budget or cfg.budget)  # the expert in training
     plays = play_in_parts(run, expert, variant, level_seeds(cfg.seed, 1 + number, cfg.levels_per_round), progress)
     for play in plays:
@@ -175,7 +180,8 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
                             seconds_per_level=float(np.mean([p.seconds for p in plays])),
                             model_loss=losses, value_error=value_error,
                             **({"policy_accuracy": policy_accuracy} if policy_accuracy is not None else {}),
-                            exactness=held_out_exactness(run.model, cfg, run.inputs)))
+                            exactness=held_out_exactness(run.model, cfg, run.inputs),
+                            wall_seconds=time.perf_counter() - started))
     run.rounds_done = number
 
 
