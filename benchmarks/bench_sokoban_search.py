@@ -20,6 +20,12 @@ Rows:
   timed with the search), and with the true rules (:class:`Simulator`, which stops when it solves the level): nodes expanded per
   second, batch 64.
 
+- ``pixel coding``: random play's boards of 150 ``sokoban`` levels turned into the pixel agent's
+  codes (:meth:`PixelInputs.from_grid`: rendered, then coded), as the pixel run's random stage
+  does with all of its boards: boards per second and the peak of memory numpy allocates
+  (``tracemalloc``). Coding all boards at once took 110 kB a board, 12 GB for a quick run's
+  random play; now a constant of about 0.45 GB.
+
 With ``--agent FOLDER`` (a trained pixel run, e.g. ``data/quick/sokoban-search/seed0/pixels``, with
 its ``--profile``'s search settings), also ``trained agent``: that agent on the first
 ``--agent-levels`` levels of each Boxoban validation set (unfiltered and medium valid 000-001,
@@ -96,6 +102,22 @@ def search_rows(model: SokobanModel, levels: int, budget: int, seed: int) -> lis
     return rows
 
 
+def coding_rows(seed: int) -> list[dict]:
+    import tracemalloc
+
+    from wmthesis.sokoban_search.cells import PixelInputs, fit_coder, render_cells
+
+    states = random_play("sokoban", seed, 150)["states"]
+    inputs = PixelInputs(fit_coder(render_cells(states[::20]), seed=seed))
+    tracemalloc.start()
+    start = time.perf_counter()
+    inputs.from_grid(states)
+    seconds, (_, peak) = time.perf_counter() - start, tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return [dict(row="pixel coding", variant="sokoban", boards=len(states), boards_per_s=len(states) / seconds,
+                 peak_mb=peak / 2 ** 20)]
+
+
 def agent_rows(folder: str, profile: str, levels: int) -> list[dict]:
     from wmthesis.config import SokobanSearchConfig, for_profile
     from wmthesis.envs.boxoban import load_levels
@@ -139,6 +161,7 @@ def main(argv=None) -> int:
     rows = (expand_rows(model, np.random.default_rng(args.seed))
             + expand_rows(checking, np.random.default_rng(args.seed), "model expand, seen changes")
             + search_rows(model, args.levels, args.budget, args.seed)
+            + coding_rows(args.seed)
             + (agent_rows(args.agent, args.profile, args.agent_levels) if args.agent else []))
     print_table(rows)
     precision = "float32" if isinstance(half_precision(device()), nullcontext) else "bfloat16"

@@ -751,6 +751,12 @@ def test_cell_codes_learned_from_pixels_stand_for_one_cell_type_each_and_decode_
     inputs = PixelInputs(coder)
     assert np.array_equal(crop_ring(observation, 8), render_cells(env.board[None, 1:-1, 1:-1])[0])
     assert np.array_equal(inputs.observe(env, observation), inputs.from_grid(env.board[None, 1:-1, 1:-1])[0])
+    import wmthesis.sokoban_search.cells as cells
+    whole = inputs.from_grid(unseen)
+    with pytest.MonkeyPatch.context() as patch:  # coded a few boards at a time: the same codes, in order
+        patch.setattr(cells, "FRAMES_AT_ONCE", 7)
+        assert np.array_equal(inputs.from_grid(unseen), whole) and len(whole) > 7
+        assert inputs.from_grid(unseen[:0]).shape == (0, *unseen.shape[1:])
 
 
 def test_a_pixel_run_plays_from_frames_and_saves_its_codes(tmp_path):

@@ -113,6 +113,9 @@ class GridInputs:
         return np.asarray(states, np.uint8)
 
 
+FRAMES_AT_ONCE = 4096  # boards rendered and coded together: 315 MB of float32 patches for 10x10 boards
+
+
 class PixelInputs(GridInputs):
     """The agent sees pixels (5.3.1): RGB frames, the outer ring cropped, one code per cell."""
 
@@ -126,8 +129,11 @@ class PixelInputs(GridInputs):
         return self.coder.encode(crop_ring(observation, self.coder.tile_size)[None])[0]
 
     def from_grid(self, states: np.ndarray) -> np.ndarray:
-        """Grid observations -> the codes of their frames (the env's exact rendering)."""
-        return self.coder.encode(render_cells(np.asarray(states), self.coder.tile_size))
+        """Grid observations (B, h, w) -> the codes of their frames (the env's exact rendering),
+        :data:`FRAMES_AT_ONCE` boards at a time: all of random play's frames at once took 12 GB."""
+        states = np.asarray(states)
+        return np.concatenate([self.coder.encode(render_cells(states[i:i + FRAMES_AT_ONCE], self.coder.tile_size))
+                               for i in range(0, max(len(states), 1), FRAMES_AT_ONCE)])
 
 
 GRID = GridInputs()
