@@ -65,7 +65,7 @@ def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, cap
     assert metrics["tables"]["sokoban"]["agent, learned model (pixels)"]["levels"] == 4
     for kind in ("unfiltered", "medium"):  # the first 2 levels of the report files, played in the real game
         table = metrics["boxoban"]["tables"][kind]
-        for title in ("agent, learned model (pixels)", "agent, learned model (grid)", "agent, true simulator (grid)"):
+        for title in ("agent, learned model (pixels)", "agent, true simulator (pixels)"):
             row = table[title]
             assert row["levels"] == 2 and row["source"].startswith(f"boxoban-{kind}-valid:005-009")
             assert row["replayed"] == row["solved"] and len(row["failed_levels"]) == 2 - row["solved"]

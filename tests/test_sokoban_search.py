@@ -736,7 +736,7 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
 # ---------------------------------------------------------------------------- pixels
 
 def test_cell_codes_learned_from_pixels_stand_for_one_cell_type_each_and_decode_exactly():
-    from wmthesis.sokoban_search.cells import PixelInputs, code_table, crop_ring, fit_coder, render_cells
+    from wmthesis.sokoban_search.cells import GRID, PixelInputs, code_table, crop_ring, fit_coder, render_cells
 
     states = random_play("sokoban", 0, 30)["states"]
     coder = fit_coder(render_cells(states[::5]), tile_size=8, n_codes=8)
@@ -757,6 +757,16 @@ def test_cell_codes_learned_from_pixels_stand_for_one_cell_type_each_and_decode_
         patch.setattr(cells, "FRAMES_AT_ONCE", 7)
         assert np.array_equal(inputs.from_grid(unseen), whole) and len(whole) > 7
         assert inputs.from_grid(unseen[:0]).shape == (0, *unseen.shape[1:])
+    # The true rules over these codes (the reference row with the pixel agent's own value): the same
+    # transitions as over the cell types, coded.
+    actions = np.arange(len(unseen)) % 8
+    types, coded = Simulator().step(unseen, actions), Simulator(inputs.type_codes()).step(whole, actions)
+    assert (types[0] != unseen).any() and (types[1] != types[1][0]).any()  # boards move, rewards differ
+    assert np.array_equal(coded[0], inputs.from_grid(types[0]))
+    assert np.array_equal(coded[1], types[1]) and np.array_equal(coded[2], types[2])
+    assert np.array_equal(GRID.type_codes(), np.arange(7))
+    with pytest.raises(ValueError, match="share a code"):
+        Simulator(np.array([0, 1, 2, 3, 4, 5, 5]))
 
 
 def test_a_pixel_run_plays_from_frames_and_saves_its_codes(tmp_path):

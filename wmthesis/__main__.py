@@ -6,7 +6,7 @@
         Summarise a store; write a frame strip (PNG) and a rerun recording of one episode.
     reproduce EXPERIMENT [--profile smoke|quick|thesis] [--seed S]
         Run a thesis experiment end to end; results under data/results/EXPERIMENT/.
-    solve-sokoban LEVELS [--profile P] [--seed S] [--out PATH] [--max-steps M] [--inputs pixels|grid]
+    solve-sokoban LEVELS [--profile P] [--seed S] [--out PATH] [--max-steps M]
         Play the agent that ``reproduce sokoban-search`` trained on every level of a text file
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
@@ -139,12 +139,12 @@ def cmd_solve_sokoban(args) -> int:
 
     profile = profile_name(args.profile)
     boards = load_levels(args.levels)
-    folder = work_folder(profile, args.seed) / args.inputs
+    folder = work_folder(profile, args.seed) / "pixels"
     run = load_run(folder)
     if run is None:
         raise ValueError(f"no trained agent in {folder}: run `python -m wmthesis reproduce sokoban-search "
                          f"--profile {profile} --seed {args.seed}` first")
-    cfg = for_profile(SokobanSearchConfig, profile, seed=args.seed, inputs=args.inputs)
+    cfg = for_profile(SokobanSearchConfig, profile, seed=args.seed, inputs="pixels")
     results = solve_boards(run.agent(cfg), boards, max_steps=args.max_steps)
     boxoban = args.levels.startswith("boxoban-")
     out = Path(args.out) if args.out else data_dir("results", "solutions") / f"{args.levels.replace(':', '_')}.json" \
@@ -287,8 +287,6 @@ def parser() -> argparse.ArgumentParser:
     solve.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
     solve.add_argument("--out", help="JSON results (default: LEVELS.solutions.json)")
     solve.add_argument("--max-steps", type=at_least(1), default=120, help="steps allowed per level")
-    solve.add_argument("--inputs", choices=("pixels", "grid"), default="pixels",
-                       help="the agent that sees pixels (default) or grid states")
     solve.set_defaults(run=cmd_solve_sokoban)
 
     validate = commands.add_parser("validate-sokoban", help="levers of the Sokoban pixel agent on Boxoban's validation files")

@@ -20,7 +20,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from wmthesis.envs.sokoban import make_tiles
+from wmthesis.envs.sokoban import CELL_NAMES, make_tiles
 
 
 class CellCoder:
@@ -111,6 +111,11 @@ class GridInputs:
     def from_grid(self, states: np.ndarray) -> np.ndarray:
         """Stored grid observations (B, h', w') -> model states (B, h', w')."""
         return np.asarray(states, np.uint8)
+
+    def type_codes(self) -> np.ndarray:
+        """(T,) the model state's code of each cell type (:data:`~wmthesis.envs.sokoban.CELL_NAMES`):
+        what the true rules need to act on this input (:class:`~wmthesis.sokoban_search.search.Simulator`)."""
+        return self.from_grid(np.arange(len(CELL_NAMES), dtype=np.uint8)[None, None])[0, 0]
 
 
 FRAMES_AT_ONCE = 4096  # boards rendered and coded together: 315 MB of float32 patches for 10x10 boards

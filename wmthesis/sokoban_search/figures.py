@@ -21,11 +21,10 @@ def plot_plan(real: np.ndarray, predicted: np.ndarray, every: int = 1, columns: 
     return image_rows({"real": [real[t] for t in picks], "model": [predicted[t] for t in picks]})
 
 
-def plot_rounds(grid: list[dict], pixels: list[dict] | None = None):
+def plot_rounds(runs: dict[str, list[dict]]):
     """Solve rate of each round's (new, unseen) levels, and the model's one-step exactness on
-    unseen levels after it, for the grid run (and the pixel run)."""
+    unseen levels after it, for each run's history (name -> one dict per stage)."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 3.4))
-    runs = {"grid": grid, **({"pixels": pixels} if pixels else {})}
     width = 0.8 / len(runs)
     for k, (name, history) in enumerate(runs.items()):
         rounds = [h for h in history if h["solved"] is not None]
@@ -33,7 +32,9 @@ def plot_rounds(grid: list[dict], pixels: list[dict] | None = None):
         for variant in history[0]["exactness"]:
             right.plot([h["round"] for h in history], [100 * h["exactness"][variant] for h in history], "o-",
                        label=f"{name}, {variant}")
-    labels = [f"{h['round']}\n{h['variant'].replace('sokoban-', '')}" for h in grid if h["solved"] is not None]
+    first = next(iter(runs.values()))
+    labels = [f"{h['round']}\n{h['variant'].replace('sokoban-', '').replace('boxoban-', '')}"
+              for h in first if h["solved"] is not None]
     left.set_xticks(np.arange(len(labels)) + 0.4 - width / 2, labels)
     left.set_ylim(0, 100)
     left.set(xlabel="round (variant)", ylabel="levels solved (%)", title="the agent on each round's new levels")

@@ -32,6 +32,8 @@ import numpy as np
 
 from wmthesis.envs.sokoban import BOX, WALL, apply_action, step_reward
 
+UNKNOWN = 255  # Simulator over codes: a code that stands for no cell type
+
 
 @dataclass
 class SearchResult:
@@ -172,9 +174,22 @@ def _path(parents: list[int], actions: list[int], node: int) -> list[int]:
 class Simulator:
     """The true rules with the model's interface, over a board's inner cells (B, h, w) (the
     outer ring, always wall, added and removed around :func:`~wmthesis.envs.sokoban.apply_action`).
-    The reference that tells how much of the search's failures are the model's fault."""
+    The reference that tells how much of the search's failures are the model's fault.
+
+    ``codes``: (T,) the code of each cell type where the states are a pixel agent's codes
+    (:meth:`~wmthesis.sokoban_search.cells.PixelInputs.type_codes`), so that the same value can
+    guide it; None: the states are the cell types."""
 
     n_actions = 8
+
+    def __init__(self, codes: np.ndarray | None = None):
+        self.to_codes, self.to_types = None, None
+        if codes is not None:
+            self.to_codes = np.asarray(codes, np.uint8)
+            if len(np.unique(self.to_codes)) < len(self.to_codes):
+                raise ValueError(f"cell types share a code ({self.to_codes.tolist()}): no rules can be read from them")
+            self.to_types = np.full(256, UNKNOWN, np.uint8)
+            self.to_types[self.to_codes] = np.arange(len(self.to_codes))
 
     def expand(self, states: np.ndarray):
         """Every action's outcome: (B, h, w) -> (B, A, h, w), (B, A), (B, A), and no surprise
@@ -188,6 +203,10 @@ class Simulator:
     def step(self, states: np.ndarray, actions: np.ndarray):
         """One action per state: (B, h, w), (B,) -> (B, h, w), (B,), (B,)."""
         states = np.asarray(states, dtype=np.uint8)
+        if self.to_types is not None:
+            states = self.to_types[states]
+            if (states == UNKNOWN).any():
+                raise ValueError("a state holds a code that no cell type renders to")
         b, h, w = states.shape
         boards = np.full((b, h + 2, w + 2), WALL, np.uint8)
         boards[:, 1:-1, 1:-1] = states
@@ -196,7 +215,8 @@ class Simulator:
             change = apply_action(boards[i], int(actions[i]))
             dones[i] = not np.any(boards[i] == BOX)
             rewards[i] = step_reward(change, dones[i])
-        return boards[:, 1:-1, 1:-1].copy(), rewards, dones
+        children = boards[:, 1:-1, 1:-1]
+        return (children.copy() if self.to_codes is None else self.to_codes[children]), rewards, dones
 
 
 __all__ = ["best_first", "SearchResult", "SearchGraph", "Simulator", "GOAL", "UNSEEN"]
