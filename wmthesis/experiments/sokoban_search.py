@@ -177,6 +177,7 @@ LEVERS = {
     "generated-no-backups": dict(backups=0, variants=GENERATED),  # the same, before backed-up values
     "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
     "more-rounds": dict(rounds=5),
+    "small-model": dict(channels=32),  # a quarter of the model's arithmetic: faster searches, if it stays exact
     "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
     # the search alone, on the baseline's model and value (no training): where do its failures come from?
     "bigger-budget": dict(budget=40_000),  # twice the nodes for each search
