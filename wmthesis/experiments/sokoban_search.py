@@ -111,8 +111,7 @@ def work_folder(profile: str, seed: int) -> Path:
 def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """Train the search agent from pixels (resumable), evaluate it on ``eval_levels`` unseen
     levels of each of our generator's variants (:data:`GENERATED`) and on Boxoban's report files
-    beside random play, the thesis, the true
-    simulator and A*; return the metrics."""
+    beside random play, the thesis, its search with the true rules and A*; return the metrics."""
     profile = profile_name(profile)
     started = time.time()
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
@@ -124,8 +123,8 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     agents = {"pixels": (work / "pixels", cfg, False),
               "simulator": (work / "pixels", cfg, True)}  # its search and value with the true rules
     evaluations = {(name, variant, part): (work / f"eval-{name}-{variant}-{part}.json",
-                                           (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator))
-                   for variant in reversed(generated) for name, (folder, cfg, simulator) in agents.items()
+                                           (_evaluate, folder, run_cfg, variant, seeds[part::EVAL_PARTS], simulator))
+                   for variant in reversed(generated) for name, (folder, run_cfg, simulator) in agents.items()
                    for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
     boxoban = _boxoban_jobs(work, agents, profile)
     _run_saved({**evaluations, **boxoban}, progress)
