@@ -21,6 +21,10 @@ def plot_plan(real: np.ndarray, predicted: np.ndarray, every: int = 1, columns: 
     return image_rows({"real": [real[t] for t in picks], "model": [predicted[t] for t in picks]})
 
 
+SHORT_NAMES = {"sokoban-small": "5x5", "sokoban": "10x10", "boxoban-unfiltered-train": "unfilt.",
+               "boxoban-medium-train": "medium"}  # the variants, as a round's tick label names them
+
+
 def plot_rounds(runs: dict[str, list[dict]]):
     """Solve rate of each round's (new, unseen) levels, and the model's one-step exactness on
     unseen levels after it, for each run's history (name -> one dict per stage)."""
@@ -33,9 +37,8 @@ def plot_rounds(runs: dict[str, list[dict]]):
             right.plot([h["round"] for h in history], [100 * h["exactness"][variant] for h in history], "o-",
                        label=f"{name}, {variant}")
     first = next(iter(runs.values()))
-    labels = [f"{h['round']}\n{h['variant'].replace('sokoban-', '').replace('boxoban-', '')}"
-              for h in first if h["solved"] is not None]
-    left.set_xticks(np.arange(len(labels)) + 0.4 - width / 2, labels)
+    labels = [f"{h['round']}\n{SHORT_NAMES.get(h['variant'], h['variant'])}" for h in first if h["solved"] is not None]
+    left.set_xticks(np.arange(len(labels)) + 0.4 - width / 2, labels, fontsize=8)
     left.set_ylim(0, 100)
     left.set(xlabel="round (variant)", ylabel="levels solved (%)", title="the agent on each round's new levels")
     left.legend(fontsize=8)
