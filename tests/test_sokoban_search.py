@@ -645,6 +645,25 @@ def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, m
     assert row[2] == f"{100 * result['rows']['unfiltered']['solve_rate']:.1f}"
 
 
+def test_a_levers_validation_over_seeds_gives_each_seed_then_the_mean_and_sample_std(tmp_path, monkeypatch):
+    from wmthesis.experiments.sokoban_search import lever_seed_rows
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    for seed, (unfiltered, medium) in {2: (0.98, 0.90), 0: (1.0, 0.94), 1: (0.99, 0.80)}.items():
+        folder = tmp_path / "results" / "sokoban-search" / f"quick-seed{seed}"
+        folder.mkdir(parents=True)
+        rows = {k: {"solve_rate": rate, "levels": 100, "nodes_per_level": 1000.0 * (seed + 1)}
+                for k, rate in (("unfiltered", unfiltered), ("medium", medium))}
+        (folder / "validation-baseline.json").write_text(json.dumps(
+            {"lever": "baseline", "seed": seed, "rows": rows, "env_steps": 420_000}))
+    (tmp_path / "results" / "sokoban-search" / "smoke-seed0").mkdir()  # another profile: not read
+    rows = lever_seed_rows("baseline", "quick")
+    assert [r[0] for r in rows[:3]] == [0, 1, 2] and rows[1][1:5] == ["99.0", "80.0", 100, "2,000"]
+    # medium 94, 80, 90: mean 88.0, sample std sqrt(((6)^2 + (8)^2 + (2)^2) / 2) = sqrt(52) = 7.2
+    assert rows[3] == ["mean ± std, 3 seeds", "99.0 ± 1.0", "88.0 ± 7.2", "", "", ""]
+    assert lever_seed_rows("generated", "quick") == []
+
+
 def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smaller_one_did_not(tmp_path, monkeypatch):
     import importlib
     import os

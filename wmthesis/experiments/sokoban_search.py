@@ -269,6 +269,26 @@ def lever_rows(profile: str | None = None, seed: int = 0) -> list[list]:
     return rows
 
 
+def lever_seed_rows(lever: str = "baseline", profile: str | None = None) -> list[list]:
+    """One lever on the validation files over the seeds measured so far (each seed's
+    ``validation-LEVER.json``): a row per seed (seed, unfiltered %, medium %, levels, nodes per
+    level, environment steps), then the mean and sample standard deviation over them."""
+    root, found = data_dir("results", "sokoban-search"), []
+    for path in sorted(root.glob(f"{profile_name(profile)}-seed*/validation-{lever}.json")):
+        result = _read_json(path)
+        if result and result.get("lever") == lever:
+            found.append(result)
+    found.sort(key=lambda result: result["seed"])
+    rates = np.array([[100 * r["rows"][k]["solve_rate"] for k in ("unfiltered", "medium")] for r in found])
+    rows = [[r["seed"], *(f"{x:.1f}" for x in rate), r["rows"]["unfiltered"]["levels"],
+             f"{np.mean([m['nodes_per_level'] for m in r['rows'].values()]):,.0f}", f"{r['env_steps']:,}"]
+            for r, rate in zip(found, rates)]
+    if len(found) > 1:
+        mean, std = rates.mean(0), rates.std(0, ddof=1)
+        rows.append([f"mean ± std, {len(found)} seeds", *(f"{m:.1f} ± {d:.1f}" for m, d in zip(mean, std)), "", "", ""])
+    return rows
+
+
 def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -> dict:
     """The run in ``folder`` (with the true rules in place of its model if ``simulator``) on the
     levels: ``plays``, one record (seed, solved, actions, ...) per level."""
@@ -491,5 +511,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "validate", "evaluate_report", "lever_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+__all__ = ["sokoban_search", "validate", "evaluate_report", "lever_rows", "lever_seed_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
            "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]
