@@ -616,6 +616,9 @@ def test_a_curriculum_trains_on_boxoban_train_levels_and_never_on_the_valid_file
     assert [h["variant"] for h in run.history] == ["random play", "boxoban-unfiltered-train:001"]
     assert run.history[1]["levels"] == cfg.levels_per_round
     assert all(h["wall_seconds"] > 0 for h in run.history)  # each stage timed, random play and the round
+    from wmthesis.experiments.sokoban_search import _training_seconds
+    assert _training_seconds(run.history) == sum(h["wall_seconds"] for h in run.history)
+    assert _training_seconds([{"round": 0}, *run.history[1:]]) is None  # a stage saved before stages were timed
 
 
 def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own(tmp_path, monkeypatch):
@@ -824,6 +827,10 @@ def test_the_target_table_says_by_how_much_a_target_is_missed():
     assert verdicts["sokoban from pixels: no player vanishes"] == "met"
     assert verdicts["pixels: fewer than 1,000,000 environment steps"] == "met"
     assert verdicts["the whole experiment within 60 minutes (first run)"] == "missed by 1.7 min"
+    # A run trained elsewhere (validate-sokoban): its stages' own wall times and the evaluation's.
+    timed = {**metrics, "training_wall_seconds": 2_400.0, "evaluation_wall_seconds": 600.0}
+    assert {row[0]: row[2] for row in target_rows(timed)}[
+        "the whole experiment within 60 minutes (training's stages + evaluation)"] == "met"
     measures["open_loop"] = {30: {"sequences": 0}}  # no plan 30 steps long (a smoke run)
     verdicts = {row[0]: row[2] for row in target_rows(metrics)}
     assert verdicts["sokoban from pixels, model exact open loop +30: at least 95.0%"] == "not measured"

@@ -95,9 +95,13 @@ def target_rows(metrics: dict) -> list[list]:
             vanished = max(measures["one_step"]["player_vanished"], loop.get("player_vanished", 0.0))
             rows.append([f"{variant} from {inputs}: no player vanishes", f"{vanished:.2%}",
                          "met" if vanished == 0 else "missed"])
-    seconds = metrics.get("first_run_wall_seconds")
+    training, evaluation = metrics.get("training_wall_seconds"), metrics.get("evaluation_wall_seconds")
+    if training is not None and evaluation is not None:  # however the run was trained: its stages' own times
+        seconds, measured = training + evaluation, "training's stages + evaluation"
+    else:
+        seconds, measured = metrics.get("first_run_wall_seconds"), "first run"
     if seconds is not None:
-        rows.append(["the whole experiment within 60 minutes (first run)", f"{seconds / 60:.1f} min",
+        rows.append([f"the whole experiment within 60 minutes ({measured})", f"{seconds / 60:.1f} min",
                      "met" if seconds <= 3600 else f"missed by {seconds / 60 - 60:.1f} min"])
     return rows
 
@@ -117,6 +121,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
     work, out = hold(work_folder(profile, seed)), data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
     runs = {"pixels": _trained_run(work / "pixels", cfg, progress)}
+    trained = time.time()
     tables, model_accuracy, solutions = {}, {}, {}
     seeds = level_seeds(seed, EVAL_PURPOSE, cfg.eval_levels)
     generated = list(GENERATED)  # unseen levels of our generator; Boxoban's below
@@ -162,6 +167,9 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
                   "solutions": [str(out / f"solutions-{n}-{v}.json") for n in runs for v in generated]},
     }
     metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
+    metrics["training_wall_seconds"] = _training_seconds(runs["pixels"].history)
+    metrics["evaluation_wall_seconds"] = (_read_json(out / "metrics.json") or {}).get(  # the first complete one's
+        "evaluation_wall_seconds", time.time() - trained)
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(_jsonable(metrics), indent=1))
     return metrics
@@ -454,6 +462,13 @@ def _merged(parts: list[dict], seeds) -> dict:
 def _trained(folder: Path, cfg) -> bool:
     run = load_run(folder, cfg)
     return run is not None and run.rounds_done == len(schedule(cfg))
+
+
+def _training_seconds(history: list[dict]) -> float | None:
+    """A run's training wall time: the sum of its stages' (None for a run with a stage saved before
+    stages were timed)."""
+    seconds = [stage.get("wall_seconds") for stage in history]
+    return None if None in seconds else float(sum(seconds))
 
 
 def _trained_run(folder: Path, cfg, progress: bool):
