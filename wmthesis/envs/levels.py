@@ -25,6 +25,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 # Board codes (``SokobanEnv.board``), the one place they are defined.
 WALL, FLOOR, TARGET, BOX_ON_TARGET, BOX, PLAYER, PLAYER_ON_TARGET = range(7)
@@ -40,6 +41,10 @@ class LevelError(ValueError):
     """A level that is not a playable Sokoban board; the message names the level and why."""
 
 
+_CODES = np.zeros(128, np.uint8)  # an ASCII symbol -> its cell code
+_CODES[[ord(char) for char in SYMBOLS]] = list(SYMBOLS.values())
+
+
 def parse_level(text: str, name: str = "level") -> np.ndarray:
     """One level's text -> its board, uint8 (h, w) codes, wall-bordered (:func:`check_board`)."""
     rows = [line.rstrip("\n\r") for line in text.splitlines()]
@@ -47,13 +52,13 @@ def parse_level(text: str, name: str = "level") -> np.ndarray:
     if not rows:
         raise LevelError(f"{name}: no rows")
     width = max(len(row) for row in rows)
+    if not set("".join(rows)) <= SYMBOLS.keys():
+        r, c, char = next((r, c, char) for r, row in enumerate(rows) for c, char in enumerate(row) if char not in SYMBOLS)
+        raise LevelError(f"{name}: row {r + 1} column {c + 1} holds {char!r}; valid: "
+                         + " ".join(repr(s) for s in SYMBOLS))
     board = np.full((len(rows) + 2, width + 2), FLOOR, np.uint8)  # a ring of outside floor
-    for r, row in enumerate(rows):
-        for c, char in enumerate(row):
-            if char not in SYMBOLS:
-                raise LevelError(f"{name}: row {r + 1} column {c + 1} holds {char!r}; valid: "
-                                 + " ".join(repr(s) for s in SYMBOLS))
-            board[r + 1, c + 1] = SYMBOLS[char]
+    text = "".join(row.ljust(width) for row in rows).encode("ascii")  # short rows: floor (' ') after them
+    board[1:-1, 1:-1] = _CODES[np.frombuffer(text, np.uint8)].reshape(len(rows), width)
     board = _wall_outside(board, name)
     check_board(board, name)
     return board
@@ -117,9 +122,10 @@ def check_board(board: np.ndarray, name: str = "level") -> None:
     ring = np.concatenate([board[0], board[-1], board[:, 0], board[:, -1]])
     if np.any(ring != WALL):
         raise LevelError(f"{name}: the outer ring must be wall (the level is not enclosed)")
-    players = int(np.isin(board, (PLAYER, PLAYER_ON_TARGET)).sum())
-    boxes = int(np.isin(board, (BOX, BOX_ON_TARGET)).sum())
-    targets = int(np.isin(board, (TARGET, BOX_ON_TARGET, PLAYER_ON_TARGET)).sum())
+    count = np.bincount(board.ravel(), minlength=PLAYER_ON_TARGET + 1)  # cells of each code
+    players = int(count[PLAYER] + count[PLAYER_ON_TARGET])
+    boxes = int(count[BOX] + count[BOX_ON_TARGET])
+    targets = int(count[TARGET] + count[BOX_ON_TARGET] + count[PLAYER_ON_TARGET])
     if players != 1:
         raise LevelError(f"{name}: needs exactly one player ('@' or '+'), found {players}")
     if boxes == 0 or targets < boxes:
@@ -130,19 +136,16 @@ def check_board(board: np.ndarray, name: str = "level") -> None:
 def _wall_outside(board: np.ndarray, name: str) -> np.ndarray:
     """Floor connected to the outside ring becomes wall; then drop the added ring (the level keeps
     its own size, wall rows included: a Boxoban level stays 10x10). Anything
-    else (a box, target or player) reachable from outside means the level is not enclosed."""
-    h, w = board.shape
-    outside, stack = np.zeros_like(board, bool), [(0, 0)]
-    outside[0, 0] = True
-    while stack:
-        r, c = stack.pop()
-        for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
-            if 0 <= nr < h and 0 <= nc < w and not outside[nr, nc] and board[nr, nc] != WALL:
-                if board[nr, nc] != FLOOR:
-                    raise LevelError(f"{name}: row {nr} column {nc} is reachable from outside the walls "
-                                     "(the level is not enclosed)")
-                outside[nr, nc] = True
-                stack.append((nr, nc))
+    else (a box, target or player) reachable from outside means the level is not enclosed.
+    ``board`` (h, w) carries the added ring of floor, so the outside is the region of non-wall
+    cells (4-connected) that holds its corner."""
+    regions, _ = ndimage.label(board != WALL)
+    outside = regions == regions[0, 0]
+    inside_things = np.argwhere(outside & (board != FLOOR))
+    if len(inside_things):
+        nr, nc = inside_things[0]
+        raise LevelError(f"{name}: row {nr} column {nc} is reachable from outside the walls "
+                         "(the level is not enclosed)")
     board = np.where(outside, WALL, board).astype(np.uint8)
     if not np.any(board != WALL):
         raise LevelError(f"{name}: no floor inside the walls")
