@@ -35,7 +35,7 @@ core"): levels solved, search nodes and seconds per level. Run it on a quiet mac
 The model runs in bfloat16 where the CPU computes it natively (:func:`wmthesis.utils.half_precision`),
 as in the experiment; the JSON records which. Runs on torch's default threads (the machine's cores). Writes ``benchmarks/results/sokoban_search.json`` (a machine with bfloat16);
 ``sokoban_search_float32.json`` is a run on a 2-core AMD EPYC without it (AVX2), with ``--agent``
-on seed 0's quick pixel run, everything else paused.
+on seed 0's quick pixel run (the curriculum, since 2026-11-25), everything else paused.
 """
 from __future__ import annotations
 
