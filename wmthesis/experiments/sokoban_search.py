@@ -121,7 +121,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
     work, out = hold(work_folder(profile, seed)), data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
     runs = {"pixels": _trained_run(work / "pixels", cfg, progress)}
-    trained = time.time()
+    trained_at = time.time()
     tables, model_accuracy, solutions = {}, {}, {}
     seeds = level_seeds(seed, EVAL_PURPOSE, cfg.eval_levels)
     generated = list(GENERATED)  # unseen levels of our generator; Boxoban's below
@@ -169,7 +169,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     metrics["training_wall_seconds"] = _training_seconds(runs["pixels"].history)
     metrics["evaluation_wall_seconds"] = (_read_json(out / "metrics.json") or {}).get(  # the first complete one's
-        "evaluation_wall_seconds", time.time() - trained)
+        "evaluation_wall_seconds", time.time() - trained_at)
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(_jsonable(metrics), indent=1))
     return metrics
@@ -235,9 +235,9 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
     """The pixel agent that :func:`sokoban_search` trains (trained here first, alone, if the
     experiment has not) on the first ``levels`` levels of each report set (:data:`BOXOBAN_SPLITS`),
     beyond the experiment's own :data:`BOXOBAN_LEVELS`: the closing figures. Resumable level by
-    level, and the levels a smaller evaluation of the same run played are taken from it. Returns, and writes to the run's results folder as
-    ``boxoban-report-LEVELS.json``, each kind's row (solve rate, nodes and seconds per level,
-    solutions replayed, failed levels)."""
+    level, and the levels a smaller evaluation of the same run played are taken from it. Returns,
+    and writes to the run's results folder as ``boxoban-report-LEVELS.json``, each kind's row
+    (solve rate, nodes and seconds per level, solutions replayed, failed levels)."""
     from wmthesis.envs.boxoban import load_levels
 
     profile = profile_name(profile)
@@ -293,15 +293,21 @@ def lever_seed_rows(lever: str = "baseline", profile: str | None = None) -> list
             for r, rate in zip(found, rates)]
     if len(found) > 1:
         mean, std = rates.mean(0), rates.std(0, ddof=1)
-        rows.append([f"mean ± std, {len(found)} seeds", *(f"{m:.1f} ± {d:.1f}" for m, d in zip(mean, std)), "", "", ""])
+        spread = [f"{m:.1f} ± {d:.1f}" for m, d in zip(mean, std)]
+        rows.append([f"mean ± std, {len(found)} seeds", *spread, "", "", ""])
     return rows
+
+
+def _agent(run, search, simulator: bool):
+    """``run``'s agent searching as ``search`` says, with the true rules over its own inputs in
+    place of its model if ``simulator`` (the reference that tells what is the model's fault)."""
+    return run.agent(search, Simulator(run.inputs.type_codes())) if simulator else run.agent(search)
 
 
 def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -> dict:
     """The run in ``folder`` (with the true rules in place of its model if ``simulator``) on the
     levels: ``plays``, one record (seed, solved, actions, ...) per level."""
-    run = load_run(folder, cfg)
-    agent = run.agent(cfg, Simulator(run.inputs.type_codes())) if simulator else run.agent(cfg)
+    agent = _agent(load_run(folder, cfg), cfg, simulator)
     return {"plays": [p.record() for p in play_levels(agent, variant, seeds, progress=False)]}
 
 
@@ -364,7 +370,7 @@ def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, sim
     run, search = load_run(folder, cfg), cfg if search is None else search
     if search.prior_weight > 0 and run.policy is None:  # a run trained without a prior: the one fitted after it
         run.policy = policy_afterwards(folder, run, cfg, progress=False)
-    agent = run.agent(search, Simulator(run.inputs.type_codes())) if simulator else run.agent(search)
+    agent = _agent(run, search, simulator)
     done = {}
     if partial is not None:  # what this part, or a smaller evaluation of the same, has played already
         done = {**_smaller_evaluations(partial), **{r["level"]: r for r in (_read_json(partial) or {}).get("plays", [])}}

@@ -100,7 +100,8 @@ def run_scores(metrics: dict) -> dict[str | None, float]:
 def read_runs(folder: str | Path | None = None) -> list[Run]:
     """Every run under ``folder`` (default ``data/results``), one :class:`Run` per variant in a
     ``metrics.json``, and per kind of a Sokoban report evaluation (:func:`report_runs`). A file
-    that is not JSON or not a run's metrics is skipped with a warning naming it; when two files hold the same run, the newer one counts."""
+    that is not JSON or not a run's metrics is skipped with a warning naming it; when two files
+    hold the same run, the newer one counts."""
     from wmthesis.experiments import EXPERIMENTS
 
     folder = Path(folder) if folder is not None else data_dir("results")
