@@ -512,6 +512,35 @@ def test_a_rounds_levels_played_in_parallel_parts_are_played_as_each_alone_in_se
     assert all(np.array_equal(p.transitions["states"], e.transitions["states"]) for p, e in zip(plays, expected))
 
 
+def test_a_round_cut_off_in_its_play_replays_only_the_parts_it_had_not_finished(tmp_path, monkeypatch):
+    import wmthesis.sokoban_search.iteration as iteration
+
+    run = iteration.Run(Simulator(), None, [], 0)
+    cfg = for_profile(SokobanSearchConfig, "smoke", budget=3000)
+    seeds = level_seeds(0, 1, 11)
+    played = []  # the first seed of each part played
+
+    def serial(calls, progress, on_done, crash_after=None):
+        for index, (fn, *args) in enumerate(calls):
+            if index == crash_after:
+                raise KeyboardInterrupt("the run was cut off")
+            played.append(args[-1][0])
+            on_done(index, fn(*args))
+
+    monkeypatch.setattr(iteration, "parallel_calls", lambda c, p, d: serial(c, p, d, crash_after=3))
+    with pytest.raises(KeyboardInterrupt):
+        iteration.play_in_parts(run, cfg, "sokoban-small", seeds, False, tmp_path / "round-1")
+    assert played == seeds[:3]
+    monkeypatch.setattr(iteration, "parallel_calls", serial)
+    resumed = iteration.play_in_parts(run, cfg, "sokoban-small", seeds, False, tmp_path / "round-1")
+    assert played == seeds[:3] + seeds[3:iteration.ROUND_PARTS]  # only the five parts not kept
+    whole = iteration.play_in_parts(run, cfg, "sokoban-small", seeds, False)
+    assert [(p.seed, p.solved, p.actions) for p in resumed] == [(p.seed, p.solved, p.actions) for p in whole]
+    played.clear()  # parts kept for other levels are not taken for these
+    iteration.play_in_parts(run, cfg, "sokoban-small", level_seeds(0, 2, 11), False, tmp_path / "round-1")
+    assert len(played) == iteration.ROUND_PARTS
+
+
 def test_a_store_from_before_solutions_were_kept_reads_them_off_its_transitions(tmp_path):
     from wmthesis.sokoban_search.heuristic import steps_to_go
 

@@ -427,8 +427,8 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                              heartbeat_interval=10, grace_period=600),
         # Self-play games of 400 agent steps (a bout is ~1,780), 100 per variant; full-bout evaluation.
         "AlphaZeroConfig": dict(games=100, max_steps=400, test_every=10, test_episodes=1, eval_episodes=5),
-        # Two runs (grid, pixels) side by side on one core each: ~32 minutes of training, then
-        # 500 unseen levels of each variant for each agent and the true rules (~21 minutes).
+        # One run from pixels through the curriculum (420k environment steps; about 2.3 CPU-hours of
+        # play and fits on this project's 2-core CPU), then 500 unseen levels of each evaluation set.
         "SokobanSearchConfig": dict(random_levels=1000, rounds=3, levels_per_round=250, model_updates=3000,
                                     round_updates=500, value_updates=1000, budget=20_000),
     },

@@ -6,6 +6,8 @@ A run lives in one folder: ``experience.h5`` (:class:`~wmthesis.sokoban_search.e
 and ``state.pt``, written after random play and after every round (the model's and the value's
 weights, the optimisers, the round reached and the history). Re-running resumes after the last
 finished round; rows of a round that was cut off are dropped first, so the result is the same.
+Within a round, each part of its levels is kept as it finishes (``round-N/part-P.pkl``, removed once
+the round is saved): a round cut off in its play replays only the parts it had not finished.
 Each stage's record in the history holds its wall time (``wall_seconds``: play and fits).
 
 The value starts afresh each round, trained on every level solved so far. Carrying it over from
@@ -25,6 +27,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import pickle
+import shutil
 import time
 from pathlib import Path
 
@@ -97,8 +101,9 @@ def train_search_agent(folder: str | Path, cfg: SokobanSearchConfig, progress: b
         experience.drop_rounds(run.rounds_done + 1)
         rounds = schedule(cfg)
         for index in range(run.rounds_done, len(rounds)):
-            _round(run, experience, cfg, index + 1, *rounds[index], progress)
+            _round(run, experience, cfg, index + 1, *rounds[index], progress, folder / f"round-{index + 1}")
             save_run(folder, run, cfg)
+            shutil.rmtree(folder / f"round-{index + 1}", ignore_errors=True)  # its parts are in the run now
     return run
 
 
@@ -132,15 +137,40 @@ def n_codes(cfg: SokobanSearchConfig) -> int:
 ROUND_PARTS = 8  # a round's levels in parts, played two at a time on 2 cores (a bar over the parts)
 
 
-def play_in_parts(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int], progress: bool = True) -> list:
+def play_in_parts(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int], progress: bool = True,
+                  kept: Path | None = None) -> list:
     """The agent of ``run`` searching as ``cfg`` says on the levels of ``variant`` that ``seeds``
     generate (:func:`~wmthesis.sokoban_search.evaluation.play_levels`): one
     :class:`~wmthesis.sokoban_search.agent.Play` per seed, in order. The levels are played in
     :data:`ROUND_PARTS` parts in parallel processes (:func:`~wmthesis.utils.parallel_calls`);
-    each level is played as it would be alone."""
+    each level is played as it would be alone. With a folder ``kept``, each part is saved there
+    as it finishes, and a part saved there for the same levels is read back, not played again."""
     parts = [seeds[p::ROUND_PARTS] for p in range(min(ROUND_PARTS, len(seeds)))]
-    played = parallel_calls([(_play_part, run, cfg, variant, part) for part in parts], progress)
+    played = [_kept_part(kept, p, part) for p, part in enumerate(parts)]
+    missing = [p for p, plays in enumerate(played) if plays is None]
+
+    def keep(index: int, plays: list) -> None:
+        played[missing[index]] = plays
+        if kept is not None:
+            kept.mkdir(parents=True, exist_ok=True)
+            with atomic_path(kept / f"part-{missing[index]}.pkl") as tmp:
+                Path(tmp).write_bytes(pickle.dumps({"seeds": parts[missing[index]], "plays": plays}))
+
+    parallel_calls([(_play_part, run, cfg, variant, parts[p]) for p in missing], progress, keep)
     return [played[i % len(parts)][i // len(parts)] for i in range(len(seeds))]
+
+
+def _kept_part(kept: Path | None, index: int, seeds: list[int]) -> list | None:
+    """The plays of part ``index`` saved in ``kept`` for these ``seeds``, or None (none saved, or
+    saved for other levels, or unreadable: then it is played again)."""
+    path = None if kept is None else kept / f"part-{index}.pkl"
+    if path is None or not path.exists():
+        return None
+    try:
+        saved = pickle.loads(path.read_bytes())
+    except Exception:  # cut off while written elsewhere, or foreign: play the part again
+        return None
+    return saved["plays"] if isinstance(saved, dict) and saved.get("seeds") == list(seeds) else None
 
 
 def _play_part(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int]) -> list:
@@ -148,11 +178,13 @@ def _play_part(run: Run, cfg: SokobanSearchConfig, variant: str, seeds: list[int
 
 
 def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: int, variant: str, r: int,
-           progress: bool) -> None:
-    """Round ``number``: play levels, keep what was seen, train the model and the value."""
+           progress: bool, kept: Path | None = None) -> None:
+    """Round ``number``: play levels (each part kept in the folder ``kept`` as it finishes, see
+    :func:`play_in_parts`), keep what was seen, train the model and the value."""
     started = time.perf_counter()
     expert = dataclasses.replace(cfg, budget=cfg.round_budget or cfg.budget)  # the expert in training
-    plays = play_in_parts(run, expert, variant, level_seeds(cfg.seed, 1 + number, cfg.levels_per_round), progress)
+    plays = play_in_parts(run, expert, variant, level_seeds(cfg.seed, 1 + number, cfg.levels_per_round), progress,
+                          kept)
     for play in plays:
         experience.add("transitions", number, **play.transitions)
         if play.solved:
