@@ -62,7 +62,9 @@ def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, cap
     trained = [h["variant"] for h in metrics["history"]["pixels"][1:]]  # the curriculum, our generator's 10x10 unplayed
     assert trained == ["sokoban-small", "boxoban-unfiltered-train", "boxoban-medium-train"]
     assert sorted(metrics["tables"]) == ["sokoban", "sokoban-small"]  # yet both of our variants are evaluated
-    assert metrics["tables"]["sokoban"]["agent, learned model (pixels)"]["levels"] == 4
+    generated = metrics["tables"]["sokoban"]
+    assert generated["agent, learned model (pixels)"]["levels"] == generated["random play"]["levels"] == 4
+    assert generated["agent, true simulator (pixels)"]["levels"] == generated["A* (reference)"]["levels"] == 2
     for kind in ("unfiltered", "medium"):  # the first 2 levels of the report files, played in the real game
         table = metrics["boxoban"]["tables"][kind]
         for title in ("agent, learned model (pixels)", "agent, true simulator (pixels)"):

@@ -38,10 +38,11 @@ BOXOBAN_SPLITS = {
     "report": {"unfiltered": "boxoban-unfiltered-valid:005-009", "medium": "boxoban-medium-valid:005-009"},
 }
 BOXOBAN_LEVELS = {"smoke": 2, "quick": 500, "thesis": 1000}  # the first of the report files' levels, each kind
-# The reference row on the first of those levels: the pixel agent's search and value with the true
-# rules in place of its model, which tells how much of the failures are the model's; fewer levels
-# keep the run in its time.
-BOXOBAN_REFERENCE_LEVELS = {"smoke": 2, "quick": 100, "thesis": 1000}
+# The reference rows play the first of each evaluation's levels only (Boxoban's and our generator's):
+# the pixel agent's search and value with the true rules in place of its model, which tells how much
+# of the failures are the model's, and A*. Fewer levels keep the run in its time (in quick they
+# would take about 20 of the experiment's CPU-minutes on 500 levels).
+REFERENCE_LEVELS = {"smoke": 2, "quick": 100, "thesis": 1000}
 BOXOBAN_AGENTS = {"pixels": "agent, learned model (pixels)", "simulator": "agent, true simulator (pixels)"}
 BOXOBAN_REFERENCE = {  # the best published agent, DRC(3,3), 2e9 environment steps, 120-step episodes
     "unfiltered": "DRC(3,3) 99.3% of the unfiltered test (AlignmentResearch/learned-planner)",
@@ -127,8 +128,10 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     generated = list(GENERATED)  # unseen levels of our generator; Boxoban's below
     agents = {"pixels": (work / "pixels", cfg, False),
               "simulator": (work / "pixels", cfg, True)}  # its search and value with the true rules
-    evaluations = {(name, variant, part): (work / f"eval-{name}-{variant}-{part}.json",
-                                           (_evaluate, folder, run_cfg, variant, seeds[part::EVAL_PARTS], simulator))
+    played_on = {"pixels": seeds, "simulator": seeds[:REFERENCE_LEVELS[profile]]}  # the reference: the first
+    evaluations = {(name, variant, part): (work / f"eval-{name}-{variant}-{len(played_on[name])}-{part}.json",
+                                           (_evaluate, folder, run_cfg, variant, played_on[name][part::EVAL_PARTS],
+                                            simulator))
                    for variant in reversed(generated) for name, (folder, run_cfg, simulator) in agents.items()
                    for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
     boxoban = _boxoban_jobs(work, agents, profile)
@@ -140,7 +143,8 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
                            "thesis": {"solve_rate": THESIS_SOLVED},
                            "agent, learned model (pixels)": played["pixels"]["row"],
                            "agent, true simulator (pixels)": played["simulator"]["row"],
-                           "A* (reference)": _cached(work / f"astar-{variant}.json", astar_row, variant, seeds)}
+                           "A* (reference)": _cached(work / f"astar-{variant}-{len(played_on['simulator'])}.json",
+                                                     astar_row, variant, played_on["simulator"])}
         model_accuracy[variant] = {name: _accuracy(run, variant, seed, cfg.eval_levels,
                                                    played["simulator"]["solutions"])
                                    for name, run in runs.items()}
@@ -333,17 +337,18 @@ def _partial(path: Path) -> Path:
 def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
     """The Boxoban evaluations as :func:`_run_saved` jobs, keyed (row, kind, part): each agent
     of ``agents`` (name: (folder, cfg, simulator)) on the first levels of each report file set
-    (:data:`BOXOBAN_LEVELS` for pixels, :data:`BOXOBAN_REFERENCE_LEVELS` for the rest), in
-    parts; random play and A* on the pixel agent's levels, whole."""
+    (:data:`BOXOBAN_LEVELS` for pixels, :data:`REFERENCE_LEVELS` for the true rules), in parts;
+    random play on the pixel agent's levels and A* on the reference's, whole."""
     jobs = {}
     for kind, source in BOXOBAN_SPLITS["report"].items():
         for name, (folder, cfg, simulator) in agents.items():
-            count = (BOXOBAN_LEVELS if name == "pixels" else BOXOBAN_REFERENCE_LEVELS)[profile]
+            count = (BOXOBAN_LEVELS if name == "pixels" else REFERENCE_LEVELS)[profile]
             jobs.update({(name, kind, part): _boxoban_job(work / f"eval-boxoban-{name}-{kind}-{count}-{part}.json",
                                                           folder, cfg, source, count, part, simulator)
                          for part in range(EVAL_PARTS)})
-        count = BOXOBAN_LEVELS[profile]
-        for name, row in (("random", random_board_row), ("astar", astar_board_row)):
+        for name, row, counts in (("random", random_board_row, BOXOBAN_LEVELS), ("astar", astar_board_row,
+                                                                                  REFERENCE_LEVELS)):
+            count = counts[profile]
             jobs[name, kind, 0] = (work / f"{name}-boxoban-{kind}-{count}.json", (_boxoban_reference, row, source, count))
     return jobs
 
