@@ -541,6 +541,20 @@ def test_a_round_cut_off_in_its_play_replays_only_the_parts_it_had_not_finished(
     assert len(played) == iteration.ROUND_PARTS
 
 
+def test_a_run_started_over_does_not_take_the_parts_an_earlier_run_left(tmp_path):
+    import pickle
+
+    import wmthesis.sokoban_search.iteration as iteration
+
+    cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",))
+    seeds = level_seeds(cfg.seed, 2, cfg.levels_per_round)  # round 1's levels
+    (tmp_path / "round-1").mkdir()  # an earlier run's parts for the same levels, played by another model
+    (tmp_path / "round-1" / "part-0.pkl").write_bytes(pickle.dumps({"seeds": seeds[0::iteration.ROUND_PARTS],
+                                                                     "plays": ["not this run's play"]}))
+    run = train_search_agent(tmp_path, cfg, progress=False)  # no state.pt: it starts over, parts and all
+    assert run.history[1]["levels"] == cfg.levels_per_round and not (tmp_path / "round-1").exists()
+
+
 def test_a_store_from_before_solutions_were_kept_reads_them_off_its_transitions(tmp_path):
     from wmthesis.sokoban_search.heuristic import steps_to_go
 

@@ -46,7 +46,7 @@ from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.policy import Policy, turned_actions
 from wmthesis.training import check_same_config, gradient_step, with_added_defaults
-from wmthesis.utils import atomic_path, check_choice, device, half_precision, parallel_calls
+from wmthesis.utils import atomic_path, check_choice, device, half_precision, parallel_calls, read_pickle
 
 N_ACTIONS = 8
 STATE_VERSION = 3  # 2: the model keeps the count changes it has seen; 3: and the boards at ends
@@ -93,6 +93,10 @@ def train_search_agent(folder: str | Path, cfg: SokobanSearchConfig, progress: b
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     run = load_run(folder, cfg)
+    for stale in folder.glob("round-*"):  # parts of a round already saved, or of a run started over
+        number = stale.name.removeprefix("round-")
+        if number.isdigit() and (run is None or int(number) <= run.rounds_done):
+            shutil.rmtree(stale, ignore_errors=True)
     with Experience(folder / "experience.h5") as experience:
         if run is None:
             experience.drop_rounds(0)
@@ -167,8 +171,8 @@ def _kept_part(kept: Path | None, index: int, seeds: list[int]) -> list | None:
     if path is None or not path.exists():
         return None
     try:
-        saved = pickle.loads(path.read_bytes())
-    except Exception:  # cut off while written elsewhere, or foreign: play the part again
+        saved = read_pickle(path)
+    except ValueError:  # corrupt (copied or edited by hand): play the part again
         return None
     return saved["plays"] if isinstance(saved, dict) and saved.get("seeds") == list(seeds) else None
 
