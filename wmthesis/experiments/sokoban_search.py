@@ -116,7 +116,8 @@ def work_folder(profile: str, seed: int) -> Path:
 def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """Train the search agent from pixels (resumable), evaluate it on ``eval_levels`` unseen
     levels of each of our generator's variants (:data:`GENERATED`) and on Boxoban's report files
-    beside random play, the thesis, its search with the true rules and A*; return the metrics."""
+    beside random play, the thesis, and its search with the true rules and A* (the reference rows,
+    on the first :data:`REFERENCE_LEVELS` of them); return the metrics."""
     profile = profile_name(profile)
     started = time.time()
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
