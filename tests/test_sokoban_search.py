@@ -793,6 +793,14 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
     plays = experiment._evaluate_boxoban(pixels, cfg, source, 4, 0, False, None, partial)["plays"]
     assert [p["level"] for p in plays] == [0, 2] and plays[0]["expanded"] == -1 and plays[1]["expanded"] >= 0
     assert [p["level"] for p in json.loads(partial.read_text())["plays"]] == [0, 2]
+    # so does a job on our generator's levels, and a level played again is played the same
+    cut = tmp_path / "cut-generated.partial.json"
+    cut.write_text(json.dumps({"plays": [{"seed": 5, "solved": True, "expanded": -1}]}))
+    plays = experiment._evaluate(pixels, cfg, "sokoban-small", [5, 6, 7], False, cut)["plays"]
+    assert [p["seed"] for p in plays] == [5, 6, 7] and plays[0]["expanded"] == -1 and plays[1]["expanded"] >= 0
+    assert [p["seed"] for p in json.loads(cut.read_text())["plays"]] == [5, 6, 7]
+    timeless = lambda plays: [{k: v for k, v in p.items() if k != "seconds"} for p in plays]  # noqa: E731
+    assert timeless(experiment._evaluate(pixels, cfg, "sokoban-small", [7, 6], False)["plays"]) == timeless(plays[:0:-1])
     assert run.agent(dataclasses.replace(cfg, prior_weight=1.0)).prior is None  # the run itself has none...
     run.policy = policy
     assert run.agent(dataclasses.replace(cfg, prior_weight=1.0)).prior is not None  # ...the fitted one is used

@@ -16,7 +16,7 @@ from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
-                                                play_levels, random_board_row, random_row, replay_states)
+                                                random_board_row, random_row, replay_states)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution
 from wmthesis.sokoban_search.iteration import load_run, policy_afterwards, schedule, train_search_agent
 from wmthesis.sokoban_search.search import Simulator
@@ -130,10 +130,8 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     agents = {"pixels": (work / "pixels", cfg, False),
               "simulator": (work / "pixels", cfg, True)}  # its search and value with the true rules
     played_on = {"pixels": seeds, "simulator": seeds[:REFERENCE_LEVELS[profile]]}  # the reference: the first
-    evaluations = {(name, variant, part): (work / f"eval-{name}-{variant}-{len(played_on[name])}-{part}.json",
-                                           (_evaluate, folder, run_cfg, variant, played_on[name][part::EVAL_PARTS],
-                                            simulator))
-                   for variant in reversed(generated) for name, (folder, run_cfg, simulator) in agents.items()
+    evaluations = {(name, variant, part): _generated_job(work, name, agents[name], variant, played_on[name], part)
+                   for variant in reversed(generated) for name in agents
                    for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
     boxoban = _boxoban_jobs(work, agents, profile)
     _run_saved({**evaluations, **boxoban}, progress)
@@ -313,11 +311,30 @@ def _agent(run, search, simulator: bool):
     return run.agent(search, Simulator(run.inputs.type_codes())) if simulator else run.agent(search)
 
 
-def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False) -> dict:
+def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False, partial: Path | None = None) -> dict:
     """The run in ``folder`` (with the true rules in place of its model if ``simulator``) on the
-    levels: ``plays``, one record (seed, solved, actions, ...) per level."""
+    levels: ``plays``, one record (seed, solved, actions, ...) per level. Each level is saved in
+    ``partial`` as it ends, and a job cut off plays only the levels it had not (a level is played
+    the same whenever it is played: the agent's random numbers come from its seed)."""
     agent = _agent(load_run(folder, cfg), cfg, simulator)
-    return {"plays": [p.record() for p in play_levels(agent, variant, seeds, progress=False)]}
+    done = {r["seed"]: r for r in (_read_json(partial) or {}).get("plays", [])} if partial is not None else {}
+    env = agent.env(variant)
+    for seed in map(int, seeds):
+        if seed not in done:
+            done[seed] = agent.play(env, seed).record()
+            if partial is not None:
+                with atomic_path(partial) as tmp:
+                    tmp.write_text(json.dumps({"plays": list(done.values())}))
+    return {"plays": [done[int(seed)] for seed in seeds]}
+
+
+def _generated_job(work: Path, name: str, agent: tuple, variant: str, seeds, part: int) -> tuple:
+    """A :func:`_run_saved` job: agent ``name`` (``(folder, cfg, simulator)``) on part ``part``
+    (every :data:`EVAL_PARTS`-th) of the levels ``seeds`` of our generator's ``variant``, with
+    :func:`_evaluate`, saved level by level in its file's :func:`_partial`."""
+    folder, cfg, simulator = agent
+    path = work / f"eval-{name}-{variant}-{len(seeds)}-{part}.json"
+    return path, (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator, _partial(path))
 
 
 def _run_saved(jobs: dict, progress: bool) -> None:
