@@ -691,23 +691,35 @@ def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, m
     assert row[2] == f"{100 * result['rows']['unfiltered']['solve_rate']:.1f}"
 
 
-def test_a_levers_validation_over_seeds_gives_each_seed_then_the_mean_and_sample_std(tmp_path, monkeypatch):
-    from wmthesis.experiments.sokoban_search import lever_seed_rows
+def test_validation_and_report_figures_over_seeds_give_each_seed_then_the_mean_std_and_t_interval(tmp_path, monkeypatch):
+    from wmthesis.experiments.sokoban_search import lever_seed_rows, report_seed_rows
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     for seed, (unfiltered, medium) in {2: (0.98, 0.90), 0: (1.0, 0.94), 1: (0.99, 0.80)}.items():
         folder = tmp_path / "results" / "sokoban-search" / f"quick-seed{seed}"
         folder.mkdir(parents=True)
-        rows = {k: {"solve_rate": rate, "levels": 100, "nodes_per_level": 1000.0 * (seed + 1)}
-                for k, rate in (("unfiltered", unfiltered), ("medium", medium))}
+        rows = {k: {"solve_rate": rate, "levels": 100, "nodes_per_level": 1000.0 * (seed + 1),
+                    "seconds_per_level": seconds}
+                for k, rate, seconds in (("unfiltered", unfiltered, 1.0), ("medium", medium, 4.0))}
         (folder / "validation-baseline.json").write_text(json.dumps(
             {"lever": "baseline", "seed": seed, "rows": rows, "env_steps": 420_000}))
+        if seed < 2:  # the closing figures of two seeds
+            (folder / "boxoban-report-1000.json").write_text(json.dumps(
+                {"levels": 1000, "seed": seed, "rows": rows, "env_steps": 420_000}))
     (tmp_path / "results" / "sokoban-search" / "smoke-seed0").mkdir()  # another profile: not read
     rows = lever_seed_rows("baseline", "quick")
-    assert [r[0] for r in rows[:3]] == [0, 1, 2] and rows[1][1:5] == ["99.0", "80.0", 100, "2,000"]
-    # medium 94, 80, 90: mean 88.0, sample std sqrt(((6)^2 + (8)^2 + (2)^2) / 2) = sqrt(52) = 7.2
-    assert rows[3] == ["mean ± std, 3 seeds", "99.0 ± 1.0", "88.0 ± 7.2", "", "", ""]
+    assert [r[0] for r in rows[:3]] == [0, 1, 2] and rows[1][1:6] == ["99.0", "80.0", 100, "2,000", "2.50"]
+    # medium 94, 80, 90: mean 88.0, sample std sqrt(((6)^2 + (8)^2 + (2)^2) / 2) = sqrt(52) = 7.2; the
+    # interval's half width t(0.975, 2) std / sqrt(3) = 4.303 * 7.211 / 1.732 = 17.9
+    assert rows[3] == ["mean ± std [95% CI], 3 seeds", "99.0 ± 1.0 [96.5, 101.5]", "88.0 ± 7.2 [70.1, 105.9]",
+                       "", "", "", ""]
     assert lever_seed_rows("generated", "quick") == []
+    # unfiltered 100 and 99, medium 94 and 80: half widths t(0.975, 1) std / sqrt(2) = 12.706 * 0.707 / 1.414
+    # and 12.706 * 9.899 / 1.414
+    report = report_seed_rows(1000, "quick")
+    assert [r[0] for r in report[:2]] == [0, 1]
+    assert report[2][:3] == ["mean ± std [95% CI], 2 seeds", "99.5 ± 0.7 [93.1, 105.9]", "87.0 ± 9.9 [-1.9, 175.9]"]
+    assert report_seed_rows(500, "quick") == []
 
 
 def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smaller_one_did_not(tmp_path, monkeypatch):

@@ -286,22 +286,41 @@ def lever_rows(profile: str | None = None, seed: int = 0) -> list[list]:
 
 def lever_seed_rows(lever: str = "baseline", profile: str | None = None) -> list[list]:
     """One lever on the validation files over the seeds measured so far (each seed's
-    ``validation-LEVER.json``): a row per seed (seed, unfiltered %, medium %, levels, nodes per
-    level, environment steps), then the mean and sample standard deviation over them."""
+    ``validation-LEVER.json``): see :func:`_seed_rows`."""
+    return _seed_rows(f"validation-{lever}.json", profile, lambda result: result.get("lever") == lever)
+
+
+def report_seed_rows(levels: int = 1000, profile: str | None = None) -> list[list]:
+    """The closing figures over the seeds measured so far: each seed's :func:`evaluate_report` on
+    the first ``levels`` levels of each report file (``boxoban-report-LEVELS.json``); see
+    :func:`_seed_rows`."""
+    return _seed_rows(f"boxoban-report-{levels}.json", profile, lambda result: result.get("levels") == levels)
+
+
+def _seed_rows(name: str, profile: str | None, accept) -> list[list]:
+    """The results named ``name`` of every seed of a profile (those ``accept`` takes): a row per
+    seed (seed, unfiltered %, medium %, levels, nodes per level, seconds per level, environment
+    steps), then the mean, the sample standard deviation and the 95% Student-t interval of the
+    mean over the seeds (:func:`~wmthesis.experiments.summary.aggregate`)."""
+    from wmthesis.experiments.summary import aggregate
+
     root, found = data_dir("results", "sokoban-search"), []
-    for path in sorted(root.glob(f"{profile_name(profile)}-seed*/validation-{lever}.json")):
+    for path in sorted(root.glob(f"{profile_name(profile)}-seed*/{name}")):
         result = _read_json(path)
-        if result and result.get("lever") == lever:
+        if result and accept(result):
             found.append(result)
     found.sort(key=lambda result: result["seed"])
-    rates = np.array([[100 * r["rows"][k]["solve_rate"] for k in ("unfiltered", "medium")] for r in found])
+    kinds = ("unfiltered", "medium")
+    rates = np.array([[100 * r["rows"][k]["solve_rate"] for k in kinds] for r in found])
     rows = [[r["seed"], *(f"{x:.1f}" for x in rate), r["rows"]["unfiltered"]["levels"],
-             f"{np.mean([m['nodes_per_level'] for m in r['rows'].values()]):,.0f}", f"{r['env_steps']:,}"]
+             f"{np.mean([r['rows'][k]['nodes_per_level'] for k in kinds]):,.0f}",
+             f"{np.mean([r['rows'][k]['seconds_per_level'] for k in kinds]):.2f}", f"{r['env_steps']:,}"]
             for r, rate in zip(found, rates)]
     if len(found) > 1:
-        mean, std = rates.mean(0), rates.std(0, ddof=1)
-        spread = [f"{m:.1f} ± {d:.1f}" for m, d in zip(mean, std)]
-        rows.append([f"mean ± std, {len(found)} seeds", *spread, "", "", ""])
+        spread = [aggregate(rates[:, i]) for i in range(len(kinds))]
+        rows.append([f"mean ± std [95% CI], {len(found)} seeds",
+                     *(f"{a['mean']:.1f} ± {a['std']:.1f} [{a['ci_low']:.1f}, {a['ci_high']:.1f}]" for a in spread),
+                     "", "", "", ""])
     return rows
 
 
@@ -559,5 +578,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "validate", "evaluate_report", "lever_rows", "lever_seed_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+__all__ = ["sokoban_search", "validate", "evaluate_report", "lever_rows", "lever_seed_rows", "report_seed_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
            "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]
