@@ -614,6 +614,27 @@ def test_a_run_resumes_to_the_same_result_and_refuses_another_config(tmp_path):
         train_search_agent(tmp_path / "a", dataclasses.replace(cfg, budget=7), progress=False)
 
 
+def test_a_finished_runs_checkpoint_alone_serves_and_an_unfinished_ones_is_refused(tmp_path):
+    """As the committed agents are kept: state.pt without experience.h5."""
+    import dataclasses
+
+    cfg = for_profile(SokobanSearchConfig, "smoke", variants=("sokoban-small",))
+    finished = train_search_agent(tmp_path / "run", cfg, progress=False)
+    (tmp_path / "alone").mkdir()
+    shutil.copy(tmp_path / "run" / "state.pt", tmp_path / "alone" / "state.pt")
+    again = train_search_agent(tmp_path / "alone", cfg, progress=False)  # nothing to train
+    assert again.history == finished.history
+    for a, b in zip(again.model.state_dict().values(), finished.model.state_dict().values()):
+        assert torch.equal(a, b)
+    more = dataclasses.replace(cfg, rounds=2)  # the same checkpoint, one round short of this config
+    state = torch.load(tmp_path / "alone" / "state.pt", weights_only=False)
+    state["config"]["rounds"] = 2
+    torch.save(state, tmp_path / "alone" / "state.pt")
+    (tmp_path / "alone" / "experience.h5").unlink()
+    with pytest.raises(ValueError, match="after round 1 of 2.*cannot resume without it"):
+        train_search_agent(tmp_path / "alone", more, progress=False)
+
+
 def test_a_run_saved_before_backed_up_values_reads_as_one_without_them(tmp_path):
     import dataclasses
 

@@ -97,13 +97,17 @@ def train_search_agent(folder: str | Path, cfg: SokobanSearchConfig, progress: b
         number = stale.name.removeprefix("round-")
         if number.isdigit() and (run is None or int(number) <= run.rounds_done):
             shutil.rmtree(stale, ignore_errors=True)
+    rounds = schedule(cfg)
     with Experience(folder / "experience.h5") as experience:
         if run is None:
             experience.drop_rounds(0)
             run = _random_stage(experience, cfg, progress)
             save_run(folder, run, cfg)
+        if run.rounds_done < len(rounds) and experience.count() == 0:  # e.g. a checkpoint copied alone
+            raise ValueError(f"{folder / 'state.pt'} is a run stopped after round {run.rounds_done} of "
+                             f"{len(rounds)}, and its experience ({folder / 'experience.h5'}) is not there: "
+                             f"it cannot resume without it; delete state.pt to train from the start")
         experience.drop_rounds(run.rounds_done + 1)
-        rounds = schedule(cfg)
         for index in range(run.rounds_done, len(rounds)):
             _round(run, experience, cfg, index + 1, *rounds[index], progress, folder / f"round-{index + 1}")
             save_run(folder, run, cfg)
