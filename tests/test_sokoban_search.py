@@ -699,7 +699,7 @@ def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own
 def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, monkeypatch):
     from wmthesis.experiments.sokoban_search import BOXOBAN_SPLITS, lever_rows, validate
 
-    with pytest.raises(ValueError, match="valid: baseline, no-backups, generated"):
+    with pytest.raises(ValueError, match="valid: baseline, three-rounds, no-backups"):
         validate("bigger-brain", "smoke")
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     result = validate("strong-expert", "smoke", seed=1, levels=3, progress=False)

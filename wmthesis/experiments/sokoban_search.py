@@ -180,17 +180,17 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
 
 # Issue 30's levers: each a change to the pixel agent's config, trained in a folder of its own and
 # measured on the validation files only (``validate``), never on the report files.
+THREE_ROUNDS = dict(rounds=3, model_updates=3000, round_updates=500)  # quick's default until 2026-11-25
 LEVERS = {
-    "baseline": {},  # the pixel run of ``sokoban_search`` itself: the curriculum through Boxoban's train files
+    "baseline": {},  # the pixel run of ``sokoban_search`` itself: the curriculum, two rounds a variant in quick
+    "three-rounds": THREE_ROUNDS,  # three rounds a variant, twice the model's fits: the default until 2026-11-25
     "no-backups": dict(backups=0),  # its value from solved levels alone: the baseline before backed-up values
-    "generated": dict(variants=GENERATED),  # our 5x5 and 10x10 levels, not Boxoban's: the default until issue 30
-    "generated-no-backups": dict(backups=0, variants=GENERATED),  # the same, before backed-up values
+    # measured with three rounds a variant (the default then), so stated with them
+    "generated": dict(variants=GENERATED, **THREE_ROUNDS),  # our 5x5 and 10x10 levels, not Boxoban's
+    "generated-no-backups": dict(backups=0, variants=GENERATED, **THREE_ROUNDS),  # the same, before backed-up values
+    "small-model": dict(channels=32, **THREE_ROUNDS),  # a quarter of the model's arithmetic: faster searches
     "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
     "more-rounds": dict(rounds=5),
-    "small-model": dict(channels=32),  # a quarter of the model's arithmetic: faster searches, if it stays exact
-    # for issue 30's 75 minutes: the default's training is about 6,500 CPU-seconds of play (3 medium
-    # rounds, 4,200 of it) and 4,000 of fits (a 64-channel update at batch 256, 0.45 s on one core)
-    "lean": dict(rounds=2, model_updates=1500, round_updates=250),  # two rounds a variant, half the model's fits
     "medium-only": dict(variants=("sokoban-small", "boxoban-medium-train")),  # no unfiltered rounds
     "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
     # the search alone, on the baseline's model and value (no training): where do its failures come from?
