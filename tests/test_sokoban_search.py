@@ -920,6 +920,25 @@ def test_the_target_table_says_by_how_much_a_target_is_missed():
     assert verdicts["sokoban from pixels, model exact open loop +30: at least 95.0%"] == "not measured"
 
 
+def test_the_boxoban_target_table_says_by_how_much_each_of_issue_30s_targets_is_missed():
+    from wmthesis.experiments.sokoban_search import boxoban_target_rows
+
+    agent = "agent, learned model (pixels)"
+    tables = {"unfiltered": {agent: {"levels": 500, "solve_rate": 0.986, "seconds_per_level": 1.5}},
+              "medium": {agent: {"levels": 500, "solve_rate": 0.87, "seconds_per_level": 6.9}}}
+    metrics = {"boxoban": {"tables": tables}, "env_steps": {"pixels": 398_657},
+               "training_wall_seconds": 2_818.0, "evaluation_wall_seconds": 1_800.0}
+    verdicts = {row[0]: (row[1], row[2]) for row in boxoban_target_rows(metrics)}
+    assert verdicts["Boxoban unfiltered from pixels: at least 99% (this seed, 500 report levels)"] == ("98.6%", "missed by 0.4%")
+    assert verdicts["Boxoban medium from pixels: at least 85% (this seed, 500 report levels)"] == ("87.0%", "met")
+    assert verdicts["seconds a level on one core, both kinds: at most 5"] == ("4.20 s", "met")  # (1.5 + 6.9) / 2
+    assert verdicts["fewer than 1,000,000 environment steps"] == ("398,657", "met")
+    assert verdicts["the quick notebook within 75 minutes (training's stages + evaluation)"] == ("77.0 min",
+                                                                                                "missed by 2.0 min")
+    untimed = {k: v for k, v in metrics.items() if k != "training_wall_seconds"}  # trained before stages were timed
+    assert len(boxoban_target_rows(untimed)) == len(verdicts) - 1
+
+
 def test_a_batch_draws_its_special_fractions_among_the_rows_they_mark():
     rows = np.arange(1000)
     groups = {"5x5": {"states": np.zeros((1000, 5, 5), np.uint8), "rewards": (rows % 100 == 0).astype(np.float32),

@@ -107,6 +107,39 @@ def target_rows(metrics: dict) -> list[list]:
     return rows
 
 
+# Issue 30's targets in quick, from pixels: each report kind's lowest solve rate (over 3 seeds in
+# the closing figures; a run's metrics give one), seconds a level on one core, the notebook's minutes.
+BOXOBAN_TARGETS = {"unfiltered": 0.99, "medium": 0.85}
+MAX_SECONDS_PER_LEVEL, NOTEBOOK_MINUTES = 5.0, 75
+
+
+def boxoban_target_rows(metrics: dict) -> list[list]:
+    """Each target of issue 30 that one run measures, with the measured value and whether it is
+    met: the pixel agent's solve rate on each report kind, its seconds a level (each level on one
+    core), its environment steps, and the training stages with the evaluation against the
+    notebook's 75 minutes."""
+    rows, agent = [], BOXOBAN_AGENTS["pixels"]
+    tables = metrics["boxoban"]["tables"]
+    for kind, lowest in BOXOBAN_TARGETS.items():
+        row = tables[kind][agent]
+        rows.append([f"Boxoban {kind} from pixels: at least {lowest:.0%} (this seed, {row['levels']} report levels)",
+                     f"{row['solve_rate']:.1%}",
+                     "met" if row["solve_rate"] >= lowest else f"missed by {lowest - row['solve_rate']:.1%}"])
+    seconds = float(np.mean([tables[kind][agent]["seconds_per_level"] for kind in BOXOBAN_TARGETS]))
+    rows.append([f"seconds a level on one core, both kinds: at most {MAX_SECONDS_PER_LEVEL:.0f}", f"{seconds:.2f} s",
+                 "met" if seconds <= MAX_SECONDS_PER_LEVEL else f"missed by {seconds - MAX_SECONDS_PER_LEVEL:.2f} s"])
+    steps = metrics["env_steps"]["pixels"]
+    rows.append([f"fewer than {MAX_ENV_STEPS:,} environment steps", f"{steps:,}",
+                 "met" if steps < MAX_ENV_STEPS else "missed"])
+    training, evaluation = metrics.get("training_wall_seconds"), metrics.get("evaluation_wall_seconds")
+    if training is not None and evaluation is not None:
+        minutes = (training + evaluation) / 60
+        rows.append([f"the quick notebook within {NOTEBOOK_MINUTES} minutes (training's stages + evaluation)",
+                     f"{minutes:.1f} min", "met" if minutes <= NOTEBOOK_MINUTES else
+                     f"missed by {minutes - NOTEBOOK_MINUTES:.1f} min"])
+    return rows
+
+
 def work_folder(profile: str, seed: int) -> Path:
     """Where a run's experience and checkpoints live (``solve-sokoban`` reads them)."""
     return data_dir(profile, "sokoban-search", f"seed{seed}")
@@ -578,5 +611,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "validate", "evaluate_report", "lever_rows", "lever_seed_rows", "report_seed_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+__all__ = ["sokoban_search", "boxoban_target_rows", "validate", "evaluate_report", "lever_rows", "lever_seed_rows", "report_seed_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
            "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]
