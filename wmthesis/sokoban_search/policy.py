@@ -45,7 +45,7 @@ class Policy(nn.Module):
         x = self.stem(F.one_hot(state.long(), self.n_codes).permute(0, 3, 1, 2).float())
         for block in self.blocks:
             x = x + block(x)
-        return F.log_softmax(self.head(F.relu(x)).amax((2, 3)), -1)
+        return F.log_softmax(self.head(F.relu(x)).amax((2, 3)).float(), -1)  # normalised in float32 under bfloat16
 
     @torch.no_grad()
     def log_probs(self, states: np.ndarray) -> np.ndarray:
