@@ -769,6 +769,22 @@ def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smalle
     assert saved["rows"]["medium"]["levels"] == 5 and saved["levels"] == 5
 
 
+def test_an_evaluation_saved_by_another_search_is_computed_again_and_one_by_the_same_is_kept(tmp_path):
+    import importlib
+
+    experiment = importlib.import_module("wmthesis.experiments.sokoban_search")
+    path = tmp_path / "eval.json"
+    path.write_text(json.dumps({"plays": [{"level": 0}], "search": {"budget": 1}}))
+    fresh = '{"plays": [], "search": {"budget": 2}}'
+    experiment._run_saved({"same": (path, (json.loads, fresh), {"budget": 1})}, progress=False)
+    assert json.loads(path.read_text())["plays"] == [{"level": 0}]  # the same search: kept
+    experiment._run_saved({"other": (path, (json.loads, fresh), {"budget": 2})}, progress=False)
+    assert json.loads(path.read_text()) == json.loads(fresh)  # another: computed again
+    path.write_text(json.dumps({"plays": [{"level": 0}]}))  # a file that records no search serves no search
+    experiment._run_saved({"other": (path, (json.loads, fresh), {"budget": 2})}, progress=False)
+    assert json.loads(path.read_text()) == json.loads(fresh)
+
+
 def test_a_search_only_lever_searches_the_baselines_run_without_training_another(tmp_path, monkeypatch):
     import dataclasses
     import importlib
@@ -786,7 +802,7 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
     # every job loads the baseline's run as it was trained, and searches with one node
     cfg = experiment.for_profile(experiment.SokobanSearchConfig, "smoke", seed=2, inputs="pixels")
     assert len(searched) == 4 and all(args[2] == cfg and args[7] == dataclasses.replace(cfg, budget=1)
-                                      for _, args in searched)
+                                      and search["budget"] == 1 for _, args, search in searched)
     assert (pixels / "state.pt").stat().st_mtime_ns == trained  # nothing trained again
     assert not (experiment.work_folder("smoke", 2) / "lever-one-node").exists()
     assert sorted(p.name for p in pixels.glob("validation-one-node-*.json")) == [
@@ -806,7 +822,7 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
                            actions=play.transitions["actions"])
     experiment.validate("prior-afterwards", "smoke", seed=2, levels=2, progress=False)
     assert (pixels / "state.pt").stat().st_mtime_ns == trained
-    assert len(searched) == 8 and all(args[7] == dataclasses.replace(cfg, prior_weight=1.0) for _, args in searched[4:])
+    assert len(searched) == 8 and all(args[7] == dataclasses.replace(cfg, prior_weight=1.0) for _, args, _ in searched[4:])
     run = experiment.load_run(pixels, cfg)
     fitted = (pixels / "policy-afterwards.pt").stat().st_mtime_ns
     policy = experiment.policy_afterwards(pixels, run, cfg)
@@ -820,15 +836,22 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
     assert all(torch.equal(a, b) for a, b in zip(policy.state_dict().values(), refitted.state_dict().values()))
     assert not list(pixels.glob("*.partial.json"))  # each part's levels, saved one by one, now in its file
     # a part cut off after its first level plays only the others
+    record = experiment._search_record(cfg)
     partial = tmp_path / "cut.partial.json"
-    partial.write_text(json.dumps({"plays": [{"level": 0, "solved": True, "expanded": -1}]}))
+    partial.write_text(json.dumps({"plays": [{"level": 0, "solved": True, "expanded": -1}], "search": record}))
     source = experiment.BOXOBAN_SPLITS["validation"]["unfiltered"]
     plays = experiment._evaluate_boxoban(pixels, cfg, source, 4, 0, False, None, partial)["plays"]
     assert [p["level"] for p in plays] == [0, 2] and plays[0]["expanded"] == -1 and plays[1]["expanded"] >= 0
     assert [p["level"] for p in json.loads(partial.read_text())["plays"]] == [0, 2]
+    # a part saved by another search is played again: with the evaluation's budget of one node, nothing is solved
+    bigger = dataclasses.replace(cfg, eval_budget=1)
+    assert experiment.load_run(pixels, bigger) is not None  # the evaluation's fields do not tell trained runs apart
+    again = experiment._evaluate_boxoban(pixels, bigger, source, 4, 0, False, None, partial)
+    assert again["search"]["budget"] == 1 and not any(p["solved"] for p in again["plays"])
+    assert all(p["expanded"] <= len(cfg.weights) * (1 + cfg.replans) for p in again["plays"])
     # so does a job on our generator's levels, and a level played again is played the same
     cut = tmp_path / "cut-generated.partial.json"
-    cut.write_text(json.dumps({"plays": [{"seed": 5, "solved": True, "expanded": -1}]}))
+    cut.write_text(json.dumps({"plays": [{"seed": 5, "solved": True, "expanded": -1}], "search": record}))
     plays = experiment._evaluate(pixels, cfg, "sokoban-small", [5, 6, 7], False, cut)["plays"]
     assert [p["seed"] for p in plays] == [5, 6, 7] and plays[0]["expanded"] == -1 and plays[1]["expanded"] >= 0
     assert [p["seed"] for p in json.loads(cut.read_text())["plays"]] == [5, 6, 7]

@@ -134,7 +134,7 @@ def cmd_solve_sokoban(args) -> int:
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.experiments.sokoban_search import work_folder
     from wmthesis.sokoban_search.evaluation import solve_boards
-    from wmthesis.sokoban_search.iteration import load_run
+    from wmthesis.sokoban_search.iteration import evaluation_search, load_run
     from wmthesis.utils import atomic_path
 
     profile = profile_name(args.profile)
@@ -145,7 +145,7 @@ def cmd_solve_sokoban(args) -> int:
         raise ValueError(f"no trained agent in {folder}: run `python -m wmthesis reproduce sokoban-search "
                          f"--profile {profile} --seed {args.seed}` first")
     cfg = for_profile(SokobanSearchConfig, profile, seed=args.seed, inputs="pixels")
-    results = solve_boards(run.agent(cfg), boards, max_steps=args.max_steps)
+    results = solve_boards(run.agent(evaluation_search(cfg)), boards, max_steps=args.max_steps)
     boxoban = args.levels.startswith("boxoban-")
     out = Path(args.out) if args.out else data_dir("results", "solutions") / f"{args.levels.replace(':', '_')}.json" \
         if boxoban else Path(args.levels).with_suffix(".solutions.json")

@@ -339,7 +339,9 @@ class SokobanSearchConfig:
     nodes per model call, priority ``g + weight * h`` where a step costs ``1 + doubt`` times
     the model's surprise at its own prediction (nats), each of ``weights`` in turn until one
     finds a plan, at most ``replans`` searches again after the real game left the plan; in the
-    training rounds ``round_budget`` nodes (0: ``budget``), a stronger expert than at evaluation.
+    training rounds ``round_budget`` nodes (0: ``budget``), a stronger expert than at evaluation,
+    and at evaluation ``eval_budget`` (0: ``budget``). Fields that only the evaluation reads
+    (``eval_budget``, ``eval_levels``) do not tell one trained run from another.
     A policy prior learned from the agent's own solutions (:mod:`~wmthesis.sokoban_search.policy`,
     the value's sizes and updates) adds ``prior_weight`` per nat of ``-log pi`` to a step's cost
     (0: none, and none is trained).
@@ -379,6 +381,7 @@ class SokobanSearchConfig:
     doubt: float = 20.0
     replans: int = 4
     round_budget: int = 0
+    eval_budget: int = 0
     prior_weight: float = 0.0
     backups: int = 200
     backup_cap: float = 120.0

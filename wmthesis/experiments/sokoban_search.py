@@ -18,7 +18,8 @@ from wmthesis.sokoban_search.cells import code_table
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
                                                 random_board_row, random_row, replay_states)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution
-from wmthesis.sokoban_search.iteration import load_run, policy_afterwards, schedule, train_search_agent
+from wmthesis.sokoban_search.iteration import (evaluation_search, load_run, policy_afterwards, schedule,
+                                               train_search_agent)
 from wmthesis.sokoban_search.search import Simulator
 from wmthesis.utils import atomic_path, data_dir, hold, parallel_calls, releasing_holds
 from wmthesis.viz import save_figure
@@ -263,7 +264,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
         policy_afterwards(folder, run, trained, progress)  # once, before the jobs share it
     name = "validation" if lever == "baseline" or not search_only else f"validation-{lever}"
     jobs = {(kind, part): _boxoban_job(folder / f"{name}-{kind}-{levels}-{part}.json",
-                                       folder, trained, source, levels, part, False, cfg)
+                                       folder, trained, source, levels, part, False, evaluation_search(cfg))
             for kind, source in BOXOBAN_SPLITS["validation"].items() for part in range(EVAL_PARTS)}
     _run_saved(jobs, progress)
     rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
@@ -374,16 +375,29 @@ def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False, p
     levels: ``plays``, one record (seed, solved, actions, ...) per level. Each level is saved in
     ``partial`` as it ends, and a job cut off plays only the levels it had not (a level is played
     the same whenever it is played: the agent's random numbers come from its seed)."""
-    agent = _agent(load_run(folder, cfg), cfg, simulator)
-    done = {r["seed"]: r for r in (_read_json(partial) or {}).get("plays", [])} if partial is not None else {}
+    search = evaluation_search(cfg)
+    agent, record = _agent(load_run(folder, cfg), search, simulator), _search_record(search)
+    done = {r["seed"]: r for r in _saved_plays(partial, record)} if partial is not None else {}
     env = agent.env(variant)
     for seed in map(int, seeds):
         if seed not in done:
             done[seed] = agent.play(env, seed).record()
             if partial is not None:
                 with atomic_path(partial) as tmp:
-                    tmp.write_text(json.dumps({"plays": list(done.values())}))
-    return {"plays": [done[int(seed)] for seed in seeds]}
+                    tmp.write_text(json.dumps({"plays": list(done.values()), "search": record}))
+    return {"plays": [done[int(seed)] for seed in seeds], "search": record}
+
+
+def _search_record(search) -> dict:
+    """What a play depends on beyond the trained run: the search's settings, as JSON keeps them.
+    A saved evaluation is reused only by an evaluation with the same record."""
+    return json.loads(json.dumps({field: getattr(search, field) for field in (*SEARCH_FIELDS, "prior_weight")}))
+
+
+def _saved_plays(path: Path, record: dict) -> list[dict]:
+    """The plays saved at ``path`` by an evaluation that searched as ``record`` says (none otherwise)."""
+    saved = _read_json(path) or {}
+    return saved.get("plays", []) if saved.get("search") == record else []
 
 
 def _generated_job(work: Path, name: str, agent: tuple, variant: str, seeds, part: int) -> tuple:
@@ -392,13 +406,19 @@ def _generated_job(work: Path, name: str, agent: tuple, variant: str, seeds, par
     :func:`_evaluate`, saved level by level in its file's :func:`_partial`."""
     folder, cfg, simulator = agent
     path = work / f"eval-{name}-{variant}-{len(seeds)}-{part}.json"
-    return path, (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator, _partial(path))
+    return path, (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator, _partial(path)), \
+        _search_record(evaluation_search(cfg))
 
 
 def _run_saved(jobs: dict, progress: bool) -> None:
-    """Run each job ``key: (path, (fn, *args))`` whose JSON at ``path`` is missing, two at a
-    time, each saved as it finishes (a re-run computes only what is missing)."""
-    missing = [key for key, (path, _) in jobs.items() if _read_json(path) is None]
+    """Run each job ``key: (path, (fn, *args), search)`` whose JSON at ``path`` is missing, or
+    was saved by an evaluation with another ``search`` record (:func:`_search_record`; None: any),
+    two at a time, each saved as it finishes (a re-run computes only what is missing)."""
+    def saved(path: Path, search: dict | None) -> bool:
+        result = _read_json(path)
+        return result is not None and (search is None or result.get("search") == search)
+
+    missing = [key for key, (path, _, search) in jobs.items() if not saved(path, search)]
 
     def keep(index: int, result: dict) -> None:
         path = jobs[missing[index]][0]
@@ -429,7 +449,8 @@ def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
         for name, row, counts in (("random", random_board_row, BOXOBAN_LEVELS), ("astar", astar_board_row,
                                                                                   REFERENCE_LEVELS)):
             count = counts[profile]
-            jobs[name, kind, 0] = (work / f"{name}-boxoban-{kind}-{count}.json", (_boxoban_reference, row, source, count))
+            jobs[name, kind, 0] = (work / f"{name}-boxoban-{kind}-{count}.json", (_boxoban_reference, row, source, count),
+                                   None)
     return jobs
 
 
@@ -437,43 +458,47 @@ def _boxoban_job(path: Path, folder: Path, cfg, source: str, count: int, part: i
                  search=None) -> tuple:
     """A :func:`_run_saved` job saving to ``path``: :func:`_evaluate_boxoban` with these
     arguments, level by level in ``path``'s :func:`_partial` file."""
-    return path, (_evaluate_boxoban, folder, cfg, source, count, part, simulator, search, _partial(path))
+    search = evaluation_search(cfg) if search is None else search
+    return path, (_evaluate_boxoban, folder, cfg, source, count, part, simulator, search, _partial(path)), \
+        _search_record(search)
 
 
 def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, simulator: bool = False,
                       search=None, partial: Path | None = None) -> dict:
     """The run in ``folder`` (trained with ``cfg``; with the true rules in place of its model if
     ``simulator``) on part ``part`` (every :data:`EVAL_PARTS`-th) of the first ``count`` levels of
-    a Boxoban source, searching as ``search`` says (a config; ``cfg`` by default): ``plays``, one
-    record (level, solved, actions, ...) per level. Each level is saved in ``partial`` as it
-    ends, and a part cut off plays only the levels it had not."""
+    a Boxoban source, searching as ``search`` says (a config; ``cfg``'s :func:`evaluation_search`
+    by default): ``plays``, one record (level, solved, actions, ...) per level, and the search's
+    record. Each level is saved in ``partial`` as it ends, and a part cut off plays only the
+    levels it had not."""
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.sokoban_search.evaluation import solve_boards
 
     levels = list(range(count))[part::EVAL_PARTS]
     boards = load_levels(source)
-    run, search = load_run(folder, cfg), cfg if search is None else search
+    run, search = load_run(folder, cfg), evaluation_search(cfg) if search is None else search
+    record = _search_record(search)
     if search.prior_weight > 0 and run.policy is None:  # a run trained without a prior: the one fitted after it
         run.policy = policy_afterwards(folder, run, cfg, progress=False)
     agent = _agent(run, search, simulator)
     done = {}
     if partial is not None:  # what this part, or a smaller evaluation of the same, has played already
-        done = {**_smaller_evaluations(partial), **{r["level"]: r for r in (_read_json(partial) or {}).get("plays", [])}}
+        done = {**_smaller_evaluations(partial, record), **{r["level"]: r for r in _saved_plays(partial, record)}}
 
-    def keep(record: dict) -> None:
-        done[record["level"]] = record
+    def keep(play: dict) -> None:
+        done[play["level"]] = play
         if partial is not None:
             with atomic_path(partial) as tmp:
-                tmp.write_text(json.dumps({"plays": list(done.values())}))
+                tmp.write_text(json.dumps({"plays": list(done.values()), "search": record}))
 
     todo = [i for i in levels if i not in done]
     solve_boards(agent, [boards[i] for i in todo], progress=False, levels=todo, on_level=keep)
-    return {"plays": [done[i] for i in levels]}
+    return {"plays": [done[i] for i in levels], "search": record}
 
 
-def _smaller_evaluations(partial: Path) -> dict:
-    """The plays, by level, of the finished evaluations of the same run, source and part as the
-    one keeping ``partial`` (``STEM-COUNT-PART.partial.json``), over fewer levels: a part's levels
+def _smaller_evaluations(partial: Path, record: dict) -> dict:
+    """The plays, by level, of the finished evaluations of the same run, source, part and search
+    (``record``) as the one keeping ``partial`` (``STEM-COUNT-PART.partial.json``), over fewer levels: a part's levels
     (``range(count)[part::EVAL_PARTS]``) begin with those of every smaller count, and a level is
     played the same every time."""
     match = re.fullmatch(r"(.+)-(\d+)-(\d+)\.partial\.json", partial.name)
@@ -484,7 +509,7 @@ def _smaller_evaluations(partial: Path) -> dict:
     for path in partial.parent.glob(f"{stem}-*-{part}.json"):
         smaller = re.fullmatch(rf"{re.escape(stem)}-(\d+)-{part}\.json", path.name)
         if smaller is not None and int(smaller.group(1)) < count:
-            found.update({r["level"]: r for r in (_read_json(path) or {}).get("plays", [])})
+            found.update({r["level"]: r for r in _saved_plays(path, record)})
     return found
 
 

@@ -388,6 +388,19 @@ def save_run(folder: Path, run: Run, cfg: SokobanSearchConfig) -> None:
         Path(tmp).write_text(json.dumps(run.history, indent=1))
 
 
+EVALUATION_FIELDS = ("eval_budget", "eval_levels")  # read by the evaluation alone, not by training
+
+
+def _trained_as(config: dict) -> dict:
+    """What identifies a trained run in a config dict: every field but :data:`EVALUATION_FIELDS`."""
+    return {k: v for k, v in config.items() if k not in EVALUATION_FIELDS}
+
+
+def evaluation_search(cfg: SokobanSearchConfig) -> SokobanSearchConfig:
+    """The config the agent searches with at evaluation: ``eval_budget`` nodes a search where it is set."""
+    return dataclasses.replace(cfg, budget=cfg.eval_budget or cfg.budget)
+
+
 def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run | None:
     """The run saved in ``folder`` (None if there is none); with ``cfg``, refuse one trained with
     another config."""
@@ -402,7 +415,8 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
     if version != STATE_VERSION:
         raise ValueError(f"{path} has format version {version}, this code reads {STATE_VERSION}")
     if cfg is not None:
-        check_same_config(path, with_added_defaults(type(cfg), saved["config"]), dataclasses.asdict(cfg))
+        check_same_config(path, _trained_as(with_added_defaults(type(cfg), saved["config"])),
+                          _trained_as(dataclasses.asdict(cfg)))
     model = SokobanModel(**saved["model_config"]).to(device())
     model.load_state_dict(saved["model"])
     heuristic = None
@@ -420,5 +434,5 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
 
 
 __all__ = ["Run", "train_search_agent", "load_run", "save_run", "schedule", "fit_model", "fit_heuristic", "fit_policy",
-           "policy_afterwards", "play_in_parts",
+           "policy_afterwards", "play_in_parts", "evaluation_search", "EVALUATION_FIELDS",
            "held_out_exactness"]
