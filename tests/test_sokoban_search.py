@@ -713,9 +713,12 @@ def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, m
 
 
 def test_validation_and_report_figures_over_seeds_give_each_seed_then_the_mean_std_and_t_interval(tmp_path, monkeypatch):
-    from wmthesis.experiments.sokoban_search import lever_seed_rows, report_seed_rows
+    import dataclasses
+
+    from wmthesis.experiments.sokoban_search import _search_record, lever_seed_rows, report_seed_rows
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    search = _search_record(for_profile(SokobanSearchConfig, "quick", inputs="pixels"))  # quick's, as it searches today
     for seed, (unfiltered, medium) in {2: (0.98, 0.90), 0: (1.0, 0.94), 1: (0.99, 0.80)}.items():
         folder = tmp_path / "results" / "sokoban-search" / f"quick-seed{seed}"
         folder.mkdir(parents=True)
@@ -726,7 +729,11 @@ def test_validation_and_report_figures_over_seeds_give_each_seed_then_the_mean_s
             {"lever": "baseline", "seed": seed, "rows": rows, "env_steps": 420_000}))
         if seed < 2:  # the closing figures of two seeds
             (folder / "boxoban-report-1000.json").write_text(json.dumps(
-                {"levels": 1000, "seed": seed, "rows": rows, "env_steps": 420_000}))
+                {"levels": 1000, "seed": seed, "rows": rows, "env_steps": 420_000, "search": search}))
+        else:  # and one searched with another budget, which is not today's agent
+            other = _search_record(dataclasses.replace(for_profile(SokobanSearchConfig, "quick"), budget=1))
+            (folder / "boxoban-report-1000.json").write_text(json.dumps(
+                {"levels": 1000, "seed": seed, "rows": rows, "env_steps": 420_000, "search": other}))
     (tmp_path / "results" / "sokoban-search" / "smoke-seed0").mkdir()  # another profile: not read
     rows = lever_seed_rows("baseline", "quick")
     assert [r[0] for r in rows[:3]] == [0, 1, 2] and rows[1][1:6] == ["99.0", "80.0", 100, "2,000", "2.50"]
@@ -741,6 +748,7 @@ def test_validation_and_report_figures_over_seeds_give_each_seed_then_the_mean_s
     assert [r[0] for r in report[:2]] == [0, 1]
     assert report[2][:3] == ["mean ± std [95% CI], 2 seeds", "99.5 ± 0.7 [93.1, 105.9]", "87.0 ± 9.9 [-1.9, 175.9]"]
     assert report_seed_rows(500, "quick") == []
+    assert [r[0] for r in report_seed_rows(1000, "quick") if isinstance(r[0], int)] == [0, 1]  # not seed 2's budget
 
 
 def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smaller_one_did_not(tmp_path, monkeypatch):
@@ -766,7 +774,7 @@ def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smalle
         assert set(first["rows"][kind]["failed_levels"]) <= set(row["failed_levels"]) | {0, 1}
         assert row["replayed"] == row["solved"]
     saved = json.loads((tmp_path / "results" / "sokoban-search" / "smoke-seed3" / "boxoban-report-5.json").read_text())
-    assert saved["rows"]["medium"]["levels"] == 5 and saved["levels"] == 5
+    assert saved["rows"]["medium"]["levels"] == 5 and saved["levels"] == 5 and saved["search"]["budget"] == cfg.budget
 
 
 def test_an_evaluation_saved_by_another_search_is_computed_again_and_one_by_the_same_is_kept(tmp_path):

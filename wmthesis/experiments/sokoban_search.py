@@ -270,6 +270,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
             for kind, source in BOXOBAN_SPLITS["validation"].items()}
     result = {"lever": lever, "changes": LEVERS[lever], "profile": profile, "seed": seed, "rows": rows,
+              "search": _search_record(evaluation_search(cfg)),
               "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
     out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
     with atomic_path(out / f"validation-{lever}.json") as tmp:
@@ -295,7 +296,7 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
                                                  work / "pixels", cfg, source, levels, part)
             for kind, source in BOXOBAN_SPLITS["report"].items() for part in range(EVAL_PARTS)}
     _run_saved(jobs, progress)
-    result = {"profile": profile, "seed": seed, "levels": levels,
+    result = {"profile": profile, "seed": seed, "levels": levels, "search": _search_record(evaluation_search(cfg)),
               "env_steps": int(sum(h["env_steps"] for h in run.history)),
               "rows": {kind: _boxoban_row(_level_plays(jobs, "pixels", kind), source, load_levels(source))
                        for kind, source in BOXOBAN_SPLITS["report"].items()}}
@@ -332,9 +333,12 @@ def lever_seed_rows(lever: str = "baseline", profile: str | None = None) -> list
 
 def report_seed_rows(levels: int = 1000, profile: str | None = None) -> list[list]:
     """The closing figures over the seeds measured so far: each seed's :func:`evaluate_report` on
-    the first ``levels`` levels of each report file (``boxoban-report-LEVELS.json``); see
+    the first ``levels`` levels of each report file (``boxoban-report-LEVELS.json``), searched as
+    the profile's agent searches today (a figure of another search is left out); see
     :func:`_seed_rows`."""
-    return _seed_rows(f"boxoban-report-{levels}.json", profile, lambda result: result.get("levels") == levels)
+    search = _search_record(evaluation_search(for_profile(SokobanSearchConfig, profile_name(profile), inputs="pixels")))
+    return _seed_rows(f"boxoban-report-{levels}.json", profile,
+                      lambda result: result.get("levels") == levels and result.get("search") == search)
 
 
 def _seed_rows(name: str, profile: str | None, accept) -> list[list]:
