@@ -775,6 +775,23 @@ def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smalle
         assert row["replayed"] == row["solved"]
     saved = json.loads((tmp_path / "results" / "sokoban-search" / "smoke-seed3" / "boxoban-report-5.json").read_text())
     assert saved["rows"]["medium"]["levels"] == 5 and saved["levels"] == 5 and saved["search"]["budget"] == cfg.budget
+    # twice the budget at evaluation: a play that stayed under the old budget is the same, any other is played again
+    work = experiment.work_folder("smoke", 3)
+    for count, part in ((2, 0), (2, 1), (5, 0), (5, 1)):
+        path = work / f"eval-boxoban-pixels-unfiltered-{count}-{part}.json"
+        kept = json.loads(path.read_text())
+        for play in kept["plays"]:
+            play.update(expanded=cfg.budget - 1, kept=True) if play["level"] == 2 else play.update(expanded=cfg.budget)
+        path.write_text(json.dumps(kept))
+    medium = [[p["level"] for p in json.loads((work / f"eval-boxoban-pixels-medium-5-{part}.json").read_text())["plays"]
+               if p["expanded"] >= cfg.budget] for part in range(2)]  # as they were played
+    monkeypatch.setattr(experiment, "for_profile", lambda cls, profile, **kw: for_profile(cls, profile, eval_budget=2 * cfg.budget, **kw))
+    played.clear()
+    bigger = experiment.evaluate_report("smoke", seed=3, levels=5, progress=False)
+    assert played == [[0, 4], [1, 3], *medium]  # unfiltered: all but level 2
+    assert bigger["search"]["budget"] == 2 * cfg.budget
+    again = json.loads((work / "eval-boxoban-pixels-unfiltered-5-0.json").read_text())
+    assert [p.get("kept", False) for p in again["plays"]] == [False, True, False] and again["search"]["budget"] == 2 * cfg.budget
 
 
 def test_an_evaluation_saved_by_another_search_is_computed_again_and_one_by_the_same_is_kept(tmp_path):

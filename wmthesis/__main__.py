@@ -18,7 +18,8 @@
     evaluate-sokoban [--levels N] [--profile P] [--seed S]
         The pixel agent ``reproduce sokoban-search`` trained on the first N (1000) levels of each
         of Boxoban's report files (unfiltered and medium valid 005-009): the closing figures;
-        resumable level by level, reusing the experiment's own smaller evaluation.
+        resumable level by level, reusing each play of the run's other evaluations that this
+        search would play the same (the same search, or a smaller budget never reached).
     search planet-boxing|planet-freeway --trials N [--workers K] [--storage URL] [--profile P]
         Random search over KL scale x free nats (optuna); re-running continues the study, and
         any optuna storage URL (e.g. PostgreSQL) lets workers on many machines share it.

@@ -283,7 +283,8 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
     """The pixel agent that :func:`sokoban_search` trains (trained here first, alone, if the
     experiment has not) on the first ``levels`` levels of each report set (:data:`BOXOBAN_SPLITS`),
     beyond the experiment's own :data:`BOXOBAN_LEVELS`: the closing figures. Resumable level by
-    level, and the levels a smaller evaluation of the same run played are taken from it. Returns,
+    level, and each level another evaluation of the same run played as this one would (the same
+    search, or a play under a smaller budget that never reached it) is taken from it. Returns,
     and writes to the run's results folder as ``boxoban-report-LEVELS.json``, each kind's row
     (solve rate, nodes and seconds per level, solutions replayed, failed levels)."""
     from wmthesis.envs.boxoban import load_levels
@@ -399,9 +400,17 @@ def _search_record(search) -> dict:
 
 
 def _saved_plays(path: Path, record: dict) -> list[dict]:
-    """The plays saved at ``path`` by an evaluation that searched as ``record`` says (none otherwise)."""
+    """The plays saved at ``path`` (``{"plays", "search"}``) that an evaluation searching as
+    ``record`` says would play the same: all of them if it searched so (a level is played the same
+    every time); if its search differed in the budget alone, each play that expanded fewer nodes
+    than either budget (no search in it reached a budget, so each search ends as it did); else none."""
     saved = _read_json(path) or {}
-    return saved.get("plays", []) if saved.get("search") == record else []
+    search, plays = saved.get("search"), saved.get("plays", [])
+    if search == record:
+        return plays
+    if search is None or {**search, "budget": None} != {**record, "budget": None}:
+        return []
+    return [play for play in plays if play["expanded"] < min(search["budget"], record["budget"])]
 
 
 def _generated_job(work: Path, name: str, agent: tuple, variant: str, seeds, part: int) -> tuple:
@@ -486,8 +495,9 @@ def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, sim
         run.policy = policy_afterwards(folder, run, cfg, progress=False)
     agent = _agent(run, search, simulator)
     done = {}
-    if partial is not None:  # what this part, or a smaller evaluation of the same, has played already
-        done = {**_smaller_evaluations(partial, record), **{r["level"]: r for r in _saved_plays(partial, record)}}
+    if partial is not None:  # what this part, or another evaluation of the same, has played as it would
+        earlier = {**_other_evaluations(partial, record), **{r["level"]: r for r in _saved_plays(partial, record)}}
+        done = {level: earlier[level] for level in levels if level in earlier}
 
     def keep(play: dict) -> None:
         done[play["level"]] = play
@@ -500,19 +510,18 @@ def _evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, sim
     return {"plays": [done[i] for i in levels], "search": record}
 
 
-def _smaller_evaluations(partial: Path, record: dict) -> dict:
-    """The plays, by level, of the finished evaluations of the same run, source, part and search
-    (``record``) as the one keeping ``partial`` (``STEM-COUNT-PART.partial.json``), over fewer levels: a part's levels
-    (``range(count)[part::EVAL_PARTS]``) begin with those of every smaller count, and a level is
-    played the same every time."""
+def _other_evaluations(partial: Path, record: dict) -> dict:
+    """The plays, by level, of the finished evaluations of the same run, source and part as the
+    one keeping ``partial`` (``STEM-COUNT-PART.partial.json``), over any number of levels (level i
+    of a source is the same level in each), that a search as ``record`` says would play the same
+    (:func:`_saved_plays`)."""
     match = re.fullmatch(r"(.+)-(\d+)-(\d+)\.partial\.json", partial.name)
     if match is None:
         return {}
-    stem, count, part = match.group(1), int(match.group(2)), match.group(3)
+    stem, part = match.group(1), match.group(3)
     found = {}
-    for path in partial.parent.glob(f"{stem}-*-{part}.json"):
-        smaller = re.fullmatch(rf"{re.escape(stem)}-(\d+)-{part}\.json", path.name)
-        if smaller is not None and int(smaller.group(1)) < count:
+    for path in sorted(partial.parent.glob(f"{stem}-*-{part}.json")):
+        if re.fullmatch(rf"{re.escape(stem)}-\d+-{part}\.json", path.name):
             found.update({r["level"]: r for r in _saved_plays(path, record)})
     return found
 
