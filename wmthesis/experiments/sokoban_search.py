@@ -234,13 +234,15 @@ LEVERS = {
     "medium-only": dict(variants=("sokoban-small", "boxoban-medium-train")),  # no unfiltered rounds
     "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
     # the search alone, on the baseline's model and value (no training): where do its failures come from?
-    "bigger-budget": dict(budget=40_000),  # twice the nodes for each search
+    # ``bigger-budget`` (budget=40,000 at evaluation) became quick's ``eval_budget`` on 2026-11-25:
+    "budget-20k": dict(eval_budget=20_000),  # the evaluation's budget before, half the nodes a search
     "third-weight": dict(weights=(3.0, 1.5, 0.75)),  # one more search, nearer breadth first, after two fail
     "prior-afterwards": dict(prior_weight=1.0),  # a policy fitted once on the baseline's own solutions
     "prior-afterwards-3": dict(prior_weight=3.0),  # the same policy, three times the weight
 }
 AFTERWARDS = ("prior-afterwards", "prior-afterwards-3")  # on the baseline's run with a policy prior fitted after it
-SEARCH_FIELDS = ("budget", "batch", "weights", "doubt", "replans")  # a lever of these alone needs no training
+SEARCH_FIELDS = ("budget", "eval_budget", "batch", "weights", "doubt", "replans")  # a lever of these alone needs no training
+RECORDED_SEARCH = ("budget", "batch", "weights", "doubt", "replans", "prior_weight")  # what a play depends on, beyond the run
 VALIDATION_LEVELS = {"smoke": 2, "quick": 200, "thesis": 1000}  # the first of each validation set
 
 
@@ -396,7 +398,7 @@ def _evaluate(folder: Path, cfg, variant: str, seeds, simulator: bool = False, p
 def _search_record(search) -> dict:
     """What a play depends on beyond the trained run: the search's settings, as JSON keeps them.
     A saved evaluation is reused only by an evaluation with the same record."""
-    return json.loads(json.dumps({field: getattr(search, field) for field in (*SEARCH_FIELDS, "prior_weight")}))
+    return json.loads(json.dumps({field: getattr(search, field) for field in RECORDED_SEARCH}))
 
 
 def _saved_plays(path: Path, record: dict) -> list[dict]:
