@@ -794,6 +794,16 @@ def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smalle
     assert [p.get("kept", False) for p in again["plays"]] == [False, True, False] and again["search"]["budget"] == 2 * cfg.budget
 
 
+def test_the_evaluations_time_is_the_first_complete_one_of_its_search_and_unknown_after_another_search():
+    from wmthesis.experiments.sokoban_search import _evaluation_seconds
+
+    search, other = {"budget": 40_000}, {"budget": 20_000}
+    assert _evaluation_seconds(None, search, 12.0) == 12.0  # the first: timed now
+    assert _evaluation_seconds({"search": search, "evaluation_wall_seconds": 900.0}, search, 12.0) == 900.0
+    assert _evaluation_seconds({"search": other, "evaluation_wall_seconds": 900.0}, search, 12.0) is None
+    assert _evaluation_seconds({"evaluation_wall_seconds": 900.0}, search, 12.0) is None  # written before records
+
+
 def test_an_evaluation_saved_by_another_search_is_computed_again_and_one_by_the_same_is_kept(tmp_path):
     import importlib
 

@@ -211,8 +211,9 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     }
     metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     metrics["training_wall_seconds"] = _training_seconds(runs["pixels"].history)
-    metrics["evaluation_wall_seconds"] = (_read_json(out / "metrics.json") or {}).get(  # the first complete one's
-        "evaluation_wall_seconds", time.time() - trained_at)
+    metrics["search"] = _search_record(evaluation_search(cfg))
+    metrics["evaluation_wall_seconds"] = _evaluation_seconds(_read_json(out / "metrics.json"), metrics["search"],
+                                                             time.time() - trained_at)
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(_jsonable(metrics), indent=1))
     return metrics
@@ -588,6 +589,16 @@ def _merged(parts: list[dict], seeds) -> dict:
     order = {s: i for i, s in enumerate(seeds)}
     plays = sorted((r for part in parts for r in part["plays"]), key=lambda r: order[r["seed"]])
     return {"row": agent_row(plays), "solutions": [r for r in plays if r["solved"]]}
+
+
+def _evaluation_seconds(previous: dict | None, search: dict, seconds: float) -> float | None:
+    """The evaluation's wall time: the first complete one's with this ``search`` (``previous``, the
+    metrics a run wrote before), else this call's ``seconds``; None when an evaluation with another
+    search came before, since this one took the plays it would play the same from it and is no
+    timing from scratch."""
+    if previous is None:
+        return seconds
+    return previous.get("evaluation_wall_seconds") if previous.get("search") == search else None
 
 
 def _trained(folder: Path, cfg) -> bool:
