@@ -716,9 +716,10 @@ def test_validation_and_report_figures_over_seeds_give_each_seed_then_the_mean_s
     import dataclasses
 
     from wmthesis.experiments.sokoban_search import _search_record, lever_seed_rows, report_seed_rows
+    from wmthesis.sokoban_search.iteration import evaluation_search
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    search = _search_record(for_profile(SokobanSearchConfig, "quick", inputs="pixels"))  # quick's, as it searches today
+    search = _search_record(evaluation_search(for_profile(SokobanSearchConfig, "quick", inputs="pixels")))  # quick's today
     for seed, (unfiltered, medium) in {2: (0.98, 0.90), 0: (1.0, 0.94), 1: (0.99, 0.80)}.items():
         folder = tmp_path / "results" / "sokoban-search" / f"quick-seed{seed}"
         folder.mkdir(parents=True)
