@@ -34,3 +34,8 @@ def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_epi
     again = reproduce("planet-freeway-value", "smoke", 0, progress=False)  # resumes: nothing played again
     assert {p.name: p.stat().st_mtime_ns for p in work.glob("*.json")} == cached
     assert again["value_planner"] == metrics["value_planner"] and again["curve"] == metrics["curve"]
+    # the baselines' episodes are saved as each ends: cut off after them, none is played again
+    (work / "baselines.json").unlink()
+    played = (work / "baseline-bouts.json").stat().st_mtime_ns
+    assert reproduce("planet-freeway-value", "smoke", 0, progress=False)["planet"] == metrics["planet"]
+    assert (work / "baseline-bouts.json").stat().st_mtime_ns == played

@@ -190,17 +190,17 @@ def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_re
     import json
 
     from wmthesis.config import ValuePlannerConfig
-    from wmthesis.experiments.planet_value import _played_bouts
+    from wmthesis.experiments.planet_value import played_bouts
 
     path = tmp_path / "scores-bouts.json"
     key = {"round": 1, "planner": dataclasses.asdict(ValuePlannerConfig())}
     calls = [(dict, [("return", float(i))]) for i in range(4)]  # bout i returns i
     path.write_text(json.dumps({"key": key, "plays": {"2": {"return": -7.0}}}))  # bout 2 ended before the cut
-    plays = _played_bouts(path, key, False, calls)
+    plays = played_bouts(path, key, False, calls)
     assert [p["return"] for p in plays] == [0.0, 1.0, -7.0, 3.0]  # bout 2 was not played again
     assert {int(i) for i in json.loads(path.read_text())["plays"]} == {0, 1, 2, 3}
     other = {**key, "round": 2}  # saved for another round: played again
-    assert [p["return"] for p in _played_bouts(path, other, False, calls)] == [0.0, 1.0, 2.0, 3.0]
+    assert [p["return"] for p in played_bouts(path, other, False, calls)] == [0.0, 1.0, 2.0, 3.0]
 
 
 def test_the_planner_levers_table_is_paired_against_the_first_lever():

@@ -19,9 +19,9 @@ from pathlib import Path
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
 from wmthesis.experiments.planet_boxing import play_bout
-from wmthesis.experiments.planet_value import fit_and_compare, start_from
+from wmthesis.experiments.planet_value import fit_and_compare, played_bouts, start_from
 from wmthesis.experiments.results import _read_json
-from wmthesis.utils import atomic_path, data_dir, hold, parallel_calls, releasing_holds
+from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
 
 GAME, VARIANT = "freeway", "freeway-tuned"
 FREEWAY_VALUE = dict(target="discounted-sum", reward_steps=150, discount=0.97)
@@ -31,7 +31,8 @@ EPISODES = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation episodes
 def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -> dict:
     """The thesis's CEM (the model of ``planet_run``) and random play on the same ``bouts``:
     ``planet`` and ``random``, each ``full`` and ``first``-500-step scores with their returns;
-    cached in ``work/baselines.json`` for the bouts."""
+    cached in ``work/baselines.json`` for the bouts, each episode saved in
+    ``work/baseline-bouts.json`` as it ends (a run cut off plays only the rest)."""
     from wmthesis.metrics import score_summary
     from wmthesis.planet.train import load_planet
 
@@ -40,8 +41,8 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
     if cached is not None and cached.get("key") == key:
         return cached["scores"]
     _, config, _ = load_planet(planet_run)
-    plays = parallel_calls([(play_bout, GAME, config, who, *bout) for who in (planet_run, None) for bout in bouts],
-                           progress)
+    plays = played_bouts(work / "baseline-bouts.json", key, progress,
+                         [(play_bout, GAME, config, who, *bout) for who in (planet_run, None) for bout in bouts])
     scores = {name: {"full": score_summary([p["return"] for p in part]), "first": score_summary([p["first"] for p in part]),
                      "returns": [p["return"] for p in part], "first_returns": [p["first"] for p in part]}
               for name, part in (("planet", plays[:len(bouts)]), ("random", plays[len(bouts):]))}

@@ -50,7 +50,7 @@ def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list
     cached = cached_for(cache, key)
     if cached is not None:
         return cached["scores"]
-    plays = _played_bouts(cache.with_name(cache.stem + "-bouts.json"), key, progress,
+    plays = played_bouts(cache.with_name(cache.stem + "-bouts.json"), key, progress,
                           [(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts])
     scores = {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
               "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
@@ -60,7 +60,7 @@ def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list
     return scores
 
 
-def _played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple]) -> list[dict]:
+def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple]) -> list[dict]:
     """``calls`` (one bout each), each bout saved in ``path`` as it ends: a run cut off plays
     only the bouts it had not finished (those saved for the same ``key``)."""
     saved = cached_for(path, key)
@@ -155,4 +155,4 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     return metrics
 
 
-__all__ = ["value_planner_bout", "value_planner_scores", "cached_for", "start_from", "fit_and_compare"]
+__all__ = ["value_planner_bout", "value_planner_scores", "played_bouts", "cached_for", "start_from", "fit_and_compare"]
