@@ -882,6 +882,7 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
     # a part saved by another search is played again: with the evaluation's budget of one node, nothing is solved
     bigger = dataclasses.replace(cfg, eval_budget=1)
     assert experiment.load_run(pixels, bigger) is not None  # the evaluation's fields do not tell trained runs apart
+    partial.write_text(json.dumps({"plays": [{"level": 0, "solved": True, "expanded": cfg.budget}], "search": record}))
     again = experiment._evaluate_boxoban(pixels, bigger, source, 4, 0, False, None, partial)
     assert again["search"]["budget"] == 1 and not any(p["solved"] for p in again["plays"])
     assert all(p["expanded"] <= len(cfg.weights) * (1 + cfg.replans) for p in again["plays"])
