@@ -27,7 +27,7 @@ Rows:
   random play; now a constant of about 0.45 GB.
 
 With ``--agent FOLDER`` (a trained pixel run, e.g. ``data/quick/sokoban-search/seed0/pixels``, with
-its ``--profile``'s search settings), also ``trained agent``: that agent on the first
+its ``--profile``'s evaluation search, ``eval_budget`` included), also ``trained agent``: that agent on the first
 ``--agent-levels`` levels of each Boxoban validation set (unfiltered and medium valid 000-001,
 never the report files), on one thread, as the issue measures it ("seconds per level on one
 core"): levels solved, search nodes and seconds per level. Run it on a quiet machine.
@@ -123,12 +123,12 @@ def agent_rows(folder: str, profile: str, levels: int) -> list[dict]:
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.experiments.sokoban_search import BOXOBAN_SPLITS
     from wmthesis.sokoban_search.evaluation import solve_boards
-    from wmthesis.sokoban_search.iteration import load_run
+    from wmthesis.sokoban_search.iteration import evaluation_search, load_run
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     run = load_run(folder)
-    agent = run.agent(for_profile(SokobanSearchConfig, profile))  # the search settings; it sees what it was trained on
+    agent = run.agent(evaluation_search(for_profile(SokobanSearchConfig, profile)))  # the evaluation's search settings
     rows = []
     for kind, source in BOXOBAN_SPLITS["validation"].items():
         plays = solve_boards(agent, load_levels(source)[:levels], progress=False)
