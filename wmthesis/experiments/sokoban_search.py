@@ -211,7 +211,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     }
     metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     metrics["training_wall_seconds"] = _training_seconds(runs["pixels"].history)
-    metrics["search"] = _search_record(evaluation_search(cfg))
+    metrics["search"] = _evaluation_record(cfg)
     metrics["evaluation_wall_seconds"] = _evaluation_seconds(_read_json(out / "metrics.json"), metrics["search"],
                                                              time.time() - trained_at)
     with atomic_path(out / "metrics.json") as tmp:
@@ -273,7 +273,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
             for kind, source in BOXOBAN_SPLITS["validation"].items()}
     result = {"lever": lever, "changes": LEVERS[lever], "profile": profile, "seed": seed, "rows": rows,
-              "search": _search_record(evaluation_search(cfg)),
+              "search": _evaluation_record(cfg),
               "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
     out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
     with atomic_path(out / f"validation-{lever}.json") as tmp:
@@ -300,7 +300,7 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
                                                  work / "pixels", cfg, source, levels, part)
             for kind, source in BOXOBAN_SPLITS["report"].items() for part in range(EVAL_PARTS)}
     _run_saved(jobs, progress)
-    result = {"profile": profile, "seed": seed, "levels": levels, "search": _search_record(evaluation_search(cfg)),
+    result = {"profile": profile, "seed": seed, "levels": levels, "search": _evaluation_record(cfg),
               "env_steps": int(sum(h["env_steps"] for h in run.history)),
               "rows": {kind: _boxoban_row(_level_plays(jobs, "pixels", kind), source, load_levels(source))
                        for kind, source in BOXOBAN_SPLITS["report"].items()}}
@@ -340,7 +340,7 @@ def report_seed_rows(levels: int = 1000, profile: str | None = None) -> list[lis
     the first ``levels`` levels of each report file (``boxoban-report-LEVELS.json``), searched as
     the profile's agent searches today (a figure of another search is left out); see
     :func:`_seed_rows`."""
-    search = _search_record(evaluation_search(for_profile(SokobanSearchConfig, profile_name(profile), inputs="pixels")))
+    search = _evaluation_record(for_profile(SokobanSearchConfig, profile_name(profile), inputs="pixels"))
     return _seed_rows(f"boxoban-report-{levels}.json", profile,
                       lambda result: result.get("levels") == levels and result.get("search") == search)
 
@@ -402,6 +402,11 @@ def _search_record(search) -> dict:
     return json.loads(json.dumps({field: getattr(search, field) for field in RECORDED_SEARCH}))
 
 
+def _evaluation_record(cfg) -> dict:
+    """The :func:`_search_record` of ``cfg``'s search at evaluation (:func:`evaluation_search`)."""
+    return _search_record(evaluation_search(cfg))
+
+
 def _saved_plays(path: Path, record: dict) -> list[dict]:
     """The plays saved at ``path`` (``{"plays", "search"}``) that an evaluation searching as
     ``record`` says would play the same: all of them if it searched so (a level is played the same
@@ -423,7 +428,7 @@ def _generated_job(work: Path, name: str, agent: tuple, variant: str, seeds, par
     folder, cfg, simulator = agent
     path = work / f"eval-{name}-{variant}-{len(seeds)}-{part}.json"
     return path, (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator, _partial(path)), \
-        _search_record(evaluation_search(cfg))
+        _evaluation_record(cfg)
 
 
 def _run_saved(jobs: dict, progress: bool) -> None:
