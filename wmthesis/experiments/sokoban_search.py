@@ -230,7 +230,7 @@ LEVERS = {
     "generated": dict(variants=GENERATED, **THREE_ROUNDS),  # our 5x5 and 10x10 levels, not Boxoban's
     "generated-no-backups": dict(backups=0, variants=GENERATED, **THREE_ROUNDS),  # the same, before backed-up values
     "small-model": dict(channels=32, **THREE_ROUNDS),  # a quarter of the model's arithmetic: faster searches
-    "strong-expert": dict(round_budget=60_000),  # three times the evaluation's budget in the rounds
+    "strong-expert": dict(round_budget=60_000),  # in the rounds three times their default budget, 1.5 times the evaluation's
     "more-rounds": dict(rounds=5),
     "medium-only": dict(variants=("sokoban-small", "boxoban-medium-train")),  # no unfiltered rounds
     "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
