@@ -241,3 +241,12 @@ def test_mdp_protocol_is_checkable():
 
     assert isinstance(Line(), MDP)
     assert not isinstance(object(), MDP)
+
+
+def test_constant_mind_picks_its_action_every_step_and_refuses_one_outside_the_set():
+    from wmthesis.core import ConstantMind, Deterministic
+
+    mind = ConstantMind(3, 1)
+    assert [Deterministic()(mind.plan(state), step, None) for step, state in enumerate(range(5))] == [1] * 5
+    with pytest.raises(ValueError, match=r"action must be in \[0, 3\), got 3"):
+        ConstantMind(3, 3)

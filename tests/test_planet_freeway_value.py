@@ -39,3 +39,29 @@ def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_epi
     played = (work / "baseline-bouts.json").stat().st_mtime_ns
     assert reproduce("planet-freeway-value", "smoke", 0, progress=False)["planet"] == metrics["planet"]
     assert (work / "baseline-bouts.json").stat().st_mtime_ns == played
+
+
+def test_always_up_is_added_to_a_run_saved_without_it_playing_only_its_own_episodes(tmp_path, monkeypatch):
+    import json
+
+    from wmthesis.experiments import reproduce
+    from wmthesis.experiments.planet_freeway_value import BASELINES
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    metrics = reproduce("planet-freeway-value", "smoke", 0, progress=False)
+    assert set(metrics["baselines"]) == set(BASELINES)
+    up = metrics["baselines"]["always-up"]
+    assert up["full"]["episodes"] == 2 and up["full"]["std"] == 0.0  # one action, one game: the same episode
+    work = tmp_path / "smoke" / "planet-freeway-value" / "seed0"
+    # a run saved before the row existed: its baselines and their episodes lack it
+    saved = json.loads((work / "baselines.json").read_text())
+    del saved["scores"]["always-up"]
+    (work / "baselines.json").write_text(json.dumps(saved))
+    bouts = json.loads((work / "baseline-bouts.json").read_text())
+    kept = {i: {**p, "steps": -1} for i, p in bouts["plays"].items() if int(i) < 4}  # CEM's two, random's two, marked
+    (work / "baseline-bouts.json").write_text(json.dumps({**bouts, "plays": kept}))
+    again = reproduce("planet-freeway-value", "smoke", 0, progress=False)
+    plays = json.loads((work / "baseline-bouts.json").read_text())["plays"]
+    assert sorted(plays, key=int) == [str(i) for i in range(6)]
+    assert [plays[str(i)]["steps"] for i in range(4)] == [-1] * 4  # kept, not played again
+    assert again["baselines"] == metrics["baselines"] and again["planet"] == metrics["planet"]

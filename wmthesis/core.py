@@ -63,6 +63,18 @@ class RandomMind(Mind):
         return self.rng.random(self.n_actions)
 
 
+class ConstantMind(Mind):
+    """The same action at every step: a reference policy (Freeway's "always up"), not an agent."""
+
+    def __init__(self, n_actions: int, action: int):
+        if not 0 <= action < n_actions:
+            raise ValueError(f"action must be in [0, {n_actions}), got {action}")
+        self.scores = np.eye(n_actions)[action]
+
+    def plan(self, state, train_mode: bool = True, debug_mode: bool = False) -> np.ndarray:
+        return self.scores
+
+
 class Interpreter:
     """Preprocesses what the environment returns: ``(state, reward) -> (state, reward)``.
 

@@ -109,18 +109,20 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
 
 
 # ---------------------------------------------------------------------------- the agent
-def play_bout(env_name: str, config: PlaNetConfig, run_dir: Path | None, env_seed: int, mind_seed: int) -> dict:
-    """One full episode, greedy PlaNet from ``run_dir`` (random play when None): its
-    ``return``, the return of its first :data:`FIRST_STEPS` steps, and its ``steps``."""
-    from wmthesis.core import RandomMind, loop
+def play_bout(env_name: str, config: PlaNetConfig, run_dir: Path | None, env_seed: int, mind_seed: int,
+              action: int | None = None) -> dict:
+    """One full episode, greedy PlaNet from ``run_dir`` (when None: random play, or ``action``
+    at every step where given): its ``return``, the return of its first :data:`FIRST_STEPS`
+    steps, and its ``steps``."""
+    from wmthesis.core import ConstantMind, RandomMind, loop
     from wmthesis.planet.train import load_planet, make_planet_env, play_greedy
 
     env = make_planet_env(env_name, config)
     try:
         if run_dir is None:
-            record = EpisodeBuffer()
-            loop(env, RandomMind(env.action_space.n, seed=mind_seed), policy="deterministic", callbacks=[record],
-                 seed=env_seed, train_mode=False)
+            record, n = EpisodeBuffer(), env.action_space.n
+            mind = RandomMind(n, seed=mind_seed) if action is None else ConstantMind(n, action)
+            loop(env, mind, policy="deterministic", callbacks=[record], seed=env_seed, train_mode=False)
             rewards = [float(r) for r in record.episode["rewards"]]
         else:
             model, trained, _ = load_planet(run_dir)

@@ -1,8 +1,9 @@
 """Beyond the thesis on PlaNet's Freeway model (issue 31): the model of ``planet-freeway`` in its
 tuned variant (:func:`~wmthesis.experiments.planet.planet_experiment`, thesis 5.6.5-5.6.6)
 frozen, a latent action value fitted on it, and CEM with that value at the end of its horizon,
-beside the thesis's CEM and random play on the same 10 evaluation episodes
-(:func:`~wmthesis.experiments.planet_value.fit_and_compare`).
+beside the thesis's CEM, random play and pressing UP at every step (a reference that knows the
+game, as A* is for Sokoban: whatever a planner adds beyond it is dodging cars) on the same 10
+evaluation episodes (:func:`~wmthesis.experiments.planet_value.fit_and_compare`).
 
 Freeway pays one point per crossing, about 90 agent steps apart, and random play hardly ever
 crosses. So the value differs from Boxing's in two ways (:data:`FREEWAY_VALUE`): its target is
@@ -26,26 +27,32 @@ from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
 GAME, VARIANT = "freeway", "freeway-tuned"
 FREEWAY_VALUE = dict(target="discounted-sum", reward_steps=150, discount=0.97)
 EPISODES = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation episodes
+UP = 1  # Freeway's actions: NOOP, UP, DOWN
+BASELINES = ("planet", "random", "always-up")  # in the order their episodes are saved
 
 
 def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -> dict:
-    """The thesis's CEM (the model of ``planet_run``) and random play on the same ``bouts``:
-    ``planet`` and ``random``, each ``full`` and ``first``-500-step scores with their returns;
-    cached in ``work/baselines.json`` for the bouts, each episode saved in
-    ``work/baseline-bouts.json`` as it ends (a run cut off plays only the rest)."""
+    """The thesis's CEM (the model of ``planet_run``), random play and UP at every step on the
+    same ``bouts``: :data:`BASELINES`, each ``full`` and ``first``-500-step scores with their
+    returns; cached in ``work/baselines.json`` for the bouts, each episode saved in
+    ``work/baseline-bouts.json`` as it ends (a run cut off plays only the rest, and a baseline
+    added later plays only its own)."""
     from wmthesis.metrics import score_summary
     from wmthesis.planet.train import load_planet
 
     key = {"bouts": [list(b) for b in bouts], "planet_run": str(planet_run)}
     cached = _read_json(work / "baselines.json")
-    if cached is not None and cached.get("key") == key:
+    if cached is not None and cached.get("key") == key and set(cached["scores"]) == set(BASELINES):
         return cached["scores"]
     _, config, _ = load_planet(planet_run)
+    players = {"planet": (planet_run, None), "random": (None, None), "always-up": (None, UP)}  # (run, action)
     plays = played_bouts(work / "baseline-bouts.json", key, progress,
-                         [(play_bout, GAME, config, who, *bout) for who in (planet_run, None) for bout in bouts])
+                         [(play_bout, GAME, config, players[name][0], *bout, players[name][1])
+                          for name in BASELINES for bout in bouts])
+    parts = {name: plays[i * len(bouts):(i + 1) * len(bouts)] for i, name in enumerate(BASELINES)}
     scores = {name: {"full": score_summary([p["return"] for p in part]), "first": score_summary([p["first"] for p in part]),
                      "returns": [p["return"] for p in part], "first_returns": [p["first"] for p in part]}
-              for name, part in (("planet", plays[:len(bouts)]), ("random", plays[len(bouts):]))}
+              for name, part in parts.items()}
     with atomic_path(work / "baselines.json") as tmp:
         tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
     return scores

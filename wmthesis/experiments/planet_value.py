@@ -105,6 +105,9 @@ def start_from(work: Path, default: Path, names: tuple[str, ...] | None = None) 
             shutil.copyfile(default / name, tmp)
 
 
+BASELINE_LABELS = {"planet": "PlaNet (CEM)", "random": "random play", "always-up": "UP at every step"}
+
+
 def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, out: Path, config, planner,
                     baselines: dict, bouts: list, *, profile: str, seed: int, progress: bool,
                     references: dict, variant: str | None = None, started: float | None = None) -> dict:
@@ -112,8 +115,9 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     model of ``planet_run`` in ``work``; play CEM with the chosen value at its end (``planner``)
     on the evaluation ``bouts``; write and return ``out/metrics.json``: ``value`` (the chosen
     round's evaluation bouts) and ``value_first`` (their first 500 steps), ``random`` and
-    ``planet`` (``baselines``' full-episode scores on the same bouts), ``difference`` (value -
-    random), ``value_planner``, the ``curve`` of rounds and its figure (with ``references``)."""
+    ``planet`` (``baselines``' full-episode scores on the same bouts), ``baselines`` (each of
+    :data:`BASELINE_LABELS` played, full and first 500 steps), ``difference`` (value - random),
+    ``value_planner``, the ``curve`` of rounds and its figure (with ``references``)."""
     from wmthesis.metrics import score_difference, score_summary
     from wmthesis.planet.figures import learning_curve_figure
     from wmthesis.planet.train import load_planet, make_planet_env
@@ -129,8 +133,8 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     chosen = run["curve"][run["best_round"]]
     returns = chosen["returns"]
     scores = value_planner_scores(planet_run, work, planner, bouts, run["best_round"], progress, game=game)
-    lines = {"random play": baselines["random"]["full"]["mean"], "PlaNet (CEM)": baselines["planet"]["full"]["mean"],
-             f"CEM, H{planner.horizon}, with the value at its end": scores["full"]["mean"], **references}
+    lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in baselines.items()}
+    lines.update({f"CEM, H{planner.horizon}, with the value at its end": scores["full"]["mean"], **references})
     figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
                                                references=lines, x="episodes",
                                                title=f"{game.capitalize()}: the value agent after each round"),
@@ -148,6 +152,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                **({"value_first": score_summary(chosen["first_returns"])} if "first_returns" in chosen else {}),
                "difference": score_difference(returns, baselines["random"]["returns"]),
                "planet": baselines["planet"]["full"], "value_planner": scores,
+               "baselines": {name: {"full": b["full"], "first": b["first"]} for name, b in baselines.items()},
                "bouts": [list(b) for b in bouts], "curve": run["curve"], "best_round": run["best_round"],
                "config": dataclasses.asdict(config), "files": {"figures": [str(figure)]}}
     with atomic_path(out / "metrics.json") as tmp:
@@ -155,4 +160,4 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     return metrics
 
 
-__all__ = ["value_planner_bout", "value_planner_scores", "played_bouts", "cached_for", "start_from", "fit_and_compare"]
+__all__ = ["BASELINE_LABELS", "value_planner_bout", "value_planner_scores", "played_bouts", "cached_for", "start_from", "fit_and_compare"]
