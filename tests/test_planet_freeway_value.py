@@ -65,3 +65,29 @@ def test_always_up_is_added_to_a_run_saved_without_it_playing_only_its_own_episo
     assert sorted(plays, key=int) == [str(i) for i in range(6)]
     assert [plays[str(i)]["steps"] for i in range(4)] == [-1] * 4  # kept, not played again
     assert again["baselines"] == metrics["baselines"] and again["planet"] == metrics["planet"]
+
+
+def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_variant_fits_its_own(tmp_path, monkeypatch):
+    import json
+
+    from wmthesis.experiments import reproduce
+    from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS
+    from wmthesis.experiments.summary import run_scores
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    with pytest.raises(ValueError, match="valid: td, horizon-12"):
+        reproduce("planet-freeway-value", "smoke", 0, variant="nope", progress=False)
+    default = reproduce("planet-freeway-value", "smoke", 0, progress=False)
+    longer = reproduce("planet-freeway-value", "smoke", 0, variant="horizon-12", progress=False)
+    assert longer["value_planner"]["config"]["horizon"] == 12 != default["value_planner"]["config"]["horizon"]
+    assert longer["curve"] == default["curve"] and longer["best_round"] == default["best_round"]  # the same value
+    assert longer["baselines"] == default["baselines"]
+    work = tmp_path / "smoke" / "planet-freeway-value"
+    saved = json.loads((work / "horizon-12-seed0" / "baseline-bouts.json").read_text())
+    assert saved == json.loads((work / "seed0" / "baseline-bouts.json").read_text())  # copied, not played again
+    td = reproduce("planet-freeway-value", "smoke", 0, variant="td", progress=False)
+    assert {k: td["config"][k] for k in VALUE_VARIANTS["td"]["value"]} == VALUE_VARIANTS["td"]["value"]
+    assert td["value_planner"]["config"]["discount"] == VALUE_VARIANTS["td"]["value"]["discount"]
+    assert set(run_scores(td)) == {"td", "td, cem-with-value"}
+    saved = json.loads((tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "td" / "metrics.json").read_text())
+    assert saved["variant"] == "td" and saved["value_planner"] == td["value_planner"]  # beside the default's, not over it

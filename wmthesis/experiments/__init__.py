@@ -38,8 +38,7 @@ from wmthesis.utils import check_choice, worker_init
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
                "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value", "sokoban-search")
-NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent",
-               "planet-freeway-value")
+NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent")
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
@@ -65,7 +64,7 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     if name == "planet-boxing-value":
         return planet_boxing_value(profile, seed, progress, variant)
     if name == "planet-freeway-value":
-        return planet_freeway_value(profile, seed, progress)
+        return planet_freeway_value(profile, seed, progress, variant)
     if name == "boxing-wm-alphazero":
         return boxing_wm_alphazero(profile, seed, variant, progress)
     if name in PLANET_GAMES:

@@ -22,13 +22,21 @@ from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
 from wmthesis.experiments.planet_boxing import play_bout
 from wmthesis.experiments.planet_value import fit_and_compare, played_bouts, start_from
 from wmthesis.experiments.results import _read_json
-from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
+from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
 
 GAME, VARIANT = "freeway", "freeway-tuned"
 FREEWAY_VALUE = dict(target="discounted-sum", reward_steps=150, discount=0.97)
 EPISODES = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation episodes
 UP = 1  # Freeway's actions: NOOP, UP, DOWN
 BASELINES = ("planet", "random", "always-up")  # in the order their episodes are saved
+# What would make the planner dodge cars? Each variant is measured against UP at every step, in a
+# folder of its own, on the same model and episodes (its baselines copied from the default's).
+VALUE_VARIANTS = {
+    # the time to the next crossing, bootstrapped through the model: a collision's delay of 10-20
+    # steps costs 10-20% of the value at 0.99, against a 150-step window's few hundredths at 0.97
+    "td": dict(value=dict(target="td", reward_steps=30, discount=0.99)),
+    "horizon-12": dict(planner=dict(horizon=12)),  # the thesis's horizon, the default's value at its end
+}
 
 
 def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -> dict:
@@ -59,32 +67,44 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
 
 
 @releasing_holds
-def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bool = True,
+                         variant: str | None = None) -> dict:
     """PlaNet's Freeway agent (``planet-freeway``, ``freeway-tuned``, trained first if need be)
     frozen; a value fitted on its episodes, then rounds of its own (:data:`FREEWAY_VALUE`); the
     value alone, CEM with the value and the thesis's CEM on :data:`EPISODES` evaluation episodes
-    beside random play. Returns the metrics of
-    :func:`~wmthesis.experiments.planet_value.fit_and_compare`."""
+    beside random play and UP at every step. A ``variant`` of :data:`VALUE_VARIANTS` changes the
+    value or the planner in a folder of its own; one that keeps the value starts from a copy of
+    the default's. Returns the metrics of :func:`~wmthesis.experiments.planet_value.fit_and_compare`."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
     from wmthesis.data import EpisodeStore
     from wmthesis.planet.value import STORE, evaluation_seeds
 
+    if variant is not None:
+        check_choice("planet-freeway-value variant", variant, tuple(VALUE_VARIANTS))
+    changes = VALUE_VARIANTS.get(variant, {})
     profile = profile_name(profile)
     started = time.time()
     planet_experiment("planet-freeway", profile, seed, VARIANT, progress)
     planet_run = data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}")
-    work = hold(data_dir(profile, "planet-freeway-value", f"seed{seed}"))
-    out = data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}")
+    default = data_dir(profile, "planet-freeway-value", f"seed{seed}")
+    work = hold(default if variant is None else data_dir(profile, "planet-freeway-value", f"{variant}-seed{seed}"))
+    out = data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
+    if variant is not None:
+        start_from(work, default, ("baseline-bouts.json", "baselines.json"))  # the same episodes, played once
+        if "value" not in changes:
+            start_from(work, default)  # the default's value, its rounds and bouts
     start_from(work, planet_run, (STORE,))  # the agent's own episodes are the value's first data
     with EpisodeStore(planet_run / STORE) as store:  # a finished run's store: it holds no more
         first = len(store)
-    config = for_profile(LatentValueConfig, profile, test_bouts=EPISODES[profile], random_bouts=first, **FREEWAY_VALUE)
+    config = for_profile(LatentValueConfig, profile, test_bouts=EPISODES[profile], random_bouts=first,
+                         **{**FREEWAY_VALUE, **changes.get("value", {})})
     bouts = [evaluation_seeds(seed, k) for k in range(EPISODES[profile])]
     baselines = baseline_scores(planet_run, bouts, work, progress)
-    planner = for_profile(ValuePlannerConfig, profile, discount=config.discount)
+    planner = for_profile(ValuePlannerConfig, profile, discount=config.discount, **changes.get("planner", {}))
     references = {"human": PLANET_REFERENCE["planet-freeway"]["human"]}
     return fit_and_compare("planet-freeway-value", GAME, planet_run, work, out, config, planner, baselines, bouts,
-                           profile=profile, seed=seed, progress=progress, references=references, started=started)
+                           profile=profile, seed=seed, progress=progress, references=references, variant=variant,
+                           started=started)
 
 
-__all__ = ["planet_freeway_value", "baseline_scores", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+__all__ = ["planet_freeway_value", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]

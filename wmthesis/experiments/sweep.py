@@ -17,6 +17,7 @@ sweep (``boxing-wm`` for ``boxing-wm-alphazero``, ``planet-boxing-agent`` for
 """
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import re
@@ -55,10 +56,8 @@ def variants_of(experiment: str) -> tuple[str, ...]:
     check_choice("experiment", experiment, EXPERIMENTS)
     if experiment in NO_VARIANTS:
         return ()
-    if experiment == "planet-boxing-value":
-        from wmthesis.experiments.planet_boxing_value import VALUE_VARIANTS
-
-        return tuple(VALUE_VARIANTS)
+    if experiment in ("planet-boxing-value", "planet-freeway-value"):  # the value's: VALUE_VARIANTS of its module
+        return tuple(importlib.import_module(f"wmthesis.experiments.{experiment.replace('-', '_')}").VALUE_VARIANTS)
     return tuple(VARIANTS) if experiment == "boxing-wm-alphazero" else planet_variants(experiment)
 
 
