@@ -132,6 +132,15 @@ def play_bout(env_name: str, config: PlaNetConfig, run_dir: Path | None, env_see
     return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
 
 
+def bout_scores(plays: list[dict]) -> dict:
+    """:func:`play_bout`'s plays summed up: ``full`` and ``first``-500-step scores
+    (:func:`~wmthesis.metrics.score_summary`) with their ``returns`` and ``first_returns``."""
+    from wmthesis.metrics import score_summary
+
+    return {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
+            "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays]}
+
+
 @releasing_holds
 def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """The tuned study model (seed ``seed``) goes on as a PlaNet agent until the store holds the
@@ -139,7 +148,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     Returns the metrics: ``agent`` and ``random`` (scores over full bouts and over their first
     500 steps), ``difference`` (:func:`~wmthesis.metrics.score_difference`), the learning
     ``curve`` and ``files``."""
-    from wmthesis.metrics import score_difference, score_summary
+    from wmthesis.metrics import score_difference
     from wmthesis.planet.figures import learning_curve_figure
     from wmthesis.planet.train import load_planet, train_planet
 
@@ -159,10 +168,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     plays = parallel_calls([(play_bout, GAME, config, who, env_seed, mind_seed)
                             for who in (work, None) for env_seed, mind_seed in bouts], progress)
     agent, random = plays[:len(bouts)], plays[len(bouts):]
-    scores = {name: {"full": score_summary([p["return"] for p in plays_]),
-                     "first": score_summary([p["first"] for p in plays_]),
-                     "returns": [p["return"] for p in plays_], "first_returns": [p["first"] for p in plays_]}
-              for name, plays_ in (("agent", agent), ("random", random))}
+    scores = {"agent": bout_scores(agent), "random": bout_scores(random)}
     _, _, meta = load_planet(work)
     references = {"random (published)": PLANET_REFERENCE["planet-boxing"]["random"],
                   "human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
@@ -228,5 +234,5 @@ def agent_table(metrics: dict) -> str:
         f"| thesis PlaNet (5.6.4) | {reference['thesis PlaNet (5.6.4)']} | |"])
 
 
-__all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "study_table", "agent_table",
+__all__ = ["bout_scores", "planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "study_table", "agent_table",
            "STUDY", "AGENT", "FIRST_STEPS", "GAME"]

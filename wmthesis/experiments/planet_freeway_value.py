@@ -19,7 +19,7 @@ from pathlib import Path
 
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
-from wmthesis.experiments.planet_boxing import play_bout
+from wmthesis.experiments.planet_boxing import bout_scores, play_bout
 from wmthesis.experiments.planet_value import fit_and_compare, played_bouts, start_from
 from wmthesis.experiments.results import _read_json
 from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
@@ -45,7 +45,6 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
     returns; cached in ``work/baselines.json`` for the bouts, each episode saved in
     ``work/baseline-bouts.json`` as it ends (a run cut off plays only the rest, and a baseline
     added later plays only its own)."""
-    from wmthesis.metrics import score_summary
     from wmthesis.planet.train import load_planet
 
     key = {"bouts": [list(b) for b in bouts], "planet_run": str(planet_run)}
@@ -58,9 +57,7 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
                          [(play_bout, GAME, config, players[name][0], *bout, players[name][1])
                           for name in BASELINES for bout in bouts])
     parts = {name: plays[i * len(bouts):(i + 1) * len(bouts)] for i, name in enumerate(BASELINES)}
-    scores = {name: {"full": score_summary([p["return"] for p in part]), "first": score_summary([p["first"] for p in part]),
-                     "returns": [p["return"] for p in part], "first_returns": [p["first"] for p in part]}
-              for name, part in parts.items()}
+    scores = {name: bout_scores(part) for name, part in parts.items()}
     with atomic_path(work / "baselines.json") as tmp:
         tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
     return scores

@@ -13,7 +13,7 @@ import shutil
 import time
 from pathlib import Path
 
-from wmthesis.experiments.planet_boxing import FIRST_STEPS
+from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_scores
 from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header
 from wmthesis.utils import atomic_path, parallel_calls
 from wmthesis.viz import save_figure
@@ -43,18 +43,14 @@ def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list
     """The planner with value over ``bouts`` ((env, mind) seeds): full-episode and
     first-500-step scores, cached in ``cache`` (``value_run/value_planner.json`` by default)
     for the chosen round ``best``, the planner's config and the bouts."""
-    from wmthesis.metrics import score_summary
-
     key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
     cache = value_run / "value_planner.json" if cache is None else cache
     cached = cached_for(cache, key)
     if cached is not None:
         return cached["scores"]
     plays = played_bouts(cache.with_name(cache.stem + "-bouts.json"), key, progress,
-                          [(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts])
-    scores = {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
-              "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
-              "config": dataclasses.asdict(planner)}
+                         [(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts])
+    scores = {**bout_scores(plays), "config": dataclasses.asdict(planner)}
     with atomic_path(cache) as tmp:
         tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
     return scores
