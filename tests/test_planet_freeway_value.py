@@ -91,3 +91,22 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     assert set(run_scores(td)) == {"td", "td, cem-with-value"}
     saved = json.loads((tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "td" / "metrics.json").read_text())
     assert saved["variant"] == "td" and saved["value_planner"] == td["value_planner"]  # beside the default's, not over it
+    # notebook 08's table: the baselines once, then each run's players, with what each adds over UP
+    from wmthesis.experiments.planet_freeway_value import freeway_plan_choices, value_rows
+
+    rows = value_rows({None: default, "horizon-12": longer, "td": td})
+    assert [r[0] for r in rows] == ["PlaNet (CEM), H12 (thesis)", "random play", "UP at every step",
+                                    "value alone (default)", "CEM, H2, with the value at its end (default)",
+                                    "CEM, H12, with the value at its end (horizon-12)", "value alone (td)",
+                                    "CEM, H2, with the value at its end (td)"]  # horizon-12 keeps the default's value
+    up = default["baselines"]["always-up"]["returns"]
+    assert rows[2][3] == "+0.0 ± 0.0" and rows[3][1] == f"{default['value']['mean']:.1f} ± {default['value']['std']:.1f}"
+    gain = np.mean(np.subtract(td["value_planner"]["returns"], up))
+    assert rows[-1][3].startswith(f"{gain:+.1f} ± ")
+    # where the td value changes the plan: its own planner (discounted at 0.99), on its own last episode
+    compared = freeway_plan_choices("smoke", 0, "td", progress=False)
+    assert compared["action_names"] == ["NOOP", "UP", "DOWN"] and compared["steps"] == 5
+    assert all(len(c) == 5 and set(c) <= {0, 1, 2} for c in compared["choices"].values())
+    key = json.loads((work / "td-seed0" / "plan_choices.json").read_text())["key"]
+    assert key["planner"]["discount"] == 0.99 and key["round"] == td["best_round"]
+    assert not (work / "seed0" / "plan_choices.json").exists()  # the default's folder is left alone

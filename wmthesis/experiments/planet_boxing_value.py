@@ -6,18 +6,13 @@ the same bouts.
 """
 from __future__ import annotations
 
-import dataclasses
-import json
 import time
-
-import numpy as np
 
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
-from wmthesis.experiments.planet_value import cached_for, fit_and_compare, start_from, value_planner_scores
-from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
-from wmthesis.viz import save_figure
+from wmthesis.experiments.planet_value import PLAN_STEPS, compare_plans, fit_and_compare, start_from, value_planner_scores
+from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
 # sum of the next rewards (notebook 09); ``td`` bootstraps through the model; ``validation-10``
@@ -63,59 +58,15 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
                            seed=seed, progress=progress, references=references, variant=variant, started=started)
 
 
-PLAN_STEPS = {"smoke": 5, "quick": 300, "thesis": 500}  # steps of a bout on which the planners are compared
-
-
 def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
-    """Where the value changes the plan (:func:`~wmthesis.planet.value_planner.plan_choices`):
-    on the first :data:`PLAN_STEPS` steps of the value agent's last bout of its own, the action
-    the thesis's CEM, CEM with the chosen value and the value alone would take from the same
-    belief. Runs :func:`planet_boxing_value` first if need be; cached. Returns ``choices``
-    (planner -> actions), ``agreement`` (pair -> share of steps), ``action_names`` and
-    ``files`` (the bars, and the frames where CEM and CEM with value part)."""
-    from wmthesis.config import ValuePlannerConfig, for_profile
-    from wmthesis.data import EpisodeStore
-    from wmthesis.planet.figures import plan_choices_figure
-    from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import STORE, load_value
-    from wmthesis.planet.value_planner import PLANNERS, plan_choices
-    from wmthesis.viz import image_grid
-
+    """Where the value changes the plan on Boxing (:func:`~wmthesis.experiments.planet_value.compare_plans`
+    on :func:`planet_boxing_value`'s run, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_boxing_value(profile, seed, progress)
-    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = data_dir(profile, "planet-boxing-value", f"seed{seed}")
-    out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}")
-    model, planet, _ = load_planet(planet_run)
-    planner, steps = for_profile(ValuePlannerConfig, profile), PLAN_STEPS[profile]
-    with EpisodeStore(work / STORE, "r") as store:
-        bout = store.episode(-1)
-    frames, taken = bout["observations"][:steps], bout["actions"][:steps]
-    key = {"round": metrics["best_round"], "steps": len(taken), "planner": dataclasses.asdict(planner)}
-    cached = cached_for(work / "plan_choices.json", key)
-    if cached is None:
-        choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
-        cached = {"key": key, "choices": {name: c.tolist() for name, c in choices.items()}}
-        with atomic_path(work / "plan_choices.json") as tmp:
-            tmp.write_text(json.dumps(cached))
-    choices = {name: np.asarray(c) for name, c in cached["choices"].items()}
-    env = make_planet_env(GAME, planet)
-    names = env.unwrapped.get_action_meanings()
-    env.close()
-    bars = save_figure(plan_choices_figure(choices, names, title=f"Boxing, the first {len(taken)} steps of one bout: "
-                                                                 "the action each planner picks from the same belief"),
-                       out / "plan_choices.png")
-    thesis, ours = choices[PLANNERS[0]], choices[PLANNERS[1]]
-    parted = np.flatnonzero(thesis != ours)[:12]
-    files = [bars]
-    if len(parted):
-        files.append(save_figure(image_grid([frames[t] for t in parted], 6, [f"step {t}: CEM {names[thesis[t]]}\n"
-                                                                           f"+ value {names[ours[t]]}" for t in parted],
-                                            scale=1.9), out / "plan_choices_frames.png"))
-    agreement = {f"{a} = {b}": float(np.mean(choices[a] == choices[b]))
-                 for i, a in enumerate(PLANNERS) for b in PLANNERS[i + 1:]}
-    return {"choices": cached["choices"], "agreement": agreement, "action_names": names, "steps": len(taken),
-            "files": [str(f) for f in files]}
+    return compare_plans(GAME, data_dir(profile, "planet-boxing-agent", f"seed{seed}"),
+                         data_dir(profile, "planet-boxing-value", f"seed{seed}"),
+                         data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}"), metrics,
+                         PLAN_STEPS[profile], seed)
 
 
 # Issue 31's levers on CEM with the value, each measured on the value's validation bouts (never
@@ -217,4 +168,4 @@ def value_table(metrics: dict) -> str:
 
 
 __all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",
-           "VALUE_VARIANTS", "PLAN_STEPS"]
+           "VALUE_VARIANTS"]

@@ -20,7 +20,8 @@ from pathlib import Path
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
 from wmthesis.experiments.planet_boxing import bout_scores, play_bout
-from wmthesis.experiments.planet_value import fit_and_compare, played_bouts, start_from
+from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, compare_plans, fit_and_compare, played_bouts,
+                                               start_from)
 from wmthesis.experiments.results import _read_json
 from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
 
@@ -104,4 +105,47 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
                            started=started)
 
 
-__all__ = ["planet_freeway_value", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
+    """The players of :func:`planet_freeway_value` runs (``by_variant``: variant, None for the
+    default -> its metrics; all on the same model and episodes) as table rows: player, full
+    episodes mean ± std, first 500 steps, and what it adds over UP at every step episode for
+    episode (:func:`~wmthesis.metrics.paired_difference`, ± its standard error). The baselines come
+    once, from the first run; a variant that keeps the value gives only its planner's row."""
+    from wmthesis.metrics import paired_difference
+
+    first = next(iter(by_variant.values()))
+    up = first["baselines"]["always-up"].get("returns")  # runs saved since 2026-11-26 keep them
+
+    def row(player: str, full: dict, first_mean: float, returns) -> list[str]:
+        gain = "" if up is None or returns is None else "{difference:+.1f} ± {standard_error:.1f}".format(
+            **paired_difference(returns, up))
+        return [player, f"{full['mean']:.1f} ± {full['std']:.1f}", f"{first_mean:.1f}", gain]
+
+    rows = [row(BASELINE_LABELS[name] + (", H12 (thesis)" if name == "planet" else ""), b["full"], b["first"]["mean"],
+                b.get("returns")) for name, b in first["baselines"].items()]
+    for variant, m in by_variant.items():
+        label = "default" if variant is None else variant
+        if variant is None or "value" in VALUE_VARIANTS[variant]:
+            rows.append(row(f"value alone ({label})", m["value"], m.get("value_first", {}).get("mean", float("nan")),
+                            m["returns"]))
+        planner = m["value_planner"]
+        rows.append(row(f"CEM, H{planner['config']['horizon']}, with the value at its end ({label})", planner["full"],
+                        planner["first"]["mean"], planner["returns"]))
+    return rows
+
+
+def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                         progress: bool = True) -> dict:
+    """Where the value changes the plan on Freeway
+    (:func:`~wmthesis.experiments.planet_value.compare_plans` on a :func:`planet_freeway_value`
+    run of ``variant``, run first if need be; cached)."""
+    profile = profile_name(profile)
+    metrics = planet_freeway_value(profile, seed, progress, variant)
+    suffix = () if variant is None else (variant,)
+    work = data_dir(profile, "planet-freeway-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}")
+    return compare_plans(GAME, data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}"), work,
+                         data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}", *suffix), metrics,
+                         PLAN_STEPS[profile], seed)
+
+
+__all__ = ["planet_freeway_value", "value_rows", "freeway_plan_choices", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]

@@ -13,6 +13,8 @@ import shutil
 import time
 from pathlib import Path
 
+import numpy as np
+
 from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_scores
 from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header
 from wmthesis.utils import atomic_path, parallel_calls
@@ -148,7 +150,8 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                **({"value_first": score_summary(chosen["first_returns"])} if "first_returns" in chosen else {}),
                "difference": score_difference(returns, baselines["random"]["returns"]),
                "planet": baselines["planet"]["full"], "value_planner": scores,
-               "baselines": {name: {"full": b["full"], "first": b["first"]} for name, b in baselines.items()},
+               "baselines": {name: {k: b[k] for k in ("full", "first", "returns", "first_returns") if k in b}
+                             for name, b in baselines.items()},
                "bouts": [list(b) for b in bouts], "curve": run["curve"], "best_round": run["best_round"],
                "config": dataclasses.asdict(config), "files": {"figures": [str(figure)]}}
     with atomic_path(out / "metrics.json") as tmp:
@@ -156,4 +159,57 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     return metrics
 
 
-__all__ = ["BASELINE_LABELS", "value_planner_bout", "value_planner_scores", "played_bouts", "cached_for", "start_from", "fit_and_compare"]
+PLAN_STEPS = {"smoke": 5, "quick": 300, "thesis": 500}  # steps of a bout on which the planners are compared
+
+
+def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: dict, steps: int, seed: int) -> dict:
+    """Where the value changes the plan (:func:`~wmthesis.planet.value_planner.plan_choices`):
+    on the first ``steps`` steps of the value agent's last bout of its own (in ``work``), the
+    action the thesis's CEM, CEM with the chosen value (the planner of ``metrics``, a
+    :func:`fit_and_compare` run) and the value alone would take from the same belief; cached in
+    ``work/plan_choices.json``. Returns ``choices`` (planner -> actions), ``agreement`` (pair ->
+    share of steps), ``action_names``, ``steps`` and ``files`` (the bars, and the frames where CEM
+    and CEM with the value part, in ``out``)."""
+    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.data import EpisodeStore
+    from wmthesis.planet.figures import plan_choices_figure
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import STORE, load_value
+    from wmthesis.planet.value_planner import PLANNERS, plan_choices
+    from wmthesis.training import with_added_defaults
+    from wmthesis.viz import image_grid
+
+    model, planet, _ = load_planet(planet_run)
+    planner = ValuePlannerConfig(**with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"]))
+    with EpisodeStore(work / STORE, "r") as store:
+        bout = store.episode(-1)
+    frames, taken = bout["observations"][:steps], bout["actions"][:steps]
+    key = {"round": metrics["best_round"], "steps": len(taken), "planner": dataclasses.asdict(planner)}
+    cached = cached_for(work / "plan_choices.json", key)
+    if cached is None:
+        choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
+        cached = {"key": key, "choices": {name: c.tolist() for name, c in choices.items()}}
+        with atomic_path(work / "plan_choices.json") as tmp:
+            tmp.write_text(json.dumps(cached))
+    choices = {name: np.asarray(c) for name, c in cached["choices"].items()}
+    env = make_planet_env(game, planet)
+    names = env.unwrapped.get_action_meanings()
+    env.close()
+    unit = "bout" if game == "boxing" else "episode"
+    bars = save_figure(plan_choices_figure(choices, names, title=f"{game.capitalize()}, the first {len(taken)} steps of "
+                                                                 f"one {unit}: the action each planner picks from the same belief"),
+                       out / "plan_choices.png")
+    thesis, ours = choices[PLANNERS[0]], choices[PLANNERS[1]]
+    parted = np.flatnonzero(thesis != ours)[:12]
+    files = [bars]
+    if len(parted):
+        files.append(save_figure(image_grid([frames[t] for t in parted], 6, [f"step {t}: CEM {names[thesis[t]]}\n"
+                                                                           f"+ value {names[ours[t]]}" for t in parted],
+                                            scale=1.9), out / "plan_choices_frames.png"))
+    agreement = {f"{a} = {b}": float(np.mean(choices[a] == choices[b]))
+                 for i, a in enumerate(PLANNERS) for b in PLANNERS[i + 1:]}
+    return {"choices": cached["choices"], "agreement": agreement, "action_names": names, "steps": len(taken),
+            "files": [str(f) for f in files]}
+
+
+__all__ = ["PLAN_STEPS", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_planner_scores", "played_bouts", "cached_for", "start_from", "fit_and_compare"]
