@@ -110,3 +110,23 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     key = json.loads((work / "td-seed0" / "plan_choices.json").read_text())["key"]
     assert key["planner"]["discount"] == 0.99 and key["round"] == td["best_round"]
     assert not (work / "seed0" / "plan_choices.json").exists()  # the default's folder is left alone
+
+
+def test_open_loop_check_scores_the_frozen_model_on_moving_pixels_against_both_baselines(tmp_path, monkeypatch):
+    import json
+
+    from wmthesis.experiments.planet_boxing import STUDY
+    from wmthesis.experiments.planet_freeway_value import open_loop_check
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    check = open_loop_check("smoke", 0, progress=False)
+    horizon = STUDY["smoke"]["horizon"]
+    assert all(len(check["errors"][name]) == horizon for name in ("model", "repeat last", "mean frame"))
+    assert check["free_nats"] == 3.0 and check["kl_scale"] == 8e-3  # freeway-tuned's model
+    assert check["below_mean_frame"] == [h for h in range(1, horizon + 1)
+                                         if check["errors"]["model"][h - 1] < check["errors"]["mean frame"][h - 1]]
+    assert check["diagnostics"]["kl"] >= 0
+    saved = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "open_loop_check.json"
+    stamp = saved.stat().st_mtime_ns
+    assert open_loop_check("smoke", 0, progress=False)["errors"] == check["errors"] and saved.stat().st_mtime_ns == stamp
+    assert json.loads(saved.read_text())["key"]["updates"] == check["updates"]

@@ -19,11 +19,12 @@ from pathlib import Path
 
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
-from wmthesis.experiments.planet_boxing import bout_scores, play_bout
+from wmthesis.experiments.planet_boxing import STUDY, bout_scores, play_bout
 from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, compare_plans, fit_and_compare, played_bouts,
                                                start_from)
 from wmthesis.experiments.results import _read_json
 from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
+from wmthesis.viz import save_figure
 
 GAME, VARIANT = "freeway", "freeway-tuned"
 FREEWAY_VALUE = dict(target="discounted-sum", reward_steps=150, discount=0.97)
@@ -134,6 +135,48 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
     return rows
 
 
+def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+    """Can the frozen Freeway model imagine the cars a planner must dodge? Its open-loop error on
+    the moving pixels of held-out random episodes (:func:`~wmthesis.planet.study.score_run`, as in
+    notebook 05's model study: the profile's context frames filtered, then its horizon predicted
+    from the actions alone) beside the baselines "repeat last" and "mean frame", with the KL per
+    step to set against the free nats (below them the prior learns nothing from that step).
+    Trains ``planet-freeway`` first if need be; cached for the model's updates. Returns
+    ``errors`` (name -> (horizon,) errors), ``diagnostics``, ``kl_scale``, ``free_nats``,
+    ``updates``, ``below_mean_frame`` (the horizons where the model beats the mean frame) and
+    ``files`` (the figure)."""
+    from wmthesis.data import EpisodeStore
+    from wmthesis.planet.figures import study_error_figure
+    from wmthesis.planet.study import held_out_store, scene, score_run
+    from wmthesis.planet.train import STORE, load_planet
+
+    profile = profile_name(profile)
+    planet_experiment("planet-freeway", profile, seed, VARIANT, progress)
+    planet_run = data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}")
+    out = data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}")
+    sizes, (_, config, meta) = STUDY[profile], load_planet(planet_run)
+    key = {"updates": meta["updates"], "sizes": sizes}
+    cached = _read_json(out / "open_loop_check.json")
+    if cached is None or cached.get("key") != key:
+        held = held_out_store(data_dir(profile, "planet-freeway-value") / f"held-out-seed{seed}.h5", GAME, config,
+                              10_000 + seed, sizes["held_out"])
+        with EpisodeStore(planet_run / STORE) as store:
+            background, mean_frame = scene(store)
+        with EpisodeStore(held) as episodes:
+            score = score_run(planet_run, episodes, background, mean_frame, context=sizes["context"],
+                              horizon=sizes["horizon"], sequences=sizes["sequences"], seed=seed)
+        cached = {"key": key, "score": {k: v for k, v in score.items() if k != "rollout"}}
+        with atomic_path(out / "open_loop_check.json") as tmp:
+            tmp.write_text(json.dumps(cached, indent=1))
+    score = cached["score"]
+    figure = save_figure(study_error_figure({VARIANT: [score]}, title="Freeway: open-loop error on the moving pixels "
+                                                                      "(held-out random episodes)"),
+                         out / "open_loop_check.png")
+    model, mean = score["errors"]["model"], score["errors"]["mean frame"]
+    return {**score, "below_mean_frame": [h + 1 for h, (a, b) in enumerate(zip(model, mean)) if a < b],
+            "files": [str(figure)]}
+
+
 def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str | None = None,
                          progress: bool = True) -> dict:
     """Where the value changes the plan on Freeway
@@ -148,4 +191,4 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
                          PLAN_STEPS[profile], seed)
 
 
-__all__ = ["planet_freeway_value", "value_rows", "freeway_plan_choices", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+__all__ = ["planet_freeway_value", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
