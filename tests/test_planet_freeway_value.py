@@ -126,6 +126,7 @@ def test_open_loop_check_scores_the_frozen_model_on_moving_pixels_against_both_b
     assert check["below_mean_frame"] == [h for h in range(1, horizon + 1)
                                          if check["errors"]["model"][h - 1] < check["errors"]["mean frame"][h - 1]]
     assert check["diagnostics"]["kl"] >= 0
+    assert all(len(check["filtered"][name]) == STUDY["smoke"]["context"] for name in ("model", "mean frame"))
     saved = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "open_loop_check.json"
     stamp = saved.stat().st_mtime_ns
     assert open_loop_check("smoke", 0, progress=False)["errors"] == check["errors"] and saved.stat().st_mtime_ns == stamp
