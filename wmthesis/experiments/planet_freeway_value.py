@@ -17,8 +17,6 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
 from wmthesis.experiments.planet_boxing import STUDY, bout_scores, play_bout
@@ -143,8 +141,8 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     notebook 05's model study: the profile's context frames filtered, then its horizon predicted
     from the actions alone) beside the baselines "repeat last" and "mean frame", with the KL per
     step to set against the free nats (below them the prior learns nothing from that step), and
-    the same error of the context frames' reconstructions from the posterior (``filtered``: does
-    the model see the cars in the frame it is given?).
+    the error of the context frames' reconstructions (``filtered``: does the model see the cars in
+    the frames it is given?).
     Trains ``planet-freeway`` first if need be; cached for the model's updates. Returns
     ``errors`` (name -> (horizon,) errors), ``filtered`` (``model`` and ``mean frame`` -> (context,)
     errors), ``diagnostics``, ``kl_scale``, ``free_nats``,
@@ -152,7 +150,6 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     ``files`` (the figure)."""
     from wmthesis.data import EpisodeStore
     from wmthesis.planet.figures import study_error_figure
-    from wmthesis.planet.prediction import moving_error
     from wmthesis.planet.study import held_out_store, scene, score_run
     from wmthesis.planet.train import STORE, load_planet
 
@@ -163,7 +160,7 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     sizes, (_, config, meta) = STUDY[profile], load_planet(planet_run)
     key = {"updates": meta["updates"], "sizes": sizes}
     cached = _read_json(out / "open_loop_check.json")
-    if cached is None or cached.get("key") != key or "filtered" not in cached["score"]:  # filtered: since 2026-11-26
+    if cached is None or cached.get("key") != key:
         held = held_out_store(data_dir(profile, "planet-freeway-value") / f"held-out-seed{seed}.h5", GAME, config,
                               10_000 + seed, sizes["held_out"])
         with EpisodeStore(planet_run / STORE) as store:
@@ -171,11 +168,7 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
         with EpisodeStore(held) as episodes:
             score = score_run(planet_run, episodes, background, mean_frame, context=sizes["context"],
                               horizon=sizes["horizon"], sequences=sizes["sequences"], seed=seed)
-        context = score["rollout"]["truth"][:, :sizes["context"]]  # the frames filtered, and their reconstructions
-        filtered = {"model": moving_error(context, score["rollout"]["prediction"][:, :sizes["context"]], background),
-                    "mean frame": moving_error(context, np.broadcast_to(mean_frame, context.shape), background)}
-        cached = {"key": key, "score": {**{k: v for k, v in score.items() if k != "rollout"},
-                                        "filtered": {k: [float(x) for x in v] for k, v in filtered.items()}}}
+        cached = {"key": key, "score": {k: v for k, v in score.items() if k != "rollout"}}
         with atomic_path(out / "open_loop_check.json") as tmp:
             tmp.write_text(json.dumps(cached, indent=1))
     score = cached["score"]
