@@ -16,7 +16,7 @@ from wmthesis.data import EpisodeStore  # noqa: E402
 from wmthesis.envs.atari import make_atari  # noqa: E402
 from wmthesis.planet.networks import vision_networks  # noqa: E402
 from wmthesis.planet.prediction import (background_frame, baseline_predictions, latent_diagnostics,  # noqa: E402
-                                        moving_error)
+                                        moving_error, moving_open_loop)
 from wmthesis.planet.rssm import RSSM  # noqa: E402
 from wmthesis.planet.study import summarise  # noqa: E402
 from wmthesis.planet.train import load_planet, make_planet_env, planet_frame, train_planet  # noqa: E402
@@ -89,6 +89,23 @@ def test_baselines_repeat_the_last_context_frame_and_the_mean_frame():
     assert baselines["repeat last"].shape == (1, 3, 8, 8, 3)
     assert all(np.array_equal(frame, truth[0, 1]) for frame in baselines["repeat last"][0])
     assert (baselines["mean frame"] == 7).all()
+
+
+def test_filtered_error_scores_the_context_reconstructions_and_the_mean_frame_on_the_context():
+    torch.manual_seed(0)
+    encoder, decoder, embedding = vision_networks(16, 4, 8 + 3)
+    model = RSSM(3, 8, 3, 8, 8, encoder=encoder, decoder=decoder, embedding_size=embedding).eval()
+    observations = torch.randint(0, 32, (2, 6, 16, 16, 3), dtype=torch.uint8) * 8
+    background, mean = np.zeros((16, 16, 3), np.uint8), np.full((16, 16, 3), 40, np.uint8)
+    result = moving_open_loop(model, observations, torch.randint(0, 3, (2, 6)), background=background,
+                              mean_frame=mean, context=4, seed=1)
+    truth, prediction = result["rollout"]["truth"], result["rollout"]["prediction"]
+    assert len(result["filtered"]["model"]) == 4 and len(result["model"]) == 2  # the context, then the horizon
+    np.testing.assert_allclose(result["filtered"]["model"], moving_error(truth[:, :4], prediction[:, :4], background))
+    np.testing.assert_allclose(result["filtered"]["mean frame"],
+                               moving_error(truth[:, :4], np.broadcast_to(mean, truth[:, :4].shape), background))
+    np.testing.assert_allclose(result["mean frame"], moving_error(truth[:, 4:], np.broadcast_to(mean, truth[:, 4:].shape),
+                                                                  background))
 
 
 def test_latent_diagnostics_entropies_match_torch_distributions():

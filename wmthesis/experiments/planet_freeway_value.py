@@ -65,6 +65,14 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
     return scores
 
 
+def value_folders(profile: str, seed: int, variant: str | None = None) -> tuple[Path, Path]:
+    """A run's work folder (``data/<profile>/planet-freeway-value/[<variant>-]seed<seed>``) and
+    its results folder (``data/results/planet-freeway-value/<profile>-seed<seed>[/<variant>]``)."""
+    name = f"seed{seed}" if variant is None else f"{variant}-seed{seed}"
+    return (data_dir(profile, "planet-freeway-value", name),
+            data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,))))
+
+
 @releasing_holds
 def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bool = True,
                          variant: str | None = None) -> dict:
@@ -85,9 +93,9 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     started = time.time()
     planet_experiment("planet-freeway", profile, seed, VARIANT, progress)
     planet_run = data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}")
-    default = data_dir(profile, "planet-freeway-value", f"seed{seed}")
-    work = hold(default if variant is None else data_dir(profile, "planet-freeway-value", f"{variant}-seed{seed}"))
-    out = data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
+    default, _ = value_folders(profile, seed)
+    work, out = value_folders(profile, seed, variant)
+    work = hold(work)
     if variant is not None:
         start_from(work, default, ("baseline-bouts.json", "baselines.json"))  # the same episodes, played once
         if "value" not in changes:
@@ -187,11 +195,9 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
     run of ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_freeway_value(profile, seed, progress, variant)
-    suffix = () if variant is None else (variant,)
-    work = data_dir(profile, "planet-freeway-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}")
-    return compare_plans(GAME, data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}"), work,
-                         data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}", *suffix), metrics,
+    work, out = value_folders(profile, seed, variant)
+    return compare_plans(GAME, data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}"), work, out, metrics,
                          PLAN_STEPS[profile], seed)
 
 
-__all__ = ["planet_freeway_value", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+__all__ = ["planet_freeway_value", "value_folders", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]

@@ -99,14 +99,18 @@ def moving_open_loop(model: RSSM, observations: torch.Tensor, actions: torch.Ten
                      seed: int = 0) -> dict:
     """:func:`open_loop` scored on the moving pixels (:func:`moving_error`) against the two
     baselines. Returns ``model``, ``repeat last`` and ``mean frame``: errors by horizon
-    (T - context,), and ``rollout``: the :func:`open_loop` result."""
+    (T - context,); ``filtered``: the same error of the context frames' reconstructions from the
+    posterior (``model``) and of the mean frame, (context,) each (does the model see what moves
+    in the frames it is given?); and ``rollout``: the :func:`open_loop` result."""
     generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
     rollout = open_loop(model, observations, actions, context=context, bits=bits, generator=generator)
-    truth = rollout["truth"][:, context:]
+    truth, seen = rollout["truth"][:, context:], rollout["truth"][:, :context]
     errors = {"model": moving_error(truth, rollout["prediction"][:, context:], background)}
     for name, frames in baseline_predictions(rollout["truth"], context, mean_frame).items():
         errors[name] = moving_error(truth, frames, background)
-    return {**errors, "rollout": rollout}
+    filtered = {"model": moving_error(seen, rollout["prediction"][:, :context], background),
+                "mean frame": moving_error(seen, np.broadcast_to(mean_frame, seen.shape), background)}
+    return {**errors, "filtered": filtered, "rollout": rollout}
 
 
 @torch.inference_mode()

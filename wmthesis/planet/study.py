@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.data import EpisodeStore, play_random_episode
-from wmthesis.planet.prediction import background_frame, latent_diagnostics, moving_error, moving_open_loop
+from wmthesis.planet.prediction import background_frame, latent_diagnostics, moving_open_loop
 from wmthesis.planet.train import load_planet, make_planet_env
 
 # The three configurations (:data:`~wmthesis.planet.train.VARIANTS`), in the thesis's order.
@@ -50,20 +50,18 @@ def score_run(run_dir, held_out: EpisodeStore, background: np.ndarray, mean_fram
               context: int = 5, horizon: int = 15, sequences: int = 32, seed: int = 0) -> dict:
     """A trained run scored on ``sequences`` chunks of held-out episodes (the same chunks for
     every run with the same ``seed``): moving-pixel errors by horizon 1..``horizon`` of the
-    ``model`` and the :data:`BASELINES`, the same errors of the context frames' reconstructions
-    from the posterior and of the mean frame (``filtered``, (context,) each: does the model see
-    what moves in the frames it is given?), :func:`~wmthesis.planet.prediction.latent_diagnostics`,
+    ``model`` and the :data:`BASELINES`, those of the context frames' reconstructions
+    (``filtered``, :func:`~wmthesis.planet.prediction.moving_open_loop`),
+    :func:`~wmthesis.planet.prediction.latent_diagnostics`,
     and the open-loop ``rollout`` (for the pictures)."""
     model, config, meta = load_planet(run_dir)
     batch = held_out.sample_chunks(sequences, context + horizon, np.random.default_rng(seed))
     result = moving_open_loop(model, batch["observations"], batch["actions"], background=background,
                               mean_frame=mean_frame, context=context, bits=config.bits, seed=seed)
     errors = {name: [float(v) for v in result[name]] for name in ("model", *BASELINES)}
-    seen = result["rollout"]["truth"][:, :context]  # the context frames, reconstructed from the posterior
-    filtered = {"model": moving_error(seen, result["rollout"]["prediction"][:, :context], background),
-                "mean frame": moving_error(seen, np.broadcast_to(mean_frame, seen.shape), background)}
-    return {"errors": errors, "filtered": {name: [float(v) for v in e] for name, e in filtered.items()}, "diagnostics": latent_diagnostics(model, batch["observations"], batch["actions"],
-                                                                bits=config.bits, seed=seed),
+    filtered = {name: [float(v) for v in e] for name, e in result["filtered"].items()}
+    return {"errors": errors, "filtered": filtered,
+            "diagnostics": latent_diagnostics(model, batch["observations"], batch["actions"], bits=config.bits, seed=seed),
             "updates": meta["updates"], "free_nats": config.free_nats, "kl_scale": config.kl_scale,
             "rollout": result["rollout"]}
 
