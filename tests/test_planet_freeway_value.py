@@ -75,7 +75,7 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     from wmthesis.experiments.summary import run_scores
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    with pytest.raises(ValueError, match="valid: td, horizon-12"):
+    with pytest.raises(ValueError, match="valid: td, horizon-12, freeway-adam"):
         reproduce("planet-freeway-value", "smoke", 0, variant="nope", progress=False)
     default = reproduce("planet-freeway-value", "smoke", 0, progress=False)
     longer = reproduce("planet-freeway-value", "smoke", 0, variant="horizon-12", progress=False)
@@ -131,3 +131,29 @@ def test_open_loop_check_scores_the_frozen_model_on_moving_pixels_against_both_b
     stamp = saved.stat().st_mtime_ns
     assert open_loop_check("smoke", 0, progress=False)["errors"] == check["errors"] and saved.stat().st_mtime_ns == stamp
     assert json.loads(saved.read_text())["key"]["updates"] == check["updates"]
+
+
+def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baselines(tmp_path, monkeypatch):
+    import json
+
+    import torch
+
+    from wmthesis.experiments import reproduce
+    from wmthesis.experiments.planet_freeway_value import model_variant, open_loop_check
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    assert model_variant(None) == model_variant("td") == "freeway-tuned" and model_variant("freeway-adam") == "freeway-adam"
+    adam = reproduce("planet-freeway-value", "smoke", 0, variant="freeway-adam", progress=False)
+    planet_run = tmp_path / "smoke" / "planet-freeway" / "freeway-adam-seed0"
+    checkpoint = torch.load(planet_run / "checkpoint.pt", weights_only=False)
+    assert checkpoint["config"]["adam_eps"] == 1e-8 == checkpoint["optimizer"]["param_groups"][0]["eps"]
+    work = tmp_path / "smoke" / "planet-freeway-value" / "freeway-adam-seed0"
+    assert json.loads((work / "baselines.json").read_text())["key"]["planet_run"] == str(planet_run)
+    assert not (tmp_path / "smoke" / "planet-freeway-value" / "seed0").exists()  # nothing copied from the default
+    with EpisodeStore(planet_run / "episodes.h5") as planet, EpisodeStore(work / "episodes.h5") as value:
+        assert np.array_equal(planet.episode(0)["actions"], value.episode(0)["actions"])  # that model's episodes
+    assert adam["variant"] == "freeway-adam"
+    check = open_loop_check("smoke", 0, progress=False, model="freeway-adam")
+    saved = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "freeway-adam" / "open_loop_check.json"
+    assert json.loads(saved.read_text())["score"]["errors"] == check["errors"]
+    assert check["diagnostics"]["embedding_spread"] >= 0

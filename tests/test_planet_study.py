@@ -126,6 +126,20 @@ def test_latent_diagnostics_entropies_match_torch_distributions():
     assert result["posterior_entropy"] == pytest.approx(float(q.entropy().sum(-1).mean()), rel=1e-5)
     assert result["prior_entropy"] == pytest.approx(float(p.entropy().sum(-1).mean()), rel=1e-5)
     assert result["kl"] == pytest.approx(float(D.kl_divergence(q, p).sum(-1).mean()), rel=1e-5)
+    embedded = model.encode(frames).detach().reshape(8, -1).numpy()
+    assert result["embedding_spread"] == pytest.approx(float(embedded.std(0, ddof=1).mean()), rel=1e-5)
+
+
+def test_embedding_spread_is_zero_for_an_encoder_blind_to_its_frames():
+    torch.manual_seed(0)
+    encoder, decoder, embedding = vision_networks(16, 4, 8 + 3)
+    model = RSSM(3, 8, 3, 8, 8, encoder=encoder, decoder=decoder, embedding_size=embedding).eval()
+    observations = torch.randint(0, 32, (2, 4, 16, 16, 3), dtype=torch.uint8) * 8
+    seeing = latent_diagnostics(model, observations, torch.zeros(2, 4, dtype=torch.long))["embedding_spread"]
+    with torch.no_grad():
+        model.encoder.net[0].weight.zero_()  # the first layer drops the frame: every frame embeds alike
+    blind = latent_diagnostics(model, observations, torch.zeros(2, 4, dtype=torch.long))["embedding_spread"]
+    assert seeing > 1e-3 and blind == pytest.approx(0.0, abs=1e-6)
 
 
 def test_summary_says_whether_every_seed_beats_both_baselines():

@@ -38,7 +38,21 @@ VALUE_VARIANTS = {
     # steps costs 10-20% of the value at 0.99, against a 150-step window's few hundredths at 0.97
     "td": dict(value=dict(target="td", reward_steps=30, discount=0.99)),
     "horizon-12": dict(planner=dict(horizon=12)),  # the thesis's horizon, the default's value at its end
+    # the default's value and planner on the model that sees the cars (``planet-freeway``'s
+    # ``freeway-adam``: Adam's epsilon 1e-8); its baselines are played again on that model
+    "freeway-adam": dict(model="freeway-adam"),
 }
+
+
+def model_variant(variant: str | None = None) -> str:
+    """The ``planet-freeway`` variant whose model a value ``variant`` is fitted on."""
+    return VALUE_VARIANTS.get(variant, {}).get("model", VARIANT)
+
+
+def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
+    """The frozen run of ``planet-freeway``'s variant ``model``, trained first if need be."""
+    planet_experiment("planet-freeway", profile, seed, model, progress)
+    return data_dir(profile, "planet-freeway", f"{model}-seed{seed}")
 
 
 def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -> dict:
@@ -76,7 +90,8 @@ def value_folders(profile: str, seed: int, variant: str | None = None) -> tuple[
 @releasing_holds
 def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bool = True,
                          variant: str | None = None) -> dict:
-    """PlaNet's Freeway agent (``planet-freeway``, ``freeway-tuned``, trained first if need be)
+    """PlaNet's Freeway agent (``planet-freeway``, ``freeway-tuned`` or the variant's
+    :func:`model_variant`, trained first if need be)
     frozen; a value fitted on its episodes, then rounds of its own (:data:`FREEWAY_VALUE`); the
     value alone, CEM with the value and the thesis's CEM on :data:`EPISODES` evaluation episodes
     beside random play and UP at every step. A ``variant`` of :data:`VALUE_VARIANTS` changes the
@@ -91,25 +106,24 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     changes = VALUE_VARIANTS.get(variant, {})
     profile = profile_name(profile)
     started = time.time()
-    planet_experiment("planet-freeway", profile, seed, VARIANT, progress)
-    planet_run = data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}")
-    default, _ = value_folders(profile, seed)
+    model = frozen_model(profile, seed, model_variant(variant), progress)
     work, out = value_folders(profile, seed, variant)
     work = hold(work)
-    if variant is not None:
+    if variant is not None and "model" not in changes:
+        default, _ = value_folders(profile, seed)
         start_from(work, default, ("baseline-bouts.json", "baselines.json"))  # the same episodes, played once
         if "value" not in changes:
             start_from(work, default)  # the default's value, its rounds and bouts
-    start_from(work, planet_run, (STORE,))  # the agent's own episodes are the value's first data
-    with EpisodeStore(planet_run / STORE) as store:  # a finished run's store: it holds no more
+    start_from(work, model, (STORE,))  # the agent's own episodes are the value's first data
+    with EpisodeStore(model / STORE) as store:  # a finished run's store: it holds no more
         first = len(store)
     config = for_profile(LatentValueConfig, profile, test_bouts=EPISODES[profile], random_bouts=first,
                          **{**FREEWAY_VALUE, **changes.get("value", {})})
     bouts = [evaluation_seeds(seed, k) for k in range(EPISODES[profile])]
-    baselines = baseline_scores(planet_run, bouts, work, progress)
+    baselines = baseline_scores(model, bouts, work, progress)
     planner = for_profile(ValuePlannerConfig, profile, discount=config.discount, **changes.get("planner", {}))
     references = {"human": PLANET_REFERENCE["planet-freeway"]["human"]}
-    return fit_and_compare("planet-freeway-value", GAME, planet_run, work, out, config, planner, baselines, bouts,
+    return fit_and_compare("planet-freeway-value", GAME, model, work, out, config, planner, baselines, bouts,
                            profile=profile, seed=seed, progress=progress, references=references, variant=variant,
                            started=started)
 
@@ -134,7 +148,7 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
                 b.get("returns")) for name, b in first["baselines"].items()]
     for variant, m in by_variant.items():
         label = "default" if variant is None else variant
-        if variant is None or "value" in VALUE_VARIANTS[variant]:
+        if variant is None or {"value", "model"} & set(VALUE_VARIANTS[variant]):
             rows.append(row(f"value alone ({label})", m["value"], m.get("value_first", {}).get("mean", float("nan")),
                             m["returns"]))
         planner = m["value_planner"]
@@ -143,7 +157,8 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
     return rows
 
 
-def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = True,
+                    model: str = VARIANT) -> dict:
     """Can the frozen Freeway model imagine the cars a planner must dodge? Its open-loop error on
     the moving pixels of held-out random episodes (:func:`~wmthesis.planet.study.score_run`, as in
     notebook 05's model study: the profile's context frames filtered, then its horizon predicted
@@ -151,7 +166,8 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     step to set against the free nats (below them the prior learns nothing from that step), and
     the error of the context frames' reconstructions (``filtered``: does the model see the cars in
     the frames it is given?).
-    Trains ``planet-freeway`` first if need be; cached for the model's updates. Returns
+    ``model``: a ``planet-freeway`` variant (trained first if need be). Cached in the results
+    folder of the value fitted on that model, for the model's updates. Returns
     ``errors`` (name -> (horizon,) errors), ``filtered`` (``model`` and ``mean frame`` -> (context,)
     errors), ``diagnostics``, ``kl_scale``, ``free_nats``,
     ``updates``, ``below_mean_frame`` (the horizons where the model beats the mean frame) and
@@ -162,9 +178,8 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     from wmthesis.planet.train import STORE, load_planet
 
     profile = profile_name(profile)
-    planet_experiment("planet-freeway", profile, seed, VARIANT, progress)
-    planet_run = data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}")
-    out = data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}")
+    planet_run = frozen_model(profile, seed, model, progress)
+    _, out = value_folders(profile, seed, None if model == VARIANT else model)
     sizes, (_, config, meta) = STUDY[profile], load_planet(planet_run)
     key = {"updates": meta["updates"], "sizes": sizes}
     cached = _read_json(out / "open_loop_check.json")
@@ -180,11 +195,11 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
         with atomic_path(out / "open_loop_check.json") as tmp:
             tmp.write_text(json.dumps(cached, indent=1))
     score = cached["score"]
-    figure = save_figure(study_error_figure({VARIANT: [score]}, title="Freeway: open-loop error on the moving pixels "
-                                                                      "(held-out random episodes)"),
+    figure = save_figure(study_error_figure({model: [score]}, title="Freeway: open-loop error on the moving pixels "
+                                                                   "(held-out random episodes)"),
                          out / "open_loop_check.png")
-    model, mean = score["errors"]["model"], score["errors"]["mean frame"]
-    return {**score, "below_mean_frame": [h + 1 for h, (a, b) in enumerate(zip(model, mean)) if a < b],
+    errors, mean = score["errors"]["model"], score["errors"]["mean frame"]
+    return {**score, "below_mean_frame": [h + 1 for h, (a, b) in enumerate(zip(errors, mean)) if a < b],
             "files": [str(figure)]}
 
 
@@ -196,8 +211,8 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
     profile = profile_name(profile)
     metrics = planet_freeway_value(profile, seed, progress, variant)
     work, out = value_folders(profile, seed, variant)
-    return compare_plans(GAME, data_dir(profile, "planet-freeway", f"{VARIANT}-seed{seed}"), work, out, metrics,
+    return compare_plans(GAME, frozen_model(profile, seed, model_variant(variant), progress), work, out, metrics,
                          PLAN_STEPS[profile], seed)
 
 
-__all__ = ["planet_freeway_value", "value_folders", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+__all__ = ["planet_freeway_value", "value_folders", "model_variant", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]

@@ -118,13 +118,17 @@ def latent_diagnostics(model: RSSM, observations: torch.Tensor, actions: torch.T
                        bits: int = 5, seed: int = 0) -> dict[str, float]:
     """Why a KL scale does or does not matter (thesis 5.6.3-5.6.4), on filtered chunks
     (B, T, H, W, 3) uint8 and actions (B, T): the mean ``kl`` KL[q || p] per step (to set
-    against the free nats), and the mean ``posterior_entropy`` and ``prior_entropy`` of the
-    stochastic state (nats, summed over its dimensions)."""
+    against the free nats), the mean ``posterior_entropy`` and ``prior_entropy`` of the
+    stochastic state (nats, summed over its dimensions), and the ``embedding_spread``: the
+    encoder's output, its standard deviation over the B x T frames averaged over its features
+    (near 0, the encoder answers every frame alike and the posterior cannot see them)."""
     dev = next(model.parameters()).device
     generator = torch.Generator(dev).manual_seed(seed)
     frames = to_float(observations.to(dev), bits) + 0.5 / 2 ** bits
-    trajectory = model.observe(model.encode(frames), one_hot_previous(actions.to(dev), model.n_actions), generator)
+    embedded = model.encode(frames)                                          # (B, T, E)
+    trajectory = model.observe(embedded, one_hot_previous(actions.to(dev), model.n_actions), generator)
     entropy = lambda g: (0.5 * math.log(2 * math.pi * math.e) + g.std.log()).sum(-1).mean()  # noqa: E731
     return {"kl": float(kl_divergence(trajectory.posterior, trajectory.prior).mean()),
             "posterior_entropy": float(entropy(trajectory.posterior)),
-            "prior_entropy": float(entropy(trajectory.prior))}
+            "prior_entropy": float(entropy(trajectory.prior)),
+            "embedding_spread": float(embedded.flatten(0, 1).std(0).mean())}
