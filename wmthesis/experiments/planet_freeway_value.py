@@ -157,6 +157,9 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
     return rows
 
 
+CHECK_VERSION = 2  # open_loop_check's cache: 2 added the diagnostics' embedding_spread
+
+
 def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = True,
                     model: str = VARIANT) -> dict:
     """Can the frozen Freeway model imagine the cars a planner must dodge? Its open-loop error on
@@ -181,7 +184,7 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     planet_run = frozen_model(profile, seed, model, progress)
     _, out = value_folders(profile, seed, None if model == VARIANT else model)
     sizes, (_, config, meta) = STUDY[profile], load_planet(planet_run)
-    key = {"updates": meta["updates"], "sizes": sizes}
+    key = {"updates": meta["updates"], "sizes": sizes, "version": CHECK_VERSION}
     cached = _read_json(out / "open_loop_check.json")
     if cached is None or cached.get("key") != key:
         held = held_out_store(data_dir(profile, "planet-freeway-value") / f"held-out-seed{seed}.h5", GAME, config,
