@@ -150,8 +150,10 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     work = tmp_path / "smoke" / "planet-freeway-value" / "freeway-adam-seed0"
     assert json.loads((work / "baselines.json").read_text())["key"]["planet_run"] == str(planet_run)
     assert not (tmp_path / "smoke" / "planet-freeway-value" / "seed0").exists()  # nothing copied from the default
-    with EpisodeStore(planet_run / "episodes.h5") as planet, EpisodeStore(work / "episodes.h5") as value:
-        assert np.array_equal(planet.episode(0)["actions"], value.episode(0)["actions"])  # that model's episodes
+    tuned = tmp_path / "smoke" / "planet-freeway" / "freeway-tuned-seed0"  # the value's first data: its episodes
+    with EpisodeStore(tuned / "episodes.h5") as first, EpisodeStore(work / "episodes.h5") as value:
+        assert adam["config"]["random_bouts"] == len(first)
+        assert all(np.array_equal(first.episode(i)["actions"], value.episode(i)["actions"]) for i in range(len(first)))
     assert adam["variant"] == "freeway-adam"
     check = open_loop_check("smoke", 0, progress=False, model="freeway-adam")
     saved = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "freeway-adam" / "open_loop_check.json"

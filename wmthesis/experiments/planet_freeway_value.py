@@ -39,13 +39,16 @@ VALUE_VARIANTS = {
     "td": dict(value=dict(target="td", reward_steps=30, discount=0.99)),
     "horizon-12": dict(planner=dict(horizon=12)),  # the thesis's horizon, the default's value at its end
     # the default's value and planner on the model that sees the cars (``planet-freeway``'s
-    # ``freeway-adam``: Adam's epsilon 1e-8); its baselines are played again on that model
-    "freeway-adam": dict(model="freeway-adam"),
+    # ``freeway-adam``: Adam's epsilon 1e-8); its baselines are played again on that model. That
+    # agent's own episodes hold almost no crossing (its reward head learns that none comes, and
+    # its planner wanders), so the value's first data are the freeway-tuned agent's episodes.
+    "freeway-adam": dict(model="freeway-adam", data=VARIANT),
 }
 
 
 def model_variant(variant: str | None = None) -> str:
-    """The ``planet-freeway`` variant whose model a value ``variant`` is fitted on."""
+    """The ``planet-freeway`` variant whose model a value ``variant`` is fitted on (its first
+    data: that agent's episodes, or those of the variant's ``data``)."""
     return VALUE_VARIANTS.get(variant, {}).get("model", VARIANT)
 
 
@@ -114,8 +117,9 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
         start_from(work, default, ("baseline-bouts.json", "baselines.json"))  # the same episodes, played once
         if "value" not in changes:
             start_from(work, default)  # the default's value, its rounds and bouts
-    start_from(work, model, (STORE,))  # the agent's own episodes are the value's first data
-    with EpisodeStore(model / STORE) as store:  # a finished run's store: it holds no more
+    data = frozen_model(profile, seed, changes["data"], progress) if "data" in changes else model
+    start_from(work, data, (STORE,))  # a PlaNet agent's episodes are the value's first data
+    with EpisodeStore(data / STORE) as store:  # a finished run's store: it holds no more
         first = len(store)
     config = for_profile(LatentValueConfig, profile, test_bouts=EPISODES[profile], random_bouts=first,
                          **{**FREEWAY_VALUE, **changes.get("value", {})})
