@@ -62,7 +62,7 @@ VARIANTS: dict[str, dict] = {
     "long-horizon": dict(kl_scale=8e-3, free_nats=3.0, horizon=25),  # 5.6.6: no horizon in the thesis; ours
     # Beyond the thesis: freeway-tuned with Adam's epsilon at 1e-8. Freeway's frames are a grey
     # road with a few car pixels (frame std 0.015 against Boxing's 0.048), so the encoder's
-    # gradients start near 1e-6 to 1e-10, far under PlaNet's epsilon 1e-4: Adam's steps shrink
+    # gradients sit at 1e-6 down to 1e-11, far under PlaNet's epsilon 1e-4: Adam's steps shrink
     # by that ratio, the encoder never leaves its start, and the model sees no car (its
     # embedding's spread over frames stays 2e-4 after 5,000 updates; issue 31's notes).
     "freeway-adam": dict(kl_scale=8e-3, free_nats=3.0, adam_eps=1e-8),
