@@ -109,7 +109,7 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     changes = VALUE_VARIANTS.get(variant, {})
     profile = profile_name(profile)
     started = time.time()
-    model = frozen_model(profile, seed, model_variant(variant), progress)
+    planet_run = frozen_model(profile, seed, model_variant(variant), progress)
     work, out = value_folders(profile, seed, variant)
     work = hold(work)
     if variant is not None and "model" not in changes:
@@ -117,17 +117,17 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
         start_from(work, default, ("baseline-bouts.json", "baselines.json"))  # the same episodes, played once
         if "value" not in changes:
             start_from(work, default)  # the default's value, its rounds and bouts
-    data = frozen_model(profile, seed, changes["data"], progress) if "data" in changes else model
+    data = frozen_model(profile, seed, changes["data"], progress) if "data" in changes else planet_run
     start_from(work, data, (STORE,))  # a PlaNet agent's episodes are the value's first data
     with EpisodeStore(data / STORE) as store:  # a finished run's store: it holds no more
         first = len(store)
     config = for_profile(LatentValueConfig, profile, test_bouts=EPISODES[profile], random_bouts=first,
                          **{**FREEWAY_VALUE, **changes.get("value", {})})
     bouts = [evaluation_seeds(seed, k) for k in range(EPISODES[profile])]
-    baselines = baseline_scores(model, bouts, work, progress)
+    baselines = baseline_scores(planet_run, bouts, work, progress)
     planner = for_profile(ValuePlannerConfig, profile, discount=config.discount, **changes.get("planner", {}))
     references = {"human": PLANET_REFERENCE["planet-freeway"]["human"]}
-    return fit_and_compare("planet-freeway-value", GAME, model, work, out, config, planner, baselines, bouts,
+    return fit_and_compare("planet-freeway-value", GAME, planet_run, work, out, config, planner, baselines, bouts,
                            profile=profile, seed=seed, progress=progress, references=references, variant=variant,
                            started=started)
 

@@ -50,6 +50,9 @@ CHECKPOINT, CURVE, STORE = "checkpoint.pt", "curve.json", "episodes.h5"
 # Config fields that may change when a run resumes (a larger budget); any other must match.
 RESUMABLE_CHANGES = ("env_steps",)
 
+# Freeway's KL setting (5.6.5: the thesis gives no values; ours), shared by its variants.
+_FREEWAY = dict(kl_scale=8e-3, free_nats=3.0)
+
 # The thesis's experiments (section: config changes on top of the defaults).
 VARIANTS: dict[str, dict] = {
     "unchanged": {},                                     # 5.5.1, 5.6.1: PlaNet as published
@@ -58,14 +61,14 @@ VARIANTS: dict[str, dict] = {
     "kl-scale": dict(kl_scale=0.03),                     # 5.6.3 as the KL scale itself
     "free-nats": dict(kl_scale=0.03, free_nats=12.0,     # 5.6.4: Boxing's best, no overshooting
                       overshooting_distance=0),
-    "freeway-tuned": dict(kl_scale=8e-3, free_nats=3.0),  # 5.6.5: no values in the thesis; ours
-    "long-horizon": dict(kl_scale=8e-3, free_nats=3.0, horizon=25),  # 5.6.6: no horizon in the thesis; ours
+    "freeway-tuned": dict(_FREEWAY),                     # 5.6.5
+    "long-horizon": dict(_FREEWAY, horizon=25),          # 5.6.6: no horizon in the thesis; ours
     # Beyond the thesis: freeway-tuned with Adam's epsilon at 1e-8. Freeway's frames are a grey
     # road with a few car pixels (frame std 0.015 against Boxing's 0.048), so the encoder's
     # gradients sit at 1e-6 down to 1e-11, far under PlaNet's epsilon 1e-4: Adam's steps shrink
     # by that ratio, the encoder never leaves its start, and the model sees no car (its
     # embedding's spread over frames stays 2e-4 after 5,000 updates; issue 31's notes).
-    "freeway-adam": dict(kl_scale=8e-3, free_nats=3.0, adam_eps=1e-8),
+    "freeway-adam": dict(_FREEWAY, adam_eps=1e-8),
 }
 
 
