@@ -75,7 +75,7 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     from wmthesis.experiments.summary import run_scores
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    with pytest.raises(ValueError, match="valid: td, horizon-12, freeway-adam"):
+    with pytest.raises(ValueError, match="valid: td, horizon-12, freeway-adam, adam-td"):
         reproduce("planet-freeway-value", "smoke", 0, variant="nope", progress=False)
     default = reproduce("planet-freeway-value", "smoke", 0, progress=False)
     longer = reproduce("planet-freeway-value", "smoke", 0, variant="horizon-12", progress=False)
@@ -159,3 +159,14 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     saved = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "freeway-adam" / "open_loop_check.json"
     assert json.loads(saved.read_text())["score"]["errors"] == check["errors"]
     assert check["diagnostics"]["embedding_spread"] >= 0
+    # a value variant on that model: its baselines copied from freeway-adam's run, its own td value
+    from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS, base_variant
+
+    assert base_variant("adam-td") == base_variant("freeway-adam") == "freeway-adam" and base_variant("td") is None
+    td = reproduce("planet-freeway-value", "smoke", 0, variant="adam-td", progress=False)
+    other = tmp_path / "smoke" / "planet-freeway-value" / "adam-td-seed0"
+    assert (other / "baseline-bouts.json").read_text() == (work / "baseline-bouts.json").read_text()
+    assert td["baselines"] == adam["baselines"]
+    assert {k: td["config"][k] for k in VALUE_VARIANTS["adam-td"]["value"]} == VALUE_VARIANTS["adam-td"]["value"]
+    assert td["config"]["target"] != adam["config"]["target"]
+    assert not (tmp_path / "smoke" / "planet-freeway-value" / "seed0").exists()  # never the blind model's run

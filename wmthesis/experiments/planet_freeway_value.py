@@ -43,6 +43,9 @@ VALUE_VARIANTS = {
     # agent's own episodes hold almost no crossing (its reward head learns that none comes, and
     # its planner wanders), so the value's first data are the freeway-tuned agent's episodes.
     "freeway-adam": dict(model="freeway-adam", data=VARIANT),
+    # the td value on the model that sees the cars: a collision's delay shows in the value only if
+    # the model imagines the cars, and a car-blind model's td value learned UP at every step (21.0)
+    "adam-td": dict(model="freeway-adam", data=VARIANT, value=dict(target="td", reward_steps=30, discount=0.99)),
 }
 
 
@@ -50,6 +53,13 @@ def model_variant(variant: str | None = None) -> str:
     """The ``planet-freeway`` variant whose model a value ``variant`` is fitted on (its first
     data: that agent's episodes, or those of the variant's ``data``)."""
     return VALUE_VARIANTS.get(variant, {}).get("model", VARIANT)
+
+
+def base_variant(variant: str | None = None) -> str | None:
+    """The value run whose model a ``variant`` shares, with the default value: None (the
+    default) on ``freeway-tuned``'s model, else the variant named after its model."""
+    model = model_variant(variant)
+    return None if model == VARIANT else model
 
 
 def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
@@ -98,8 +108,9 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     frozen; a value fitted on its episodes, then rounds of its own (:data:`FREEWAY_VALUE`); the
     value alone, CEM with the value and the thesis's CEM on :data:`EPISODES` evaluation episodes
     beside random play and UP at every step. A ``variant`` of :data:`VALUE_VARIANTS` changes the
-    value or the planner in a folder of its own; one that keeps the value starts from a copy of
-    the default's. Returns the metrics of :func:`~wmthesis.experiments.planet_value.fit_and_compare`."""
+    value or the planner in a folder of its own, beside the run on the same model
+    (:func:`base_variant`): its baselines are copied from that run, not played again, and one that keeps the
+    value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.experiments.planet_value.fit_and_compare`."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
     from wmthesis.data import EpisodeStore
     from wmthesis.planet.value import STORE, evaluation_seeds
@@ -112,11 +123,12 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     planet_run = frozen_model(profile, seed, model_variant(variant), progress)
     work, out = value_folders(profile, seed, variant)
     work = hold(work)
-    if variant is not None and "model" not in changes:
-        default, _ = value_folders(profile, seed)
+    base = base_variant(variant)
+    if variant != base:  # the base run's model: its baselines, and its value unless this one changes it
+        default, _ = value_folders(profile, seed, base)
         start_from(work, default, ("baseline-bouts.json", "baselines.json"))  # the same episodes, played once
         if "value" not in changes:
-            start_from(work, default)  # the default's value, its rounds and bouts
+            start_from(work, default)  # the base's value, its rounds and bouts
     data = frozen_model(profile, seed, changes["data"], progress) if "data" in changes else planet_run
     start_from(work, data, (STORE,))  # a PlaNet agent's episodes are the value's first data
     with EpisodeStore(data / STORE) as store:  # a finished run's store: it holds no more
@@ -222,4 +234,4 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
                          PLAN_STEPS[profile], seed)
 
 
-__all__ = ["planet_freeway_value", "value_folders", "model_variant", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+__all__ = ["planet_freeway_value", "value_folders", "model_variant", "base_variant", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
