@@ -87,7 +87,9 @@ class PlaNetConfig:
     PlaNet paper used 100), epsilon-greedy 0.3, action repeat 4. CEM: H 12, J 1000, K 100, I 10.
     Frames: the whole screen resized to 64x64 (4.4.4), the encoder and decoder of depth 32
     (:mod:`~wmthesis.planet.networks`); ``crop`` keeps only the play area (the World Models crop,
-    :data:`~wmthesis.envs.preprocessing.CROPS`).
+    :data:`~wmthesis.envs.preprocessing.CROPS`). Beyond the thesis, ``explore_scale`` > 0 adds
+    Plan2Explore's ensemble disagreement to CEM's returns while collecting
+    (:mod:`~wmthesis.planet.explore`).
     """
 
     frame_size: int = 64
@@ -126,6 +128,8 @@ class PlaNetConfig:
     iterations: int = 10
     test_interval: int = 10              # planner episodes between greedy tests (not in the thesis)
     test_episodes: int = 5               # not in the thesis
+    explore_scale: float = 0.0           # beyond the thesis: the disagreement bonus while collecting (0: none)
+    explore_heads: int = 5               # its ensemble of one-step models (wmthesis.planet.explore)
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ PLANET_GAMES = {
     "planet-sokoban": ("sokoban-small", ("unchanged",), "unchanged"),                       # 5.5.1
     "planet-boxing": ("boxing", ("unchanged", "action-repeat", "decoder-variance", "free-nats"),
                       "unchanged"),                                                          # 5.6.1-5.6.4
-    "planet-freeway": ("freeway", ("freeway-tuned", "long-horizon", "freeway-adam"),
+    "planet-freeway": ("freeway", ("freeway-tuned", "long-horizon", "freeway-adam", "freeway-explore"),
                        "freeway-tuned"),                                                     # 5.6.5-5.6.6
 }
 

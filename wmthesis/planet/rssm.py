@@ -130,6 +130,7 @@ class RSSM(nn.Module):
                  embedding_size: int = EMBEDDING_SIZE):
         super().__init__()
         self.n_actions, self.belief_size, self.state_size = n_actions, belief_size, state_size
+        self.embedding_size = embedding_size
         self.min_std = min_std
         self.encoder = encoder if encoder is not None else Encoder()
         self.decoder = decoder if decoder is not None else Decoder(belief_size + state_size)

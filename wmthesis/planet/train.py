@@ -40,6 +40,7 @@ from wmthesis.data import EpisodeBuffer, EpisodeStore, episode_seeds, play_rando
 from wmthesis.envs import ATARI_GAMES, make_env
 from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize, to_float
 from wmthesis.planet.cem import cem_belief
+from wmthesis.planet.explore import build_disagreement, disagreement_loss, explored_returns, one_step_batch
 from wmthesis.planet.networks import vision_networks
 from wmthesis.planet.rssm import RSSM, planet_loss
 from wmthesis.training import gradient_step, with_added_defaults
@@ -69,6 +70,11 @@ VARIANTS: dict[str, dict] = {
     # by that ratio, the encoder never leaves its start, and the model sees no car (its
     # embedding's spread over frames stays 2e-4 after 5,000 updates; issue 31's notes).
     "freeway-adam": dict(_FREEWAY, adam_eps=1e-8),
+    # freeway-adam collecting with Plan2Explore's bonus (:mod:`~wmthesis.planet.explore`): its
+    # random seed episodes never cross, so its reward head learns that no reward comes; the bonus
+    # (about 1e-3 a step on data it has seen) leads the collecting planner where the ensemble
+    # parts, up the road. Scale 10: 12 steps of it weigh about 0.1, a tenth of a crossing.
+    "freeway-explore": dict(_FREEWAY, adam_eps=1e-8, explore_scale=10.0),
 }
 
 
@@ -176,20 +182,27 @@ class PlanetMind(BeliefFilter):
     """
 
     def __init__(self, model: RSSM, *, horizon: int, candidates: int, top_k: int,
-                 iterations: int, bits: int = 5, generator: torch.Generator | None = None):
+                 iterations: int, bits: int = 5, generator: torch.Generator | None = None,
+                 explorer=None, explore_scale: float = 0.0):
         self.sizes = dict(horizon=horizon, candidates=candidates, top_k=top_k, iterations=iterations)
+        self.explorer, self.explore_scale = explorer, explore_scale
         super().__init__(model, bits, generator)
 
     @classmethod
-    def from_config(cls, model: RSSM, config: PlaNetConfig, seed: int = 0) -> "PlanetMind":
+    def from_config(cls, model: RSSM, config: PlaNetConfig, seed: int = 0, explorer=None) -> "PlanetMind":
+        """The config's planner; with an ``explorer`` (:class:`~wmthesis.planet.explore.Disagreement`),
+        the collecting planner whose returns add ``config.explore_scale`` x its disagreement."""
         generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
         return cls(model, horizon=config.horizon, candidates=config.candidates, top_k=config.top_k,
-                   iterations=config.iterations, bits=config.bits, generator=generator)
+                   iterations=config.iterations, bits=config.bits, generator=generator, explorer=explorer,
+                   explore_scale=config.explore_scale if explorer is not None else 0.0)
 
     def returns(self, actions: torch.Tensor) -> torch.Tensor:
         """CEM's objective: one-hot candidates (J, H, A) -> their imagined returns (J,) from the
-        current belief (the thesis's: the sum of predicted rewards)."""
-        return self.model.imagined_returns(self.belief, self.state, actions, self.generator)
+        current belief (the thesis's: the sum of predicted rewards; with an explorer, plus its
+        bonus: :func:`~wmthesis.planet.explore.explored_returns`)."""
+        return explored_returns(self.model, self.explorer, self.explore_scale, self.belief, self.state, actions,
+                                self.generator)
 
     def first_mean(self) -> torch.Tensor | None:
         """CEM's first mean (H, A) from the current belief; None: zeros, the thesis's."""
@@ -221,6 +234,7 @@ class _RunState:
 
     def __init__(self, seed: int, dev: torch.device):
         self.updates = 0
+        self.explorer = self.explorer_optimizer = None  # the disagreement ensemble, when exploring
         self.np_rng = np.random.default_rng(seed)
         self.torch_rng = torch.Generator(dev).manual_seed(seed)
         self.curve: dict[str, list] = {"train": [], "test": []}
@@ -254,6 +268,9 @@ def train_planet(env_name: str, config: PlaNetConfig, run_dir, *, seed: int,
     model = build_model(config, env.action_space.n)
     optimizer = make_optimizer(model, config)
     run = _RunState(seed, dev)
+    if config.explore_scale > 0:
+        run.explorer = build_disagreement(model, config.hidden_size, config.explore_heads)
+        run.explorer_optimizer = torch.optim.Adam(run.explorer.parameters(), lr=config.lr, eps=config.adam_eps)
     known = _load_checkpoint(run_dir / CHECKPOINT, model, optimizer, run, env_name, seed, config)
     store_options = dict(action_repeat=config.action_repeat, max_steps=config.max_episode_steps,
                          bits=config.bits, crop=config.crop)
@@ -293,7 +310,7 @@ def _train_loop(store, env, model, optimizer, run, config, env_name, seed, run_d
         while store.num_steps < config.env_steps:
             start = time.perf_counter()
             losses = train_updates(model, optimizer, store, config, run, run_dir)
-            entry = _collect_episode(store, env, model, config, seed)
+            entry = _collect_episode(store, env, model, config, seed, run.explorer)
             entry.update(updates=run.updates, **losses)
             run.curve["train"].append(entry)
             collected = len(store) - config.seed_episodes
@@ -324,9 +341,22 @@ def train_updates(model: RSSM, optimizer, store: EpisodeStore, config: PlaNetCon
         gradient_step("PlaNet RSSM", run.updates + 1, terms, optimizer, model.parameters(), clip_norm=config.grad_clip,
                       kept=f"the last good checkpoint (update {_checkpoint_updates(run_dir)}) is kept{where}")
         run.updates += 1
+        if run.explorer is not None:
+            terms["disagreement"] = _explorer_update(model, run, batch, config, run_dir)
         for key, value in terms.items():
             sums[key] = sums.get(key, 0.0) + float(value.detach())
     return {key: value / config.update_steps for key, value in sums.items()}
+
+
+def _explorer_update(model: RSSM, run: _RunState, batch: dict, config: PlaNetConfig, run_dir) -> torch.Tensor:
+    """One update of the disagreement ensemble on the RSSM's detached features of the same
+    chunks (:mod:`~wmthesis.planet.explore`); its loss."""
+    dev = next(model.parameters()).device
+    data = one_step_batch(model, batch["observations"].to(dev), batch["actions"].to(dev), config.bits, run.updates)
+    terms = {"loss": disagreement_loss(run.explorer, *data)}
+    gradient_step("disagreement ensemble", run.updates, terms, run.explorer_optimizer, run.explorer.parameters(),
+                  kept=f"the last good checkpoint is kept in {run_dir}")
+    return terms["loss"]
 
 
 def batch_loss(model: RSSM, batch: dict[str, torch.Tensor], config: PlaNetConfig,
@@ -365,11 +395,13 @@ def _seed_episodes(store: EpisodeStore, env, config: PlaNetConfig, seed: int) ->
         store.append_episode(**play_random_episode(env, seed, index))
 
 
-def _collect_episode(store: EpisodeStore, env, model: RSSM, config: PlaNetConfig, seed: int) -> dict:
-    """One epsilon-greedy planner episode, seeded from (seed, its index), into the store."""
+def _collect_episode(store: EpisodeStore, env, model: RSSM, config: PlaNetConfig, seed: int,
+                     explorer=None) -> dict:
+    """One epsilon-greedy planner episode, seeded from (seed, its index), into the store (CEM
+    with the ``explorer``'s bonus where given)."""
     index = len(store)
     env_seed, mind_seed = episode_seeds(seed, index)
-    mind = PlanetMind.from_config(model, config, mind_seed)
+    mind = PlanetMind.from_config(model, config, mind_seed, explorer)
     buffer = EpisodeBuffer()
     model.eval()
     history = loop(env, mind, policy="epsilon-greedy",
@@ -420,6 +452,8 @@ def _save_checkpoint(run_dir: Path, model, optimizer, run: _RunState, env_name, 
              "np_rng": run.np_rng.bit_generator.state, "torch_rng": run.torch_rng.get_state(),
              "curve": run.curve, "seconds": run.seconds, "episodes": episodes, "env": env_name,
              "seed": seed, "config": dataclasses.asdict(config), "n_actions": model.n_actions}
+    if run.explorer is not None:
+        state.update(explorer=run.explorer.state_dict(), explorer_optimizer=run.explorer_optimizer.state_dict())
     with atomic_path(run_dir / CHECKPOINT) as tmp:
         torch.save(state, tmp)
     with atomic_path(run_dir / CURVE) as tmp:
@@ -446,6 +480,9 @@ def _load_checkpoint(path: Path, model, optimizer, run: _RunState, env_name, see
     run.updates, run.curve, run.seconds = state["updates"], state["curve"], state["seconds"]
     run.np_rng.bit_generator.state = state["np_rng"]
     run.torch_rng.set_state(state["torch_rng"].cpu())
+    if run.explorer is not None and "explorer" in state:
+        run.explorer.load_state_dict(state["explorer"])
+        run.explorer_optimizer.load_state_dict(state["explorer_optimizer"])
     return state["episodes"]
 
 

@@ -1,0 +1,99 @@
+"""Exploration by ensemble disagreement during collection (beyond the thesis; Plan2Explore,
+Sekar et al. 2020), for games whose random play never meets a reward.
+
+Freeway pays only for a crossing and random play never crosses, so a model that sees the cars
+(``freeway-adam``) learns from its seed episodes that no reward ever comes, and CEM over its
+imagined rewards wanders (issue 31). Here K one-step models each predict the next frame's
+embedding from the RSSM's features and the action,
+
+    e_hat_k(h_t, s_t, a_t) ~ e_{t+1},   k = 1..K,
+
+trained beside the RSSM on the same chunks (on its detached features: they do not shape the
+model). Where the data have been, the K predictions agree; where they have not, they part.
+Their disagreement, the variance over k averaged over the embedding's features, is a bonus for
+the imagined step, and while it collects the planner ranks its candidates by
+
+    sum_t [ r_hat(h_{t+1}, s_{t+1}) + scale * disagreement(h_t, s_t, a_t) ].
+
+Greedy test and evaluation episodes plan on the imagined rewards alone (the thesis's CEM).
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from wmthesis.envs.preprocessing import to_float
+from wmthesis.planet.rssm import RSSM, one_hot_previous
+
+
+class Disagreement(nn.Module):
+    """K two-layer one-step models of width ``hidden``: features (N, H + S) and one-hot actions
+    (N, A) -> predicted next embeddings (K, N, E); :meth:`forward` gives their disagreement (N,)."""
+
+    def __init__(self, features: int, n_actions: int, embedding: int, hidden: int = 200, heads: int = 5):
+        super().__init__()
+        if heads < 2:
+            raise ValueError(f"disagreement needs at least 2 heads, got {heads}")
+        self.heads = nn.ModuleList(nn.Sequential(nn.Linear(features + n_actions, hidden), nn.ReLU(),
+                                                 nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, embedding))
+                                   for _ in range(heads))
+
+    def predictions(self, features: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        inputs = torch.cat([features, actions], -1)
+        return torch.stack([head(inputs) for head in self.heads])
+
+    def forward(self, features: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """The heads' variance (unbiased) averaged over the embedding's features: (N,)."""
+        return self.predictions(features, actions).var(0).mean(-1)
+
+
+def build_disagreement(model: RSSM, hidden: int, heads: int) -> Disagreement:
+    """An ensemble for ``model``'s features, actions and embedding, on its device."""
+    return Disagreement(model.belief_size + model.state_size, model.n_actions, model.embedding_size, hidden,
+                        heads).to(next(model.parameters()).device)
+
+
+@torch.no_grad()
+def one_step_batch(model: RSSM, observations: torch.Tensor, actions: torch.Tensor, bits: int = 5,
+                   seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The ensemble's data from a batch of chunks, observations (B, T, H, W, 3) uint8 and actions
+    (B, T) long: features ``(h_t, mean s_t)`` (B, T-1, H + S), one-hot actions ``a_t``
+    (B, T-1, A) and the next embeddings ``e_{t+1}`` (B, T-1, E), all detached. The filter's
+    samples come from ``seed`` alone: the RSSM's own random streams are left as they were."""
+    generator = torch.Generator(observations.device).manual_seed(int(seed))
+    embeddings = model.encode(to_float(observations, bits))
+    trajectory = model.observe(embeddings, one_hot_previous(actions, model.n_actions), generator)
+    features = torch.cat([trajectory.beliefs, trajectory.posterior.mean], -1)
+    taken = F.one_hot(actions, model.n_actions).float()
+    return features[:, :-1], taken[:, :-1], embeddings[:, 1:]
+
+
+def disagreement_loss(ensemble: Disagreement, features: torch.Tensor, actions: torch.Tensor,
+                      targets: torch.Tensor) -> torch.Tensor:
+    """Mean squared error of every head on (features (..., F), actions (..., A), targets (..., E)),
+    summed over the heads (each head learns on its own)."""
+    return (ensemble.predictions(features, actions) - targets).pow(2).mean(tuple(range(1, targets.dim() + 1))).sum()
+
+
+def explored_returns(model: RSSM, ensemble: Disagreement | None, scale: float, belief: torch.Tensor,
+                     state: torch.Tensor, actions: torch.Tensor,
+                     generator: torch.Generator | None = None) -> torch.Tensor:
+    """CEM's objective while collecting: ``belief`` (1 or J, H), ``state`` (1 or J, S), one-hot
+    ``actions`` (J, T, A) -> returns (J,), the imagined rewards plus ``scale`` x the disagreement
+    of each imagined step (module docstring). With no ensemble, or ``scale`` 0, the same draws and
+    returns as :meth:`~wmthesis.planet.rssm.RSSM.imagined_returns` (the thesis's)."""
+    if ensemble is None or scale == 0:
+        return model.imagined_returns(belief, state, actions, generator)
+    count = actions.shape[0]
+    belief, state = belief.expand(count, -1), state.expand(count, -1)
+    total = actions.new_zeros(count)
+    for t in range(actions.shape[1]):
+        bonus = ensemble(torch.cat([belief, state], -1), actions[:, t])
+        belief, prior = model.transition(belief, state, actions[:, t])
+        state = prior.sample(generator)
+        total = total + model.reward(belief, state) + scale * bonus
+    return total
+
+
+__all__ = ["Disagreement", "build_disagreement", "one_step_batch", "disagreement_loss", "explored_returns"]
