@@ -16,7 +16,9 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
   candidates end in that value (:class:`~wmthesis.planet.value_planner.ValuePlanetMind`: the
   same J, K and I, the horizon of the profile's ``ValuePlannerConfig``), with its time over the
   plain CEM step (``vs_cem``), its first step seeded by the value as evaluated (one more value
-  call per step); and the same from the thesis's zero mean, without that call.
+  call per step); and the same from the thesis's zero mean, without that call. And the step of
+  the collecting planner with Plan2Explore's bonus (:mod:`~wmthesis.planet.explore`: 5 one-step
+  heads per imagined step; beyond the thesis), over the plain CEM step.
 - The same two at the ``quick`` profile's planner sizes.
 - ``update``: one training step through :func:`~wmthesis.training.gradient_step` (loss, NaN
   guard, backward, clipping, Adam) on 50 chunks of 50 steps of 64x64 frames, with latent
@@ -48,6 +50,7 @@ sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve
 from wmthesis.config import LatentValueConfig, PlaNetConfig, ValuePlannerConfig, for_profile  # noqa: E402
 from wmthesis.planet.profiles import planet_config  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
+from wmthesis.planet.explore import build_disagreement  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
 from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
 from wmthesis.planet.value import LatentValue, ValueMind  # noqa: E402
@@ -93,6 +96,10 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
             rollout(batch)
 
     mind = PlanetMind.from_config(model, cfg, seed)
+    explorer = build_disagreement(model, cfg.hidden_size, cfg.explore_heads)
+    exploring = PlanetMind(model, horizon=cfg.horizon, candidates=cfg.candidates, top_k=cfg.top_k,
+                           iterations=cfg.iterations, bits=cfg.bits, generator=torch.Generator(dev).manual_seed(seed),
+                           explorer=explorer, explore_scale=10.0)
     value_cfg = LatentValueConfig()
     value = LatentValue(cfg.belief_size + cfg.state_size, value_cfg.hidden_size, value_cfg.heads).to(dev)
     value_mind = ValueMind(model, value, cfg.bits, seed)
@@ -109,6 +116,7 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
     with torch.inference_mode():
         seconds = median_seconds({"bare": bare, "cem": lambda: cem_plan(rollout, N_ACTIONS, *sizes, g),
                                   "step": lambda: mind.plan(frame), "value": lambda: value_mind.plan(frame),
+                                  "explore": lambda: exploring.plan(frame),
                                   "value_cem": lambda: value_planner.plan(frame),
                                   "value_cem_zero_mean": lambda: zero_mean.plan(frame)}, repeats)
     bare_s, cem_s, step_s, value_s = seconds["bare"], seconds["cem"], seconds["step"], seconds["value"]
@@ -118,6 +126,8 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
                  latent_steps_per_s=steps / bare_s),
             dict(what=f"cem_plan ({label})", sizes=name, seconds=cem_s, ratio=cem_s / bare_s),
             dict(what=f"agent step: encode + CEM ({label})", sizes=name, seconds=step_s, ratio=step_s / bare_s),
+            dict(what=f"agent step while collecting: CEM + disagreement bonus ({label})", sizes=name,
+                 seconds=seconds["explore"], vs_cem=seconds["explore"] / step_s),
             dict(what=f"agent step: encode + latent value ({label})", sizes=f"{N_ACTIONS} actions", seconds=value_s,
                  speedup_vs_cem=step_s / value_s),
             dict(what=f"agent step: encode + CEM with terminal value, seeded by it ({label})",

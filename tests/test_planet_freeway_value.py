@@ -75,7 +75,7 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     from wmthesis.experiments.summary import run_scores
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    with pytest.raises(ValueError, match="valid: td, horizon-12, freeway-adam, adam-td"):
+    with pytest.raises(ValueError, match="valid: td, horizon-12, freeway-adam, adam-td, explore"):
         reproduce("planet-freeway-value", "smoke", 0, variant="nope", progress=False)
     default = reproduce("planet-freeway-value", "smoke", 0, progress=False)
     longer = reproduce("planet-freeway-value", "smoke", 0, variant="horizon-12", progress=False)

@@ -7,5 +7,7 @@ training loop), ``prediction`` (open-loop rollouts, scored on every pixel or on 
 pixels against two baselines), ``study`` (the model study of 5.6.1-5.6.4), ``figures``,
 ``tuning`` (the random search over KL scale x free nats with optuna), and beyond the thesis
 ``value`` (a short-horizon action value on a trained model's latent: a Boxing agent where CEM's
-imagined returns cannot see which action lands a punch).
+imagined returns cannot see which action lands a punch), ``value_planner`` (CEM with that value
+at the end of its horizon) and ``explore`` (Plan2Explore's ensemble disagreement as a bonus while
+collecting: Freeway, where random play never crosses).
 """
