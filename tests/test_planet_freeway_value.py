@@ -163,6 +163,7 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS, base_variant
 
     assert base_variant("adam-td") == base_variant("freeway-adam") == "freeway-adam" and base_variant("td") is None
+    assert base_variant("explore") == "explore" and model_variant("explore") == "freeway-explore"  # the first on its model
     td = reproduce("planet-freeway-value", "smoke", 0, variant="adam-td", progress=False)
     other = tmp_path / "smoke" / "planet-freeway-value" / "adam-td-seed0"
     assert (other / "baseline-bouts.json").read_text() == (work / "baseline-bouts.json").read_text()

@@ -59,10 +59,10 @@ def model_variant(variant: str | None = None) -> str:
 
 
 def base_variant(variant: str | None = None) -> str | None:
-    """The value run whose model a ``variant`` shares, with the default value: None (the
-    default) on ``freeway-tuned``'s model, else the variant named after its model."""
+    """The value run whose model a ``variant`` shares and whose baselines it copies: None (the
+    default) on ``freeway-tuned``'s model, else the first of :data:`VALUE_VARIANTS` on its model."""
     model = model_variant(variant)
-    return None if model == VARIANT else model
+    return None if model == VARIANT else next(name for name in VALUE_VARIANTS if model_variant(name) == model)
 
 
 def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
