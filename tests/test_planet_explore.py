@@ -135,3 +135,25 @@ def test_training_with_exploration_leaves_the_rssm_updates_alone_and_resumes(tmp
     assert [e["return"] for e in a["curve"]["train"]] == [e["return"] for e in b["curve"]["train"]]
     with pytest.raises(ValueError, match="explore_scale"):
         train_planet("boxing", SMOKE, tmp_path / "straight", seed=3, progress=False)
+
+
+def test_bonus_by_action_tells_apart_actions_the_ensemble_disagrees_on():
+    from wmthesis.planet.explore import bonus_by_action
+
+    model = tiny_rssm(n_actions=3)
+    model.encoder = torch.nn.Sequential(torch.nn.Flatten(), torch.nn.Linear(3 * 8 * 8, 6))
+    model.embedding_size = 6
+    model.posterior_net[0] = torch.nn.Linear(8 + 6, 8)
+    ensemble = Disagreement(11, 3, embedding=6, hidden=4, heads=3)
+    with torch.no_grad():  # heads that agree on everything but the last action's input weights
+        for head in ensemble.heads:
+            head.load_state_dict(ensemble.heads[0].state_dict())
+        for k, head in enumerate(ensemble.heads):
+            head[0].weight[:, -1] += 2.0 * k
+    rng = np.random.default_rng(0)
+    observations = rng.integers(0, 32, (20, 8, 8, 3), dtype=np.uint8) * 8
+    actions = rng.integers(0, 3, 20)
+    with torch.no_grad():
+        sums = bonus_by_action(model, ensemble, observations, actions, horizon=4, every=5)
+    assert sums.shape == (4, 3)
+    assert torch.allclose(sums[:, :2], torch.zeros(4, 2), atol=1e-10) and (sums[:, 2] > 0).all()

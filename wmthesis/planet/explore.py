@@ -96,4 +96,41 @@ def explored_returns(model: RSSM, ensemble: Disagreement | None, scale: float, b
     return total
 
 
-__all__ = ["Disagreement", "build_disagreement", "one_step_batch", "disagreement_loss", "explored_returns"]
+@torch.no_grad()
+def bonus_by_action(model: RSSM, ensemble: Disagreement, observations, actions, *, bits: int = 5,
+                    horizon: int = 12, every: int = 50, seed: int = 0) -> torch.Tensor:
+    """Does the bonus tell the planner where to go? From the belief filtered along a stored
+    episode (observations (T, H, W, 3) uint8, actions (T,)) at every ``every``-th step, each action
+    held for ``horizon`` imagined steps: the disagreement summed over those steps, (starts, A).
+    Rows that barely differ leave CEM nothing to follow."""
+    generator = torch.Generator(next(model.parameters()).device).manual_seed(int(seed))
+    frames = to_float(torch.as_tensor(observations)[None], bits)
+    taken = torch.as_tensor(actions)[None]
+    trajectory = model.observe(model.encode(frames), one_hot_previous(taken, model.n_actions), generator)
+    starts = torch.arange(0, frames.shape[1], every)
+    belief, state = trajectory.beliefs[0, starts], trajectory.posterior.mean[0, starts]
+    sums = []
+    for action in range(model.n_actions):
+        held = F.one_hot(torch.full((len(starts), horizon), action), model.n_actions).float().to(belief.device)
+        rewards = model.imagined_returns(belief, state, held, torch.Generator(generator.device).manual_seed(int(seed)))
+        both = explored_returns(model, ensemble, 1.0, belief, state, held,
+                                torch.Generator(generator.device).manual_seed(int(seed)))
+        sums.append(both - rewards)
+    return torch.stack(sums, -1)
+
+
+def load_explorer(run_dir, model: RSSM) -> Disagreement:
+    """The disagreement ensemble of a PlaNet run trained with ``explore_scale`` > 0."""
+    from pathlib import Path
+
+    path = Path(run_dir) / "checkpoint.pt"
+    state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
+    if "explorer" not in state:
+        raise ValueError(f"{path}: a run without exploration (explore_scale 0) has no disagreement ensemble")
+    ensemble = build_disagreement(model, state["config"]["hidden_size"], state["config"]["explore_heads"])
+    ensemble.load_state_dict(state["explorer"])
+    return ensemble.eval()
+
+
+__all__ = ["Disagreement", "build_disagreement", "one_step_batch", "disagreement_loss", "explored_returns",
+           "bonus_by_action", "load_explorer"]
