@@ -75,7 +75,7 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     from wmthesis.experiments.summary import run_scores
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    with pytest.raises(ValueError, match="valid: td, horizon-12, freeway-adam, adam-td, explore"):
+    with pytest.raises(ValueError, match="valid: td, horizon-12, freeway-adam, adam-td"):
         reproduce("planet-freeway-value", "smoke", 0, variant="nope", progress=False)
     default = reproduce("planet-freeway-value", "smoke", 0, progress=False)
     longer = reproduce("planet-freeway-value", "smoke", 0, variant="horizon-12", progress=False)
@@ -163,7 +163,6 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS, base_variant
 
     assert base_variant("adam-td") == base_variant("freeway-adam") == "freeway-adam" and base_variant("td") is None
-    assert base_variant("explore") == "explore" and model_variant("explore") == "freeway-explore"  # the first on its model
     td = reproduce("planet-freeway-value", "smoke", 0, variant="adam-td", progress=False)
     other = tmp_path / "smoke" / "planet-freeway-value" / "adam-td-seed0"
     assert (other / "baseline-bouts.json").read_text() == (work / "baseline-bouts.json").read_text()

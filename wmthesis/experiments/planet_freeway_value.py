@@ -46,9 +46,6 @@ VALUE_VARIANTS = {
     # the td value on the model that sees the cars: a collision's delay shows in the value only if
     # the model imagines the cars, and a car-blind model's td value learned UP at every step (21.0)
     "adam-td": dict(model="freeway-adam", data=VARIANT, value=dict(target="td", reward_steps=30, discount=0.99)),
-    # the default value on the model that sees the cars and found its own crossings while
-    # collecting (``freeway-explore``: freeway-adam with Plan2Explore's bonus): its own episodes
-    "explore": dict(model="freeway-explore"),
 }
 
 
