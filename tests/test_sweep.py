@@ -292,3 +292,23 @@ def test_variants_of_a_dependent_run_and_seed_go_one_after_the_other(local_ray):
     assert (local_ray / "order.txt").read_text().split("\n")[-5:-1] == [
         "start boxing-wm-alphazero", "end boxing-wm-alphazero:imitation",
         "start boxing-wm-alphazero", "end boxing-wm-alphazero:unchanged"]
+
+
+def _sleeps(name, profile, seed, variant=None, progress=True):
+    time.sleep(300)
+
+
+def test_ctrl_c_stops_the_driver_and_its_runs_at_once(local_ray, capsys):
+    """A Ctrl-C (SIGINT) to the driver while a run goes on cancels it and keeps nothing half-done."""
+    import ray
+
+    timer = threading.Timer(4.0, os.kill, (os.getpid(), signal.SIGINT))
+    started = time.time()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        sweep([SweepRun("planet-freeway", None, 11)], "smoke", runner=_sleeps)
+    assert time.time() - started < 30
+    captured = capsys.readouterr()
+    assert "interrupted: 0 runs kept, 1 stopped" in captured.out + captured.err
+    assert finished(SweepRun("planet-freeway", None, 11), "smoke") is None
+    assert ray.is_initialized()  # the fixture's Ray, not the sweep's own, stays up for the other tests
