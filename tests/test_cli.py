@@ -107,6 +107,19 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert agent["updates"] > study["updates"] and agent["env_steps"] == 80
     assert agent["difference"]["difference"] == agent["agent"]["full"]["mean"] - agent["random"]["full"]["mean"]
     assert all(first == full for first, full in zip(agent["agent"]["first_returns"], agent["agent"]["returns"]))
+    # an evaluation cut off plays only the bouts it had not finished: each is saved as it ends
+    work, metrics = tmp_path / "data/smoke/planet-boxing-agent/seed0", tmp_path / "data/results/planet-boxing-agent/smoke-seed0/metrics.json"
+    saved = json.loads((work / "evaluation-bouts.json").read_text())
+    assert saved["key"]["updates"] == agent["updates"] and sorted(saved["plays"], key=int) == ["0", "1", "2", "3"]
+    kept = {i: {**play, "steps": -1} for i, play in saved["plays"].items() if int(i) < 3}  # marked: not played again
+    (work / "evaluation-bouts.json").write_text(json.dumps({**saved, "plays": kept}))
+    metrics.unlink()
+    assert main(["reproduce", "planet-boxing-agent", "--profile", "smoke"]) == 0
+    capsys.readouterr()
+    plays = json.loads((work / "evaluation-bouts.json").read_text())["plays"]
+    assert [plays[str(i)]["steps"] for i in range(4)] == [-1, -1, -1, saved["plays"]["3"]["steps"]]
+    again = json.loads(metrics.read_text())
+    assert again["agent"] == agent["agent"] and again["random"] == agent["random"]
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke"]) == 0  # the agent's model, frozen
     assert "PlaNet's CEM" in capsys.readouterr().out

@@ -19,7 +19,7 @@ from wmthesis.config import PlaNetConfig, profile_name
 from wmthesis.data import EpisodeBuffer
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.planet.profiles import planet_config
-from wmthesis.experiments.results import _read_json, _run_header
+from wmthesis.experiments.results import _read_json, _run_header, played_bouts
 from wmthesis.utils import atomic_path, data_dir, derive_seeds, hold, parallel_calls, releasing_holds
 from wmthesis.viz import record_frames, save_figure
 
@@ -165,8 +165,9 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     if cached is not None and cached.get("updates") == run["updates"] and len(cached["agent"]["returns"]) == sizes["bouts"]:
         return cached
     bouts = [tuple(int(v) for v in derive_seeds(seed, 3, k, n=2)) for k in range(sizes["bouts"])]
-    plays = parallel_calls([(play_bout, GAME, config, who, env_seed, mind_seed)
-                            for who in (work, None) for env_seed, mind_seed in bouts], progress)
+    plays = played_bouts(work / "evaluation-bouts.json", {"updates": run["updates"], "bouts": [list(b) for b in bouts]},
+                         progress, [(play_bout, GAME, config, who, env_seed, mind_seed)
+                                    for who in (work, None) for env_seed, mind_seed in bouts])  # each saved as it ends
     agent, random = plays[:len(bouts)], plays[len(bouts):]
     scores = {"agent": bout_scores(agent), "random": bout_scores(random)}
     _, _, meta = load_planet(work)

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_scores
-from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header
-from wmthesis.utils import atomic_path, parallel_calls
+from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, cached_for, played_bouts
+from wmthesis.utils import atomic_path
 from wmthesis.viz import save_figure
 
 
@@ -56,37 +56,6 @@ def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list
     with atomic_path(cache) as tmp:
         tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
     return scores
-
-
-def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple]) -> list[dict]:
-    """``calls`` (one bout each), each bout saved in ``path`` as it ends: a run cut off plays
-    only the bouts it had not finished (those saved for the same ``key``)."""
-    saved = cached_for(path, key)
-    done = {int(i): play for i, play in (saved or {}).get("plays", {}).items()}
-    todo = [i for i in range(len(calls)) if i not in done]
-
-    def save(index: int, play: dict) -> None:
-        done[todo[index]] = play
-        with atomic_path(path) as tmp:
-            tmp.write_text(json.dumps({"key": key, "plays": done}, indent=1))
-
-    parallel_calls([calls[i] for i in todo], progress, on_done=save)
-    return [done[i] for i in range(len(calls))]
-
-
-def cached_for(path: Path, key: dict) -> dict | None:
-    """The JSON cache at ``path`` if it was written for ``key`` (a planner config saved before a
-    field was added reads as what it did: :func:`~wmthesis.training.with_added_defaults`), else None."""
-    from wmthesis.config import ValuePlannerConfig
-    from wmthesis.training import with_added_defaults
-
-    cached = _read_json(path)
-    if cached is None or not isinstance(cached.get("key"), dict):
-        return None
-    saved = dict(cached["key"])
-    if isinstance(saved.get("planner"), dict):
-        saved["planner"] = with_added_defaults(ValuePlannerConfig, saved["planner"])
-    return cached if saved == key else None
 
 
 def start_from(work: Path, default: Path, names: tuple[str, ...] | None = None) -> None:

@@ -1,5 +1,5 @@
 """How the experiments write their results: the header of every ``metrics.json``, figures,
-JSON caches, the wall time of the first run."""
+JSON caches, episodes saved one by one as they end, the wall time of the first run."""
 from __future__ import annotations
 
 import json
@@ -9,6 +9,8 @@ from datetime import date
 from pathlib import Path
 
 import numpy as np
+
+from wmthesis.utils import atomic_path, parallel_calls
 
 
 def _run_header(experiment: str, profile: str, seed: int, seconds: float, **run) -> dict:
@@ -51,3 +53,34 @@ def _jsonable(value):
     if isinstance(value, (float, np.floating)):
         return None if not np.isfinite(value) else float(value)
     return value
+
+
+def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple]) -> list[dict]:
+    """``calls`` (one bout each), each bout saved in ``path`` as it ends: a run cut off plays
+    only the bouts it had not finished (those saved for the same ``key``)."""
+    saved = cached_for(path, key)
+    done = {int(i): play for i, play in (saved or {}).get("plays", {}).items()}
+    todo = [i for i in range(len(calls)) if i not in done]
+
+    def save(index: int, play: dict) -> None:
+        done[todo[index]] = play
+        with atomic_path(path) as tmp:
+            tmp.write_text(json.dumps({"key": key, "plays": done}, indent=1))
+
+    parallel_calls([calls[i] for i in todo], progress, on_done=save)
+    return [done[i] for i in range(len(calls))]
+
+
+def cached_for(path: Path, key: dict) -> dict | None:
+    """The JSON cache at ``path`` if it was written for ``key`` (a planner config saved before a
+    field was added reads as what it did: :func:`~wmthesis.training.with_added_defaults`), else None."""
+    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.training import with_added_defaults
+
+    cached = _read_json(path)
+    if cached is None or not isinstance(cached.get("key"), dict):
+        return None
+    saved = dict(cached["key"])
+    if isinstance(saved.get("planner"), dict):
+        saved["planner"] = with_added_defaults(ValuePlannerConfig, saved["planner"])
+    return cached if saved == key else None
