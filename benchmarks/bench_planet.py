@@ -30,7 +30,8 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
 Times are medians over ``--repeats`` (``--updates`` for the training rows) after one warm-up;
 the bare pass, the CEM and the agent step take turns, so their ratios survive a changing load.
 On a shared machine, ``--threads 1`` avoids the OpenMP slowdown of two threads on busy cores.
-Writes ``benchmarks/results/planet.json``.
+Writes ``benchmarks/results/planet.json``; ``planet_cuda.json`` is the same script on one
+NVIDIA H100 (``--repeats 5 --updates 3``, torch 2.11, CUDA picked up by itself).
 """
 from __future__ import annotations
 
@@ -202,6 +203,7 @@ def main() -> int:
                           "vs_bare", "latent_steps_per_s", "speedup_vs_cem", "vs_cem"])
     meta = machine_meta(seed=args.seed, repeats=args.repeats, updates=args.updates, threads=torch.get_num_threads(),
                         device=str(next(model.parameters()).device), cpus=os.cpu_count(),
+                        gpu=torch.cuda.get_device_name() if torch.cuda.is_available() else None,
                         load_average_before=load_before, load_average_after=os.getloadavg()[0])
     write_results(args.out, meta, results)
     return 0
