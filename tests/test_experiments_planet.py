@@ -1,5 +1,6 @@
 """PlaNet experiments end to end (smoke profile): variant checking, artifacts, resuming."""
 import json
+import time
 from pathlib import Path
 
 import pytest
@@ -16,7 +17,9 @@ def test_a_wrong_variant_fails_listing_the_valid_ones():
 
 def test_smoke_sokoban_writes_its_results_and_resumes(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    started = time.time()
     metrics = reproduce("planet-sokoban", "smoke", seed=1, progress=False)
+    assert metrics["wall_seconds"] <= time.time() - started + 0.1  # the training is counted once
 
     out = tmp_path / "results" / "planet-sokoban" / "smoke-seed1" / "unchanged"
     assert json.loads((out / "metrics.json").read_text()) == json.loads(json.dumps(metrics, default=float))

@@ -80,7 +80,6 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     check_choice(f"variant of {name}", variant, valid)
     assert variant in VARIANTS, variant
     profile = profile_name(profile)
-    started = time.time()
     work = hold(data_dir(profile, name, f"{variant}-seed{seed}"))
     out = data_dir("results", name, f"{profile}-seed{seed}", variant)
     config = planet_config(env_name, profile)
@@ -89,6 +88,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
         config = dataclasses.replace(config, env_steps=config.env_steps * config.action_repeat // repeat)
 
     run = train_planet(env_name, config, work, seed=seed, variant=variant, progress=progress)
+    started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
     n_eval = PLANET_EVAL_EPISODES[profile]
     cached = _read_json(out / "metrics.json")
     if (cached is not None and cached.get("updates") == run["updates"] and cached.get("env_steps") == run["env_steps"]

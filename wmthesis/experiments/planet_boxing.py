@@ -153,7 +153,6 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     from wmthesis.planet.train import load_planet, train_planet
 
     profile = profile_name(profile)
-    started = time.time()
     sizes = AGENT[profile]
     study = data_dir(profile, "planet-boxing-study", f"{TUNED}-seed{seed}")
     _train_study_run(study, boxing_config(profile, TUNED), seed)
@@ -161,6 +160,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     out = data_dir("results", "planet-boxing-agent", f"{profile}-seed{seed}")
     config = boxing_config(profile, TUNED, study=False)
     run = train_planet(GAME, config, work, seed=seed, progress=progress, start_from=study)
+    started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
     cached = _read_json(out / "metrics.json")
     if cached is not None and cached.get("updates") == run["updates"] and len(cached["agent"]["returns"]) == sizes["bouts"]:
         return cached
