@@ -157,3 +157,14 @@ def test_bonus_by_action_tells_apart_actions_the_ensemble_disagrees_on():
         sums = bonus_by_action(model, ensemble, observations, actions, horizon=4, every=5)
     assert sums.shape == (4, 3)
     assert torch.allclose(sums[:, :2], torch.zeros(4, 2), atol=1e-10) and (sums[:, 2] > 0).all()
+
+
+def test_load_explorer_names_a_missing_run_and_a_run_without_exploration(tmp_path):
+    from wmthesis.planet.explore import load_explorer
+
+    model = tiny_rssm(n_actions=3)
+    with pytest.raises(FileNotFoundError, match="no PlaNet checkpoint here"):
+        load_explorer(tmp_path / "nowhere", model)
+    torch.save({"config": {"hidden_size": 4, "explore_heads": 2}}, tmp_path / "checkpoint.pt")
+    with pytest.raises(ValueError, match="without exploration"):
+        load_explorer(tmp_path, model)

@@ -160,9 +160,11 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     assert json.loads(saved.read_text())["score"]["errors"] == check["errors"]
     assert check["diagnostics"]["embedding_spread"] >= 0
     # a value variant on that model: its baselines copied from freeway-adam's run, its own td value
-    from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS, base_variant
+    from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS, base_variant, model_variant
 
     assert base_variant("adam-td") == base_variant("freeway-adam") == "freeway-adam" and base_variant("td") is None
+    for name in VALUE_VARIANTS:  # a base plays its own baselines, on the same model
+        assert model_variant(base_variant(name)) == model_variant(name) and base_variant(base_variant(name)) == base_variant(name)
     td = reproduce("planet-freeway-value", "smoke", 0, variant="adam-td", progress=False)
     other = tmp_path / "smoke" / "planet-freeway-value" / "adam-td-seed0"
     assert (other / "baseline-bouts.json").read_text() == (work / "baseline-bouts.json").read_text()

@@ -32,7 +32,8 @@ EPISODES = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation episodes
 UP = 1  # Freeway's actions: NOOP, UP, DOWN
 BASELINES = ("planet", "random", "always-up")  # in the order their episodes are saved
 # What would make the planner dodge cars? Each variant is measured against UP at every step, in a
-# folder of its own, on the same model and episodes (its baselines copied from the default's).
+# folder of its own, on the same model and episodes. ``base``: the value run on the same model whose
+# baselines it copies (None: the default's on freeway-tuned's model; itself: it plays them).
 VALUE_VARIANTS = {
     # the time to the next crossing, bootstrapped through the model: a collision's delay of 10-20
     # steps costs 10-20% of the value at 0.99, against a 150-step window's few hundredths at 0.97
@@ -42,10 +43,11 @@ VALUE_VARIANTS = {
     # ``freeway-adam``: Adam's epsilon 1e-8); its baselines are played again on that model. That
     # agent's own episodes hold almost no crossing (its reward head learns that none comes, and
     # its planner wanders), so the value's first data are the freeway-tuned agent's episodes.
-    "freeway-adam": dict(model="freeway-adam", data=VARIANT),
+    "freeway-adam": dict(model="freeway-adam", data=VARIANT, base="freeway-adam"),
     # the td value on the model that sees the cars: a collision's delay shows in the value only if
     # the model imagines the cars, and a car-blind model's td value learned UP at every step (21.0)
-    "adam-td": dict(model="freeway-adam", data=VARIANT, value=dict(target="td", reward_steps=30, discount=0.99)),
+    "adam-td": dict(model="freeway-adam", data=VARIANT, base="freeway-adam",
+                    value=dict(target="td", reward_steps=30, discount=0.99)),
 }
 
 
@@ -56,10 +58,10 @@ def model_variant(variant: str | None = None) -> str:
 
 
 def base_variant(variant: str | None = None) -> str | None:
-    """The value run whose model a ``variant`` shares and whose baselines it copies: None (the
-    default) on ``freeway-tuned``'s model, else the first of :data:`VALUE_VARIANTS` on its model."""
-    model = model_variant(variant)
-    return None if model == VARIANT else next(name for name in VALUE_VARIANTS if model_variant(name) == model)
+    """The value run whose model a ``variant`` shares and whose baselines it copies (its ``base``
+    in :data:`VALUE_VARIANTS`): None for the default on ``freeway-tuned``'s model; the variant
+    itself where it plays them."""
+    return VALUE_VARIANTS.get(variant, {}).get("base")
 
 
 def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:

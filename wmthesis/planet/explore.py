@@ -76,6 +76,23 @@ def disagreement_loss(ensemble: Disagreement, features: torch.Tensor, actions: t
     return (ensemble.predictions(features, actions) - targets).pow(2).mean(tuple(range(1, targets.dim() + 1))).sum()
 
 
+def imagined_bonus(model: RSSM, ensemble: Disagreement, belief: torch.Tensor, state: torch.Tensor,
+                   actions: torch.Tensor, generator: torch.Generator | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+    """One sampled path per candidate: ``belief`` (1 or J, H), ``state`` (1 or J, S), one-hot
+    ``actions`` (J, T, A) -> (imagined rewards (J,), disagreement (J,)), each summed over the T
+    steps; a step's disagreement is taken at the state before its action."""
+    count = actions.shape[0]
+    belief, state = belief.expand(count, -1), state.expand(count, -1)
+    rewards, bonus = actions.new_zeros(count), actions.new_zeros(count)
+    for t in range(actions.shape[1]):
+        bonus = bonus + ensemble(torch.cat([belief, state], -1), actions[:, t])
+        belief, prior = model.transition(belief, state, actions[:, t])
+        state = prior.sample(generator)
+        rewards = rewards + model.reward(belief, state)
+    return rewards, bonus
+
+
 def explored_returns(model: RSSM, ensemble: Disagreement | None, scale: float, belief: torch.Tensor,
                      state: torch.Tensor, actions: torch.Tensor,
                      generator: torch.Generator | None = None) -> torch.Tensor:
@@ -85,15 +102,8 @@ def explored_returns(model: RSSM, ensemble: Disagreement | None, scale: float, b
     returns as :meth:`~wmthesis.planet.rssm.RSSM.imagined_returns` (the thesis's)."""
     if ensemble is None or scale == 0:
         return model.imagined_returns(belief, state, actions, generator)
-    count = actions.shape[0]
-    belief, state = belief.expand(count, -1), state.expand(count, -1)
-    total = actions.new_zeros(count)
-    for t in range(actions.shape[1]):
-        bonus = ensemble(torch.cat([belief, state], -1), actions[:, t])
-        belief, prior = model.transition(belief, state, actions[:, t])
-        state = prior.sample(generator)
-        total = total + model.reward(belief, state) + scale * bonus
-    return total
+    rewards, bonus = imagined_bonus(model, ensemble, belief, state, actions, generator)
+    return rewards + scale * bonus
 
 
 @torch.no_grad()
@@ -112,10 +122,8 @@ def bonus_by_action(model: RSSM, ensemble: Disagreement, observations, actions, 
     sums = []
     for action in range(model.n_actions):
         held = F.one_hot(torch.full((len(starts), horizon), action), model.n_actions).float().to(belief.device)
-        rewards = model.imagined_returns(belief, state, held, torch.Generator(generator.device).manual_seed(int(seed)))
-        both = explored_returns(model, ensemble, 1.0, belief, state, held,
-                                torch.Generator(generator.device).manual_seed(int(seed)))
-        sums.append(both - rewards)
+        paired = torch.Generator(belief.device).manual_seed(int(seed))  # every action meets the same draws
+        sums.append(imagined_bonus(model, ensemble, belief, state, held, paired)[1])
     return torch.stack(sums, -1)
 
 
@@ -124,6 +132,9 @@ def load_explorer(run_dir, model: RSSM) -> Disagreement:
     from pathlib import Path
 
     path = Path(run_dir) / "checkpoint.pt"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no PlaNet checkpoint here; train the run first "
+                                "(python -m wmthesis reproduce planet-freeway --variant freeway-explore)")
     state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
     if "explorer" not in state:
         raise ValueError(f"{path}: a run without exploration (explore_scale 0) has no disagreement ensemble")
@@ -132,5 +143,5 @@ def load_explorer(run_dir, model: RSSM) -> Disagreement:
     return ensemble.eval()
 
 
-__all__ = ["Disagreement", "build_disagreement", "one_step_batch", "disagreement_loss", "explored_returns",
-           "bonus_by_action", "load_explorer"]
+__all__ = ["Disagreement", "build_disagreement", "one_step_batch", "disagreement_loss", "imagined_bonus",
+           "explored_returns", "bonus_by_action", "load_explorer"]
