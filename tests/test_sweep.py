@@ -117,7 +117,7 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     value_rows = {row["variant"]: row["mean"] for row in rows if row["experiment"] == "planet-boxing-value"}
     assert value_rows == {None: 26.8, "cem-with-value": 31.5}
     table = (tmp_path / "results" / "summary.md").read_text()
-    assert "| boxing-wm |  | quick | 3 | 15.0 | 5.6 | [1.2, 28.8] | 0: 10.0, 1: 14.0, 2: 21.0 |" in table
+    assert "| boxing-wm |  | quick | 3 | 15.0 | 5.6 | [1.2, 28.8] | 0: 10.0, 1: 14.0, 2: 21.0 | 0, 1, 60 |" in table
     assert "human 12.1 (iris results/data/HUMAN.json)" in table and "Student-t" in table
     csv_lines = (tmp_path / "results" / "summary.csv").read_text().splitlines()
     assert csv_lines[0].startswith("experiment,variant,profile,n,mean,std,ci_low,ci_high")
@@ -125,6 +125,8 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert json.loads((tmp_path / "results" / "summary.json").read_text())["rows"][0]["n"] == 3
     assert (tmp_path / "results" / "summary.png").stat().st_size > 5000
     assert aggregate([2.0, 2.0])["ci_low"] == 2.0  # no spread, no width
+    near = aggregate([96.1, 90.3, 97.8], (0.0, 100.0))  # Boxoban medium's seeds: t reaches 104.5
+    assert near["ci_high"] == 100.0 and near["ci_low"] == pytest.approx(aggregate([96.1, 90.3, 97.8])["ci_low"])
 
 
 def test_the_summary_aggregates_the_sokoban_agents_report_evaluations_over_seeds(tmp_path):

@@ -59,6 +59,8 @@ MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels (gener
            "planet-freeway-value": "full-episode score, the value's chosen round",
            "planet-boxing-agent": "full-bout score, CEM planner"}
 DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
+# Experiment -> the range its score cannot leave; its interval is clipped to it.
+BOUNDS = {"sokoban-search": (0.0, 100.0)}
 
 
 class Run(NamedTuple):
@@ -142,15 +144,18 @@ def report_runs(folder: Path) -> list[Run]:
     return runs
 
 
-def aggregate(scores) -> dict:
-    """Seeds' scores (n,) -> n, mean, sample std and the 95% t interval of the mean (None for one seed)."""
+def aggregate(scores, bounds: tuple[float, float] | None = None) -> dict:
+    """Seeds' scores (n,) -> n, mean, sample std and the 95% t interval of the mean (None for one
+    seed), clipped to ``bounds`` (low, high) where the score has them: a t interval over 3 seeds
+    near 100% of levels would otherwise pass 100."""
     scores = np.asarray(scores, np.float64)
     n, mean = len(scores), float(scores.mean())
     if n < 2:
         return {"n": n, "mean": mean, "std": None, "ci_low": None, "ci_high": None}
     std = float(scores.std(ddof=1))
     half = float(stats.t.ppf(0.5 + CONFIDENCE / 2, n - 1)) * std / np.sqrt(n)
-    return {"n": n, "mean": mean, "std": std, "ci_low": mean - half, "ci_high": mean + half}
+    low, high = bounds if bounds is not None else (-np.inf, np.inf)
+    return {"n": n, "mean": mean, "std": std, "ci_low": max(mean - half, low), "ci_high": min(mean + half, high)}
 
 
 def summarise(runs: list[Run]) -> list[dict]:
@@ -160,7 +165,8 @@ def summarise(runs: list[Run]) -> list[dict]:
     for run in runs:
         groups.setdefault((run.experiment, run.variant, run.profile), []).append(run)
     return [{"experiment": experiment, "variant": variant, "profile": profile,
-             "measure": MEASURE.get(experiment, DEFAULT_MEASURE), **aggregate([r.score for r in group]),
+             "measure": MEASURE.get(experiment, DEFAULT_MEASURE),
+             **aggregate([r.score for r in group], BOUNDS.get(experiment)),
              "seeds": [r.seed for r in group], "scores": [r.score for r in group],
              "wall_seconds": [r.wall_seconds for r in group],
              "published": [{"name": n, "value": v, "source": s} for n, v, s in PUBLISHED.get(experiment, [])]}
@@ -173,15 +179,18 @@ def _number(value, digits: int = 1) -> str:
 
 def markdown_table(rows: list[dict]) -> str:
     """The summary as a markdown table, the interval named under it."""
-    lines = ["| experiment | variant | profile | n | mean | std | 95% CI | seeds: scores | published (source) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| experiment | variant | profile | n | mean | std | 95% CI | seeds: scores | wall min per seed | "
+             "published (source) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         interval = "one seed" if row["ci_low"] is None else f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]"
         seeds = ", ".join(f"{s}: {v:.1f}" for s, v in zip(row["seeds"], row["scores"]))
         published = "; ".join(f"{p['name']} {p['value']} ({p['source']})" for p in row["published"])
+        walls = ", ".join("?" if w is None else f"{w / 60:.0f}" for w in row["wall_seconds"])
         lines.append(f"| {row['experiment']} | {row['variant'] or ''} | {row['profile']} | {row['n']} | "
-                     f"{row['mean']:.1f} | {_number(row['std'])} | {interval} | {seeds} | {published} |")
-    return "\n".join(lines + ["", f"Interval: {INTERVAL}. A row with n = 1 stands on one seed."])
+                     f"{row['mean']:.1f} | {_number(row['std'])} | {interval} | {seeds} | {walls} | {published} |")
+    clipped = "; ".join(f"{name} to [{low:g}, {high:g}]" for name, (low, high) in BOUNDS.items())
+    return "\n".join(lines + ["", f"Interval: {INTERVAL}, clipped to the score's range ({clipped}). A row with "
+                                  "n = 1 stands on one seed. Wall time: the run that computed it, in minutes."])
 
 
 def _csv(rows: list[dict]) -> str:
