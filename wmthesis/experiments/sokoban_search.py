@@ -349,8 +349,8 @@ def _seed_rows(name: str, profile: str | None, accept) -> list[list]:
     """The results named ``name`` of every seed of a profile (those ``accept`` takes): a row per
     seed (seed, unfiltered %, medium %, levels, nodes per level, seconds per level, environment
     steps), then the mean, the sample standard deviation and the 95% Student-t interval of the
-    mean over the seeds (:func:`~wmthesis.experiments.summary.aggregate`)."""
-    from wmthesis.experiments.summary import aggregate
+    mean over the seeds, clipped to 0-100% (:func:`~wmthesis.experiments.summary.aggregate`)."""
+    from wmthesis.experiments.summary import BOUNDS, aggregate
 
     root, found = data_dir("results", "sokoban-search"), []
     for path in sorted(root.glob(f"{profile_name(profile)}-seed*/{name}")):
@@ -365,7 +365,7 @@ def _seed_rows(name: str, profile: str | None, accept) -> list[list]:
              f"{np.mean([r['rows'][k]['seconds_per_level'] for k in kinds]):.2f}", f"{r['env_steps']:,}"]
             for r, rate in zip(found, rates)]
     if len(found) > 1:
-        spread = [aggregate(rates[:, i]) for i in range(len(kinds))]
+        spread = [aggregate(rates[:, i], BOUNDS["sokoban-search"]) for i in range(len(kinds))]
         rows.append([f"mean ± std [95% CI], {len(found)} seeds",
                      *(f"{a['mean']:.1f} ± {a['std']:.1f} [{a['ci_low']:.1f}, {a['ci_high']:.1f}]" for a in spread),
                      "", "", "", ""])
