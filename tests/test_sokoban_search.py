@@ -739,15 +739,15 @@ def test_validation_and_report_figures_over_seeds_give_each_seed_then_the_mean_s
     rows = lever_seed_rows("baseline", "quick")
     assert [r[0] for r in rows[:3]] == [0, 1, 2] and rows[1][1:6] == ["99.0", "80.0", 100, "2,000", "2.50"]
     # medium 94, 80, 90: mean 88.0, sample std sqrt(((6)^2 + (8)^2 + (2)^2) / 2) = sqrt(52) = 7.2; the
-    # interval's half width t(0.975, 2) std / sqrt(3) = 4.303 * 7.211 / 1.732 = 17.9
-    assert rows[3] == ["mean ± std [95% CI], 3 seeds", "99.0 ± 1.0 [96.5, 101.5]", "88.0 ± 7.2 [70.1, 105.9]",
+    # interval's half width t(0.975, 2) std / sqrt(3) = 4.303 * 7.211 / 1.732 = 17.9, clipped at 100%
+    assert rows[3] == ["mean ± std [95% CI], 3 seeds", "99.0 ± 1.0 [96.5, 100.0]", "88.0 ± 7.2 [70.1, 100.0]",
                        "", "", "", ""]
     assert lever_seed_rows("generated", "quick") == []
     # unfiltered 100 and 99, medium 94 and 80: half widths t(0.975, 1) std / sqrt(2) = 12.706 * 0.707 / 1.414
     # and 12.706 * 9.899 / 1.414
     report = report_seed_rows(1000, "quick")
     assert [r[0] for r in report[:2]] == [0, 1]
-    assert report[2][:3] == ["mean ± std [95% CI], 2 seeds", "99.5 ± 0.7 [93.1, 105.9]", "87.0 ± 9.9 [-1.9, 175.9]"]
+    assert report[2][:3] == ["mean ± std [95% CI], 2 seeds", "99.5 ± 0.7 [93.1, 100.0]", "87.0 ± 9.9 [0.0, 100.0]"]  # clipped to 0-100%
     assert report_seed_rows(500, "quick") == []
     assert [r[0] for r in report_seed_rows(1000, "quick") if isinstance(r[0], int)] == [0, 1]  # not seed 2's budget
 
