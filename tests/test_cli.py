@@ -120,6 +120,12 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert [plays[str(i)]["steps"] for i in range(4)] == [-1, -1, -1, saved["plays"]["3"]["steps"]]
     again = json.loads(metrics.read_text())
     assert again["agent"] == agent["agent"] and again["random"] == agent["random"]
+    # metrics of another training of the same length (a retrained model) are not taken for this one's
+    metrics.write_text(json.dumps({**again, "curve": {"test": []}, "agent": {**again["agent"], "full": "stale"}}))
+    assert main(["reproduce", "planet-boxing-agent", "--profile", "smoke"]) == 0
+    capsys.readouterr()
+    assert json.loads(metrics.read_text()) == {**again, "wall_seconds": json.loads(metrics.read_text())["wall_seconds"],
+                                               "date": json.loads(metrics.read_text())["date"]}
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke"]) == 0  # the agent's model, frozen
     assert "PlaNet's CEM" in capsys.readouterr().out

@@ -92,6 +92,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     n_eval = PLANET_EVAL_EPISODES[profile]
     cached = _read_json(out / "metrics.json")
     if (cached is not None and cached.get("updates") == run["updates"] and cached.get("env_steps") == run["env_steps"]
+            and cached.get("curve") == json.loads(json.dumps(run["curve"]))  # this training, not a retrained model
             and cached["score"]["episodes"] == n_eval
             and all(Path(f).is_file() and Path(f).stat().st_size > 0
                     for f in [*cached["files"]["figures"], cached["files"]["recording"]])):

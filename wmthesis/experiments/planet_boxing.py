@@ -162,10 +162,13 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     run = train_planet(GAME, config, work, seed=seed, progress=progress, start_from=study)
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
     cached = _read_json(out / "metrics.json")
-    if cached is not None and cached.get("updates") == run["updates"] and len(cached["agent"]["returns"]) == sizes["bouts"]:
+    trained = json.loads(json.dumps(run["curve"]))  # as a metrics file holds it
+    if (cached is not None and cached.get("updates") == run["updates"] and cached.get("curve") == trained
+            and len(cached["agent"]["returns"]) == sizes["bouts"]):  # the same training, not a retrained model
         return cached
     bouts = [tuple(int(v) for v in derive_seeds(seed, 3, k, n=2)) for k in range(sizes["bouts"])]
-    plays = played_bouts(work / "evaluation-bouts.json", {"updates": run["updates"], "bouts": [list(b) for b in bouts]},
+    key = {"updates": run["updates"], "seconds": run["seconds"], "bouts": [list(b) for b in bouts]}  # this training's
+    plays = played_bouts(work / "evaluation-bouts.json", key,
                          progress, [(play_bout, GAME, config, who, env_seed, mind_seed)
                                     for who in (work, None) for env_seed, mind_seed in bouts])  # each saved as it ends
     agent, random = plays[:len(bouts)], plays[len(bouts):]
