@@ -124,8 +124,8 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     metrics.write_text(json.dumps({**again, "curve": {"test": []}, "agent": {**again["agent"], "full": "stale"}}))
     assert main(["reproduce", "planet-boxing-agent", "--profile", "smoke"]) == 0
     capsys.readouterr()
-    assert json.loads(metrics.read_text()) == {**again, "wall_seconds": json.loads(metrics.read_text())["wall_seconds"],
-                                               "date": json.loads(metrics.read_text())["date"]}
+    fresh = json.loads(metrics.read_text())
+    assert fresh == {**again, "wall_seconds": fresh["wall_seconds"], "date": fresh["date"]}
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke"]) == 0  # the agent's model, frozen
     assert "PlaNet's CEM" in capsys.readouterr().out

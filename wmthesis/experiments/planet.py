@@ -11,7 +11,7 @@ import numpy as np
 
 from wmthesis.config import profile_name
 from wmthesis.planet.profiles import planet_config
-from wmthesis.experiments.results import _read_json, _run_header
+from wmthesis.experiments.results import _read_json, _run_header, same_training
 from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds, hold, releasing_holds
 from wmthesis.viz import save_figure
 
@@ -91,8 +91,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
     n_eval = PLANET_EVAL_EPISODES[profile]
     cached = _read_json(out / "metrics.json")
-    if (cached is not None and cached.get("updates") == run["updates"] and cached.get("env_steps") == run["env_steps"]
-            and cached.get("curve") == json.loads(json.dumps(run["curve"]))  # this training, not a retrained model
+    if (same_training(cached, run) and cached.get("env_steps") == run["env_steps"]
             and cached["score"]["episodes"] == n_eval
             and all(Path(f).is_file() and Path(f).stat().st_size > 0
                     for f in [*cached["files"]["figures"], cached["files"]["recording"]])):

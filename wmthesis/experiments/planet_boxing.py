@@ -19,7 +19,7 @@ from wmthesis.config import PlaNetConfig, profile_name
 from wmthesis.data import EpisodeBuffer
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.planet.profiles import planet_config
-from wmthesis.experiments.results import _read_json, _run_header, played_bouts
+from wmthesis.experiments.results import _read_json, _run_header, played_bouts, same_training
 from wmthesis.utils import atomic_path, data_dir, derive_seeds, hold, parallel_calls, releasing_holds
 from wmthesis.viz import record_frames, save_figure
 
@@ -162,9 +162,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     run = train_planet(GAME, config, work, seed=seed, progress=progress, start_from=study)
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
     cached = _read_json(out / "metrics.json")
-    trained = json.loads(json.dumps(run["curve"]))  # as a metrics file holds it
-    if (cached is not None and cached.get("updates") == run["updates"] and cached.get("curve") == trained
-            and len(cached["agent"]["returns"]) == sizes["bouts"]):  # the same training, not a retrained model
+    if same_training(cached, run) and len(cached["agent"]["returns"]) == sizes["bouts"]:
         return cached
     bouts = [tuple(int(v) for v in derive_seeds(seed, 3, k, n=2)) for k in range(sizes["bouts"])]
     key = {"updates": run["updates"], "seconds": run["seconds"], "bouts": [list(b) for b in bouts]}  # this training's

@@ -32,6 +32,14 @@ def _first_run_seconds(path: Path, seconds: float) -> float:
         return seconds
 
 
+def same_training(cached: dict | None, run: dict) -> bool:
+    """Whether a cached ``metrics.json`` was written for this PlaNet training (``run`` as
+    :func:`~wmthesis.planet.train.train_planet` returns it): the same updates and the same
+    training curve, so a model retrained to the same length is evaluated again."""
+    return (cached is not None and cached.get("updates") == run["updates"]
+            and cached.get("curve") == json.loads(json.dumps(run["curve"])))  # as a metrics file holds it
+
+
 def _read_json(path: Path) -> dict | None:
     """A cached JSON file, or None when it is missing or corrupt (the step runs again)."""
     try:
