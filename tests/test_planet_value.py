@@ -13,8 +13,7 @@ from wmthesis.data import EpisodeStore, play_random_episode
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.value import (LatentValue, ValueMind, after_action, best_round, episode_features,
                                    best_values, evaluation_seeds, fit_value, load_value, play_value, reward_sums,
-                                   td_targets, train_value,
-                                   validation_seeds)
+                                   round_ensemble, round_values, td_targets, train_value, validation_seeds)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
@@ -257,3 +256,37 @@ def test_the_discounted_sum_target_discounts_each_reward_and_the_plain_sum_does_
     for r, d, p in zip(rewards, discounted, plain):
         by_hand = [sum(0.5 ** k * r[t + k] for k in range(4) if t + k < len(r)) for t in range(len(r))]
         assert np.allclose(d["sums"].numpy(), by_hand) and np.allclose(p["sums"].numpy(), reward_sums(r, 4))
+
+
+def test_every_round_is_kept_and_a_run_saved_without_them_refits_the_same_values(tmp_path):
+    model, env = frozen_rssm(), DelayedPunch()
+    config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=3, batch_size=8, lr=0.03, rounds=2,
+                               bouts_per_round=1, validation_bouts=1, test_bouts=1)
+    curve = train_value(model, 5, env, config, tmp_path, seed=0, progress=False)["curve"]
+    saved = torch.load(tmp_path / "value.pt", weights_only=False)
+    kept = saved["rounds"]
+    assert sorted(kept) == [0, 1, 2] and all(torch.equal(saved["value"][k], kept[2][k]) for k in kept[2])
+    assert all(torch.equal(saved["best"][k], kept[best_round(curve)][k]) for k in kept[0])
+    assert not torch.equal(kept[0]["heads.0.0.weight"], kept[1]["heads.0.0.weight"])  # each fit moved it
+    # a run of the earlier format (no rounds kept): refitted from its store, the same values, kept
+    torch.save({k: v for k, v in saved.items() if k != "rounds"}, tmp_path / "value.pt")
+    refitted = round_values(model, 5, tmp_path, seed=0, progress=False)
+    assert all(torch.equal(refitted[r][k], kept[r][k]) for r in kept for k in kept[r])
+    assert sorted(torch.load(tmp_path / "value.pt", weights_only=False)["rounds"]) == [0, 1, 2]
+    # refitting with another seed is another computation: its losses differ from the saved ones
+    torch.save({k: v for k, v in saved.items() if k != "rounds"}, tmp_path / "value.pt")
+    with pytest.raises(ValueError, match="refitting round 0 gave loss"):
+        round_values(model, 5, tmp_path, seed=1, progress=False)
+
+
+def test_a_round_ensemble_is_the_mean_of_the_rounds_values():
+    torch.manual_seed(0)
+    values = [LatentValue(6, 8, heads=2) for _ in range(3)]
+    ensemble = round_ensemble([v.state_dict() for v in values], 8)
+    features = torch.randn(5, 6)
+    with torch.no_grad():
+        expected = torch.stack([v(features) for v in values]).mean(0)
+        assert len(ensemble.heads) == 6 and torch.allclose(ensemble(features), expected)
+        assert torch.allclose(round_ensemble([values[1].state_dict()], 8)(features), values[1](features))
+    with pytest.raises(ValueError, match="at least one"):
+        round_ensemble([], 8)

@@ -235,9 +235,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     check_choice("value target", config.target, TARGETS)
     run_dir = Path(run_dir)
     device = next(model.parameters()).device
-    with torch.random.fork_rng(devices=[]):  # the first weights from the seed alone, however the process began
-        torch.manual_seed(int(derive_seeds(seed, 7)[0]))
-        value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(device)
+    value = _first_value(model, config, seed)
     saved = run_dir / CHECKPOINT
     state = torch.load(saved, map_location=device, weights_only=False) if saved.exists() else {"curve": []}
     if "value" in state:
@@ -263,12 +261,64 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
         curve.append({"round": round_, "episodes": episodes, "validation": validation,
                       "validation_mean": float(np.mean(validation)), "returns": returns, "first_returns": first,
                       "mean": float(np.mean(returns)), "std": float(np.std(returns)), "loss": loss})
+        rounds = state.setdefault("rounds", {})
+        rounds[round_] = {key: v.clone() for key, v in value.state_dict().items()}
         if best_round(curve) == round_:
-            state["best"] = {key: v.clone() for key, v in value.state_dict().items()}
+            state["best"] = rounds[round_]
         with atomic_path(saved) as tmp:
-            torch.save({"value": value.state_dict(), "best": state["best"], "curve": curve,
+            torch.save({"value": value.state_dict(), "best": state["best"], "rounds": rounds, "curve": curve,
                         "config": dataclasses.asdict(config), "model": fingerprint(model)}, tmp)
     return {"curve": curve, "best_round": best_round(curve), "run_dir": str(run_dir)}
+
+
+def _first_value(model: RSSM, config: LatentValueConfig, seed: int) -> LatentValue:
+    """The value before its first fit: its weights from the seed alone, however the process began."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(int(derive_seeds(seed, 7)[0]))
+        value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads)
+    return value.to(next(model.parameters()).device)
+
+
+def round_values(model: RSSM, bits: int, run_dir, *, seed: int, progress: bool = True) -> dict[int, dict]:
+    """Every round's value (round -> state dict) of a :func:`train_value` run. A run saved before
+    the rounds were kept has them refitted from its store, once, and kept: the same episodes,
+    seeds and first weights give the same fits, each checked against the loss its round saved
+    (a refit that differs raises rather than pass off another value as the run's)."""
+    path = Path(run_dir) / CHECKPOINT
+    state = _load_checked(path, model)
+    rounds, curve = state.get("rounds", {}), state["curve"]
+    if all(entry["round"] in rounds for entry in curve):
+        return rounds
+    config = LatentValueConfig(**with_added_defaults(LatentValueConfig, state["config"]))
+    value, data = _first_value(model, config, seed), _dataset(model, path.parent / STORE, config, bits, [])
+    last = max(entry["round"] for entry in curve if entry["round"] not in rounds)
+    for entry in tqdm(curve[:last + 1], desc="refitting the rounds", disable=not progress):
+        round_ = entry["round"]
+        if round_ not in rounds:
+            episodes = data[:config.random_bouts + entry["episodes"]]
+            loss = _fit_round(value, model, episodes, config, int(derive_seeds(seed, 5, round_)[0]), fitted=round_ > 0)
+            if not np.isclose(loss, entry["loss"], rtol=1e-4, atol=0.0):
+                raise ValueError(f"{path}: refitting round {round_} gave loss {loss:.6g}, the run saved "
+                                 f"{entry['loss']:.6g}: not the run's computation (another seed or code?)")
+            rounds[round_] = {key: v.clone() for key, v in value.state_dict().items()}
+        value.load_state_dict(rounds[round_])
+    with atomic_path(path) as tmp:
+        torch.save({**state, "rounds": rounds}, tmp)
+    return rounds
+
+
+def round_ensemble(states: list[dict], hidden: int) -> LatentValue:
+    """One value whose heads are those of several rounds' values (state dicts of
+    :class:`LatentValue`, the same number of heads each): Q is the mean over the rounds (a
+    snapshot ensemble, which averages out fitted Q's swings from round to round)."""
+    if not states:
+        raise ValueError("round_ensemble needs at least one round's value")
+    heads = 1 + max(int(key.split(".")[1]) for key in states[0])
+    features = states[0]["heads.0.0.weight"].shape[1]
+    value = LatentValue(features, hidden, heads * len(states)).to(states[0]["heads.0.0.weight"].device)
+    value.load_state_dict({f"heads.{i * heads + int(key.split('.')[1])}.{key.split('.', 2)[2]}": tensor
+                           for i, state in enumerate(states) for key, tensor in state.items()})
+    return value.eval()
 
 
 def best_round(curve: list[dict]) -> int:
@@ -295,16 +345,22 @@ def _check_model(state: dict, model: RSSM, path: Path) -> None:
                          "use the PlaNet run it was fitted on, or fit a value for this model in a new folder")
 
 
-def load_value(run_dir, model: RSSM) -> LatentValue:
-    """The chosen value of a :func:`train_value` run (its :func:`best_round`) for ``model``."""
-    path = Path(run_dir) / CHECKPOINT
+def _load_checked(path: Path, model: RSSM) -> dict:
+    """A saved value run's checkpoint, on ``model``'s device, refused for another model."""
     if not path.exists():
         raise FileNotFoundError(f"{path}: no fitted value (run train_value first)")
     state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
+    _check_model(state, model, path)
+    return state
+
+
+def load_value(run_dir, model: RSSM) -> LatentValue:
+    """The chosen value of a :func:`train_value` run (its :func:`best_round`) for ``model``."""
+    path = Path(run_dir) / CHECKPOINT
+    state = _load_checked(path, model)
     if "best" not in state:
         raise ValueError(f"{path} was fitted before values were chosen on validation bouts; "
                          "run train_value again in a new folder")
-    _check_model(state, model, path)
     config = LatentValueConfig(**state["config"])
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(next(model.parameters()).device)
     value.load_state_dict(state["best"])
@@ -312,4 +368,5 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
 
 
 __all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
-           "reward_sums", "td_targets", "best_values", "action_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value"]
+           "reward_sums", "td_targets", "best_values", "action_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value",
+           "round_values", "round_ensemble"]
