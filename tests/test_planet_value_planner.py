@@ -172,18 +172,18 @@ def test_a_planner_cache_from_before_a_field_was_added_reads_as_what_it_did(tmp_
     import json
 
     from wmthesis.config import ValuePlannerConfig
-    from wmthesis.experiments.planet_value import cached_for
+    from wmthesis.experiments.planet_value import cached_plan
 
     path = tmp_path / "value_planner.json"
     path.write_text(json.dumps({"key": {"round": 2, "planner": {"horizon": 3, "discount": 1.0}}, "scores": {"x": 1}}))
     # written before imagine and value_prior existed: it imagined samples (imagine's default) from
     # CEM's zero mean (value_prior 0, no longer the default)
     did = {"round": 2, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, value_prior=0.0))}
-    assert cached_for(path, did)["scores"] == {"x": 1}
-    assert cached_for(path, {**did, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3))}) is None  # seeded
-    assert cached_for(path, {**did, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, imagine="mean",
+    assert cached_plan(path, did)["scores"] == {"x": 1}
+    assert cached_plan(path, {**did, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3))}) is None  # seeded
+    assert cached_plan(path, {**did, "planner": dataclasses.asdict(ValuePlannerConfig(horizon=3, imagine="mean",
                                                                                        value_prior=0.0))}) is None
-    assert cached_for(path, {**did, "round": 3}) is None
+    assert cached_plan(path, {**did, "round": 3}) is None
 
 
 def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_rest(tmp_path):

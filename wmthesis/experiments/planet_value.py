@@ -40,6 +40,24 @@ def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int
     return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
 
 
+def _planner_defaults(key: dict) -> dict:
+    """A saved cache key whose ``planner`` (a :class:`~wmthesis.config.ValuePlannerConfig` saved
+    before a field was added) reads as what it did (:func:`~wmthesis.training.with_added_defaults`)."""
+    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.training import with_added_defaults
+
+    if isinstance(key.get("planner"), dict):
+        key["planner"] = with_added_defaults(ValuePlannerConfig, key["planner"])
+    return key
+
+
+def cached_plan(path: Path, key: dict) -> dict | None:
+    """The JSON cache at ``path`` if it was written for ``key``, a key that holds a planner's config
+    (:func:`~wmthesis.experiments.results.cached_for`, a planner saved before a field was added
+    read as what it did)."""
+    return cached_for(path, key, _planner_defaults)
+
+
 def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool,
                          cache: Path | None = None, game: str = "boxing") -> dict:
     """The planner with value over ``bouts`` ((env, mind) seeds): full-episode and
@@ -47,11 +65,12 @@ def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list
     for the chosen round ``best``, the planner's config and the bouts."""
     key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
     cache = value_run / "value_planner.json" if cache is None else cache
-    cached = cached_for(cache, key)
+    cached = cached_plan(cache, key)
     if cached is not None:
         return cached["scores"]
     plays = played_bouts(cache.with_name(cache.stem + "-bouts.json"), key, progress,
-                         [(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts])
+                         [(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts],
+                         read_key=_planner_defaults)
     scores = {**bout_scores(plays), "config": dataclasses.asdict(planner)}
     with atomic_path(cache) as tmp:
         tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
@@ -154,7 +173,7 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
         bout = store.episode(-1)
     frames, taken = bout["observations"][:steps], bout["actions"][:steps]
     key = {"round": metrics["best_round"], "steps": len(taken), "planner": dataclasses.asdict(planner)}
-    cached = cached_for(work / "plan_choices.json", key)
+    cached = cached_plan(work / "plan_choices.json", key)
     if cached is None:
         choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
         cached = {"key": key, "choices": {name: c.tolist() for name, c in choices.items()}}
@@ -181,4 +200,4 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_planner_scores", "played_bouts", "cached_for", "start_from", "fit_and_compare"]
+__all__ = ["PLAN_STEPS", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_planner_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+from collections.abc import Callable
 from datetime import date
 from pathlib import Path
 
@@ -63,10 +64,11 @@ def _jsonable(value):
     return value
 
 
-def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple]) -> list[dict]:
+def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple],
+                 read_key: Callable[[dict], dict] | None = None) -> list[dict]:
     """``calls`` (one bout each), each bout saved in ``path`` as it ends: a run cut off plays
-    only the bouts it had not finished (those saved for the same ``key``)."""
-    saved = cached_for(path, key)
+    only the bouts it had not finished (those saved for the same ``key``, :func:`cached_for`)."""
+    saved = cached_for(path, key, read_key)
     done = {int(i): play for i, play in (saved or {}).get("plays", {}).items()}
     todo = [i for i in range(len(calls)) if i not in done]
 
@@ -79,16 +81,11 @@ def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple]) -> l
     return [done[i] for i in range(len(calls))]
 
 
-def cached_for(path: Path, key: dict) -> dict | None:
-    """The JSON cache at ``path`` if it was written for ``key`` (a planner config saved before a
-    field was added reads as what it did: :func:`~wmthesis.training.with_added_defaults`), else None."""
-    from wmthesis.config import ValuePlannerConfig
-    from wmthesis.training import with_added_defaults
-
+def cached_for(path: Path, key: dict, read_key: Callable[[dict], dict] | None = None) -> dict | None:
+    """The JSON cache at ``path`` if it was written for ``key``, else None. ``read_key`` brings a
+    saved key up to date first (a config saved before a field was added reads as what it did)."""
     cached = _read_json(path)
     if cached is None or not isinstance(cached.get("key"), dict):
         return None
-    saved = dict(cached["key"])
-    if isinstance(saved.get("planner"), dict):
-        saved["planner"] = with_added_defaults(ValuePlannerConfig, saved["planner"])
+    saved = dict(cached["key"]) if read_key is None else read_key(dict(cached["key"]))
     return cached if saved == key else None
