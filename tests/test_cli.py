@@ -152,6 +152,20 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert same == sum(a == b for a, b in zip(thesis, ours)) / 5
     assert value_plan_choices("smoke", 0, progress=False)["choices"] == compared["choices"]  # cached, or the same again
 
+    from wmthesis.experiments.planet_boxing_value import validate_agents
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import load_value, play_value, validation_seeds
+
+    agents = validate_agents("smoke", 0, None, ("round chosen on validation", "mean of the last 3"), 1, progress=False)
+    assert agents["round chosen on validation"]["rounds"] == [value["best_round"]]
+    assert agents["mean of the last 3"]["rounds"] == [0, 1]  # only 2 rounds in smoke
+    model, planet, _ = load_planet(tmp_path / "data/smoke/planet-boxing-agent/seed0")
+    env = make_planet_env("boxing", planet)  # the bout after the one that chose the round, by the chosen value
+    bout = play_value(env, model, load_value(tmp_path / "data/smoke/planet-boxing-value/seed0", model), planet.bits,
+                      *validation_seeds(0, 1))["rewards"]
+    env.close()
+    assert agents["round chosen on validation"]["returns"] == [float(bout.sum())]
+
     from wmthesis.experiments.summary import run_scores
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "td"]) == 0  # same model

@@ -290,3 +290,35 @@ def test_a_round_ensemble_is_the_mean_of_the_rounds_values():
         assert torch.allclose(round_ensemble([values[1].state_dict()], 8)(features), values[1](features))
     with pytest.raises(ValueError, match="at least one"):
         round_ensemble([], 8)
+
+
+def test_the_agent_can_be_the_mean_of_the_last_rounds_values_played_once(tmp_path, monkeypatch):
+    import wmthesis.planet.value as value_module
+
+    model, env = frozen_rssm(), DelayedPunch()
+    config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=3, batch_size=8, lr=0.03, rounds=3,
+                               bouts_per_round=1, validation_bouts=2, test_bouts=2)
+    chosen = train_value(model, 5, env, config, tmp_path, seed=0, progress=False)
+    assert chosen["agent"]["rounds"] == [chosen["best_round"]]
+    assert chosen["agent"]["returns"] == chosen["curve"][chosen["best_round"]]["returns"]
+    # the same rounds, the agent now the mean of the last two: no refit, and it plays the same bouts
+    mean = train_value(model, 5, env, dataclasses.replace(config, agent_rounds=2), tmp_path, seed=0, progress=False)
+    assert mean["curve"] == chosen["curve"] and mean["agent"]["rounds"] == [2, 3]
+    rounds = torch.load(tmp_path / "value.pt", weights_only=False)["rounds"]
+    ensemble = round_ensemble([rounds[2], rounds[3]], 8)
+    assert mean["agent"]["returns"] == [play_value(env, model, ensemble, 5, *evaluation_seeds(0, k))["rewards"].sum()
+                                        for k in range(2)]
+    features = torch.randn(4, 20)
+    with torch.no_grad():
+        assert torch.allclose(load_value(tmp_path, model)(features), ensemble(features))
+    monkeypatch.setattr(value_module, "_scores", lambda *a, **k: pytest.fail("the agent's bouts were played again"))
+    again = train_value(model, 5, env, dataclasses.replace(config, agent_rounds=2), tmp_path, seed=0, progress=False)
+    assert again["agent"] == mean["agent"]
+    # back to the round chosen on validation: load_value gives that round's value again
+    train_value(model, 5, env, config, tmp_path, seed=0, progress=False)
+    best = LatentValue(20, 8, config.heads)
+    best.load_state_dict(rounds[chosen["best_round"]])
+    with torch.no_grad():
+        assert torch.allclose(load_value(tmp_path, model)(features), best(features))
+    with pytest.raises(ValueError, match="agent_rounds"):
+        train_value(model, 5, env, dataclasses.replace(config, agent_rounds=-1), tmp_path, seed=0, progress=False)

@@ -151,6 +151,10 @@ class LatentValueConfig:
     max_a Q(h_{t+n}, s_{t+n}, a)``, the bootstrap from the value fitted before (a fitted-Q
     iteration whose target network is the previous fit), refreshed ``td_iterations`` times per
     fit (the fit's updates shared among them), so the value looks past its ``n`` rewards.
+
+    ``agent_rounds``: which values make the agent. 0: the round with the best validation mean;
+    k > 0: the mean of the last k rounds' values (a snapshot ensemble, which averages out fitted
+    Q's swings from round to round instead of choosing among them on a few bouts).
     """
 
     reward_steps: int = 3
@@ -168,6 +172,7 @@ class LatentValueConfig:
     target: str = "reward-sum"
     discount: float = 0.95
     td_iterations: int = 3
+    agent_rounds: int = 0
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ the same bouts.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 from wmthesis.config import profile_name
@@ -109,19 +110,66 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     return results
 
 
-def planner_lever_rows(results: dict[str, dict]) -> list[list[str]]:
-    """:func:`validate_planners`' results as table rows: lever, its changes to the planner,
+# Which fitted values make the value agent (``LatentValueConfig.agent_rounds``), each measured on
+# validation bouts of a run's own that did not choose its round: the round chosen on validation
+# (the default), the last round, or the mean of the last rounds' values (a snapshot ensemble).
+AGENT_RULES = {"round chosen on validation": 0, "last round": 1, "mean of the last 3": 3, "mean of the last 5": 5}
+
+
+def validate_agents(profile: str | None = None, seed: int = 0, variant: str | None = "rounds-10",
+                    rules: tuple[str, ...] | None = None, bouts: int | None = None, progress: bool = True) -> dict[str, dict]:
+    """The value agent of ``variant``'s run (:func:`planet_boxing_value`, run first if need be;
+    its rounds' values refitted once if they were not kept, :func:`~wmthesis.planet.value.round_values`)
+    under each of ``rules`` (names in :data:`AGENT_RULES`; all by default) on ``bouts`` (the
+    profile's :data:`LEVER_BOUTS` by default) greedy validation bouts that follow those that chose
+    its round (:func:`~wmthesis.planet.value.validation_seeds` from ``validation_bouts`` on: apart
+    from the choice among rounds and from the evaluation bouts). Each bout is saved as it ends.
+    Returns rule -> its ``rounds`` and their ``full`` and ``first``-500-step scores."""
+    from wmthesis.config import LatentValueConfig
+    from wmthesis.experiments.planet_boxing import bout_scores
+    from wmthesis.experiments.planet_value import played_bouts, value_bout
+    from wmthesis.planet.train import load_planet
+    from wmthesis.planet.value import agent_rounds, round_values, validation_seeds
+
+    profile = profile_name(profile)
+    rules = tuple(AGENT_RULES) if rules is None else rules
+    for rule in rules:
+        check_choice("agent rule", rule, tuple(AGENT_RULES))
+    bouts = LEVER_BOUTS[profile] if bouts is None else bouts
+    if bouts < 1:
+        raise ValueError(f"bouts must be >= 1, got {bouts}")
+    metrics = planet_boxing_value(profile, seed, progress, variant)
+    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
+    work = data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}")
+    model, planet, _ = load_planet(planet_run)
+    round_values(model, planet.bits, work, seed=seed, progress=progress)
+    config = LatentValueConfig(**metrics["config"])
+    validation = [list(validation_seeds(seed, config.validation_bouts + k)) for k in range(bouts)]
+    results = {}
+    for rule in rules:
+        rounds = agent_rounds(metrics["curve"], dataclasses.replace(config, agent_rounds=AGENT_RULES[rule]))
+        plays = played_bouts(work / "agent-validation" / f"{_slug(rule)}.json", {"rounds": rounds, "bouts": validation},
+                             progress, [(value_bout, planet_run, work, rounds, *bout, GAME) for bout in validation])
+        results[rule] = {"rounds": rounds, **bout_scores(plays)}
+    return results
+
+
+def planner_lever_rows(results: dict[str, dict], changes: dict[str, str] | None = None) -> list[list[str]]:
+    """:func:`validate_planners`' (or :func:`validate_agents`') results as table rows: lever, its
+    changes to the planner (``changes``, by default those of :data:`PLANNER_LEVERS`),
     full-bout mean ± std, first-500-step mean, and the difference from the first lever's
     full-bout scores with its standard error (the same bouts: paired,
     :func:`~wmthesis.metrics.paired_difference`)."""
     from wmthesis.metrics import paired_difference
 
+    if changes is None:
+        changes = {lever: ", ".join(f"{k}={v}" for k, v in PLANNER_LEVERS.get(lever, {}).items()) or "(as evaluated)"
+                   for lever in results}
     first = next(iter(results.values()))
     rows = []
     for lever, scores in results.items():
         diff = paired_difference(scores["returns"], first["returns"])
-        changes = ", ".join(f"{k}={v}" for k, v in PLANNER_LEVERS.get(lever, {}).items()) or "(as evaluated)"
-        rows.append([lever, changes, f"{scores['full']['mean']:.1f} ± {scores['full']['std']:.1f}",
+        rows.append([lever, changes[lever], f"{scores['full']['mean']:.1f} ± {scores['full']['std']:.1f}",
                      f"{scores['first']['mean']:.1f}", f"{diff['difference']:+.1f} ± {diff['standard_error']:.1f}"])
     return rows
 
@@ -154,11 +202,14 @@ def planner_rows(by_seed: dict[int, dict]) -> list[list[str]]:
 
 def value_table(metrics: dict) -> str:
     """The value agent's chosen round beside random play and the CEM planner on the same bouts (markdown)."""
-    diff, chosen = metrics["difference"], metrics["curve"][metrics["best_round"]]
+    diff, rounds = metrics["difference"], metrics.get("agent_rounds", [metrics["best_round"]])
+    chosen = metrics["curve"][rounds[-1]]
+    agent = (f"round {chosen['round']}, {chosen['episodes']} bouts of its own; chosen on {len(chosen['validation'])} "
+             f"validation bouts" if len(rounds) == 1 else
+             f"the mean of the values of rounds {rounds[0]}-{rounds[-1]}, up to {chosen['episodes']} bouts of its own")
     return "\n".join([
         "| player | full bout |", "|---|---|",
-        f"| latent value on the PlaNet model (round {chosen['round']}, {chosen['episodes']} bouts of its own; "
-        f"chosen on {len(chosen['validation'])} validation bouts) | {_score_cell(metrics['value'])} |",
+        f"| latent value on the PlaNet model ({agent}) | {_score_cell(metrics['value'])} |",
         f"| PlaNet (CEM planner), same model | {_score_cell(metrics['planet'])} |",
         *([f"| CEM with the value at the end of its {metrics['value_planner']['config']['horizon']} steps, same model "
            f"| {_score_cell(metrics['value_planner']['full'])} |"] if "value_planner" in metrics else []),
@@ -168,4 +219,4 @@ def value_table(metrics: dict) -> str:
 
 
 __all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",
-           "VALUE_VARIANTS"]
+           "VALUE_VARIANTS", "AGENT_RULES", "validate_agents"]

@@ -58,6 +58,23 @@ def cached_plan(path: Path, key: dict) -> dict | None:
     return cached_for(path, key, _planner_defaults)
 
 
+def value_bout(planet_run: Path, value_run: Path, rounds: list[int], env_seed: int, mind_seed: int,
+               game: str = "boxing") -> dict:
+    """One full greedy episode of ``game`` of the mean of the values of ``rounds`` of the value
+    run (:func:`~wmthesis.planet.value.load_rounds`) on the frozen model of ``planet_run``: its
+    ``return``, the return of its first :data:`FIRST_STEPS` steps and its ``steps``."""
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import load_rounds, play_value
+
+    model, planet, _ = load_planet(planet_run)
+    env = make_planet_env(game, planet)
+    try:
+        rewards = play_value(env, model, load_rounds(value_run, model, rounds), planet.bits, env_seed, mind_seed)["rewards"]
+    finally:
+        env.close()
+    return {"return": float(rewards.sum()), "first": float(rewards[:FIRST_STEPS].sum()), "steps": len(rewards)}
+
+
 def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool,
                          cache: Path | None = None, game: str = "boxing") -> dict:
     """The planner with value over ``bouts`` ((env, mind) seeds): full-episode and
@@ -116,9 +133,10 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
         run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS)
     finally:
         env.close()
-    chosen = run["curve"][run["best_round"]]
+    chosen = run["agent"]
     returns = chosen["returns"]
-    scores = value_planner_scores(planet_run, work, planner, bouts, run["best_round"], progress, game=game)
+    scores = value_planner_scores(planet_run, work, planner, bouts, _agent_key(chosen["rounds"], config),
+                                  progress, game=game)
     lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in baselines.items()}
     lines.update({f"CEM, H{planner.horizon}, with the value at its end": scores["full"]["mean"], **references})
     figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
@@ -131,8 +149,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                              **({} if variant is None else {"variant": variant})),
                "first_run_wall_seconds": round(_first_run_seconds(out / "metrics.json", seconds), 1),
                "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} {unit} "
-                           f"(the value of round {chosen['round']}, chosen on {len(chosen['validation'])} validation "
-                           f"{unit}) (random play {baselines['random']['full']['mean']:.1f}, PlaNet's CEM "
+                           f"({_agent_words(chosen, config, unit)}) (random play {baselines['random']['full']['mean']:.1f}, PlaNet's CEM "
                            f"{baselines['planet']['full']['mean']:.1f})",
                "value": value, "returns": returns, "random": baselines["random"]["full"],
                **({"value_first": score_summary(chosen["first_returns"])} if "first_returns" in chosen else {}),
@@ -141,10 +158,25 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                "baselines": {name: {k: b[k] for k in ("full", "first", "returns", "first_returns") if k in b}
                              for name, b in baselines.items()},
                "bouts": [list(b) for b in bouts], "curve": run["curve"], "best_round": run["best_round"],
+               "agent_rounds": chosen["rounds"],
                "config": dataclasses.asdict(config), "files": {"figures": [str(figure)]}}
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1))
     return metrics
+
+
+def _agent_key(rounds: list[int], config) -> int | list[int]:
+    """The value agent in a cache key: its chosen round (as keys were written before the agent
+    could be several rounds' mean), or the rounds it averages."""
+    return rounds if config.agent_rounds else rounds[0]
+
+
+def _agent_words(agent: dict, config, unit: str) -> str:
+    """The value agent in a headline: its round and the validation that chose it, or its rounds."""
+    rounds = agent["rounds"]
+    if config.agent_rounds:
+        return f"the mean of the values of rounds {rounds[0]}-{rounds[-1]}"
+    return f"the value of round {rounds[0]}, chosen on {len(agent['validation'])} validation {unit}"
 
 
 PLAN_STEPS = {"smoke": 5, "quick": 300, "thesis": 500}  # steps of a bout on which the planners are compared
@@ -200,4 +232,4 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_planner_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare"]
+__all__ = ["PLAN_STEPS", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare"]

@@ -254,13 +254,8 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
             episodes = len(store) - config.random_bouts
         data = _dataset(model, run_dir / STORE, config, bits, cache)
         loss = _fit_round(value, model, data, config, int(derive_seeds(seed, 5, round_)[0]), fitted=round_ > 0)
-        validation = _greedy_returns(env, model, value, bits,
-                                     [validation_seeds(seed, k) for k in range(config.validation_bouts)])
-        returns, first = _greedy_returns(env, model, value, bits, [evaluation_seeds(seed, k) for k in range(config.test_bouts)],
-                                         first_steps)
-        curve.append({"round": round_, "episodes": episodes, "validation": validation,
-                      "validation_mean": float(np.mean(validation)), "returns": returns, "first_returns": first,
-                      "mean": float(np.mean(returns)), "std": float(np.std(returns)), "loss": loss})
+        curve.append({"round": round_, "episodes": episodes,
+                      **_scores(env, model, value, bits, config, seed, first_steps), "loss": loss})
         rounds = state.setdefault("rounds", {})
         rounds[round_] = {key: v.clone() for key, v in value.state_dict().items()}
         if best_round(curve) == round_:
@@ -268,7 +263,51 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
         with atomic_path(saved) as tmp:
             torch.save({"value": value.state_dict(), "best": state["best"], "rounds": rounds, "curve": curve,
                         "config": dataclasses.asdict(config), "model": fingerprint(model)}, tmp)
-    return {"curve": curve, "best_round": best_round(curve), "run_dir": str(run_dir)}
+    agent = _agent(env, model, bits, config, run_dir, seed=seed, progress=progress, first_steps=first_steps)
+    return {"curve": curve, "best_round": best_round(curve), "agent": agent, "run_dir": str(run_dir)}
+
+
+def _scores(env, model: RSSM, value: LatentValue, bits: int, config: LatentValueConfig, seed: int,
+            first_steps: int) -> dict:
+    """A value's greedy bouts: ``validation`` (:func:`validation_seeds`) and ``validation_mean``;
+    the test bouts' ``returns`` (:func:`evaluation_seeds`), ``first_returns`` (their first
+    ``first_steps`` steps), ``mean`` and ``std``."""
+    validation = _greedy_returns(env, model, value, bits, [validation_seeds(seed, k) for k in range(config.validation_bouts)])
+    returns, first = _greedy_returns(env, model, value, bits, [evaluation_seeds(seed, k) for k in range(config.test_bouts)],
+                                     first_steps)
+    return {"validation": validation, "validation_mean": float(np.mean(validation)), "returns": returns,
+            "first_returns": first, "mean": float(np.mean(returns)), "std": float(np.std(returns))}
+
+
+def agent_rounds(curve: list[dict], config: LatentValueConfig) -> list[int]:
+    """The rounds whose values make the agent: the one with the best validation mean
+    (:func:`best_round`), or the last ``config.agent_rounds`` (their mean, :func:`round_ensemble`)."""
+    if config.agent_rounds < 0:
+        raise ValueError(f"agent_rounds must be >= 0, got {config.agent_rounds}")
+    return [entry["round"] for entry in curve[-config.agent_rounds:]] if config.agent_rounds else [best_round(curve)]
+
+
+def _agent(env, model: RSSM, bits: int, config: LatentValueConfig, run_dir: Path, *, seed: int, progress: bool,
+           first_steps: int) -> dict:
+    """The agent's scores with its ``rounds`` (:func:`agent_rounds`): the chosen round's entry of
+    the curve, or the mean of several rounds' values playing the same bouts, once. Which rounds
+    make the agent is kept in the checkpoint (``agent``), where :func:`load_value` reads it."""
+    path = run_dir / CHECKPOINT
+    state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)
+    chosen = agent_rounds(state["curve"], config)
+    kept = state.get("agent", {})
+    if kept.get("rounds") == chosen and "returns" in kept:
+        return kept
+    if not config.agent_rounds:
+        agent = {**state["curve"][chosen[0]], "rounds": chosen}
+    else:
+        rounds = round_values(model, bits, run_dir, seed=seed, progress=progress)
+        value = round_ensemble([rounds[r] for r in chosen], config.hidden_size)
+        agent = {"rounds": chosen, **_scores(env, model, value, bits, config, seed, first_steps)}
+        state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)  # with the rounds
+    with atomic_path(path) as tmp:
+        torch.save({**state, "agent": agent}, tmp)
+    return agent
 
 
 def _first_value(model: RSSM, config: LatentValueConfig, seed: int) -> LatentValue:
@@ -327,9 +366,11 @@ def best_round(curve: list[dict]) -> int:
 
 
 def _check_resumable(saved: dict, config: LatentValueConfig, path: Path) -> None:
-    """A run goes on only with the config it was started with; ``rounds`` may grow."""
+    """A run goes on only with the config it was started with; ``rounds`` may grow, and
+    ``agent_rounds`` (which fitted values make the agent) may change."""
     saved = with_added_defaults(LatentValueConfig, saved)  # fields added since: what the run did
-    changed = sorted(k for k, v in dataclasses.asdict(config).items() if k != "rounds" and saved.get(k) != v)
+    changed = sorted(k for k, v in dataclasses.asdict(config).items()
+                     if k not in ("rounds", "agent_rounds") and saved.get(k) != v)
     if changed:
         raise ValueError(f"{path} was fitted with another LatentValueConfig ("
                          + ", ".join(f"{k}: {saved.get(k)} -> {getattr(config, k)}" for k in changed)
@@ -354,14 +395,33 @@ def _load_checked(path: Path, model: RSSM) -> dict:
     return state
 
 
+def _kept_mean(state: dict, rounds: list[int], path: Path) -> LatentValue:
+    """The mean of kept rounds' values (:func:`round_ensemble`) of a saved run."""
+    missing = [r for r in rounds if r not in state.get("rounds", {})]
+    if missing:
+        raise ValueError(f"{path} does not keep the values of rounds {missing}; run round_values on it first")
+    return round_ensemble([state["rounds"][r] for r in rounds], state["config"]["hidden_size"])
+
+
+def load_rounds(run_dir, model: RSSM, rounds: list[int]) -> LatentValue:
+    """The mean of the values of ``rounds`` of a :func:`train_value` run for ``model``
+    (:func:`round_ensemble`; the rounds kept, :func:`round_values`)."""
+    path = Path(run_dir) / CHECKPOINT
+    return _kept_mean(_load_checked(path, model), rounds, path)
+
+
 def load_value(run_dir, model: RSSM) -> LatentValue:
-    """The chosen value of a :func:`train_value` run (its :func:`best_round`) for ``model``."""
+    """The agent of a :func:`train_value` run for ``model``: its chosen round's value
+    (:func:`best_round`), or the mean of the rounds' values that made its agent (``agent_rounds``)."""
     path = Path(run_dir) / CHECKPOINT
     state = _load_checked(path, model)
     if "best" not in state:
         raise ValueError(f"{path} was fitted before values were chosen on validation bouts; "
                          "run train_value again in a new folder")
     config = LatentValueConfig(**state["config"])
+    chosen = state.get("agent", {}).get("rounds", [])
+    if chosen and chosen != [best_round(state["curve"])]:
+        return _kept_mean(state, chosen, path)
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(next(model.parameters()).device)
     value.load_state_dict(state["best"])
     return value.eval()
@@ -369,4 +429,4 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
 
 __all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
            "reward_sums", "td_targets", "best_values", "action_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value",
-           "round_values", "round_ensemble"]
+           "round_values", "round_ensemble", "agent_rounds", "load_rounds"]
