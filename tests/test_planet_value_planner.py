@@ -219,3 +219,16 @@ def test_the_planner_levers_table_is_paired_against_the_first_lever():
     # the levers are stated against the default planner: the first is the thesis's CEM start
     default = ValuePlannerConfig()
     assert default.value_prior > 0 and dataclasses.replace(default, **PLANNER_LEVERS["H3 from a zero mean"]).value_prior == 0
+
+
+def test_the_agent_rules_table_names_each_rules_rounds_and_pairs_them():
+    from wmthesis.experiments.planet_boxing_value import agent_rows
+    from wmthesis.metrics import score_summary
+
+    def scores(rounds, returns):
+        return {"rounds": rounds, "returns": returns, "full": score_summary(returns), "first": score_summary(returns)}
+
+    rows = agent_rows({"round chosen on validation": scores([6], [0.0, 10.0]),
+                       "mean of the last 3": scores([8, 9, 10], [4.0, 12.0])})
+    assert rows[0][:2] == ["round chosen on validation", "round 6"] and rows[0][-1] == "+0.0 ± 0.0"
+    assert rows[1] == ["mean of the last 3", "rounds 8-10", "8.0 ± 4.0", "8.0", "+3.0 ± 1.0"]

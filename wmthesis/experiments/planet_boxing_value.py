@@ -154,6 +154,15 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     return results
 
 
+def agent_rows(results: dict[str, dict]) -> list[list[str]]:
+    """:func:`validate_agents`' results as :func:`planner_lever_rows`, each rule's rounds in place
+    of a planner's changes, paired against the first rule."""
+    def rounds(r: list[int]) -> str:
+        return f"round {r[0]}" if len(r) == 1 else f"rounds {r[0]}-{r[-1]}"
+
+    return planner_lever_rows(results, {rule: rounds(scores["rounds"]) for rule, scores in results.items()})
+
+
 def planner_lever_rows(results: dict[str, dict], changes: dict[str, str] | None = None) -> list[list[str]]:
     """:func:`validate_planners`' (or :func:`validate_agents`') results as table rows: lever, its
     changes to the planner (``changes``, by default those of :data:`PLANNER_LEVERS`),
@@ -219,4 +228,4 @@ def value_table(metrics: dict) -> str:
 
 
 __all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",
-           "VALUE_VARIANTS", "AGENT_RULES", "validate_agents"]
+           "VALUE_VARIANTS", "AGENT_RULES", "validate_agents", "agent_rows"]
