@@ -175,3 +175,12 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert set(run_scores(td)) == {"td", "td, cem-with-value"} and set(run_scores(value)) == {None, "cem-with-value"}
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "nope"]) == 2
     assert "valid: td, validation-10" in capsys.readouterr().err
+    # the mean of the last rounds' values: from a copy of rounds-10's run, its rounds not fitted again
+    results = tmp_path / "data/results/planet-boxing-value/smoke-seed0"
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "rounds-10"]) == 0
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "rounds-10-mean-3"]) == 0
+    assert "the mean of the values of rounds 8-10" in capsys.readouterr().out
+    ten, mean = (json.loads((results / v / "metrics.json").read_text()) for v in ("rounds-10", "rounds-10-mean-3"))
+    assert mean["curve"] == ten["curve"] and len(ten["curve"]) == 11 and ten["agent_rounds"] == [ten["best_round"]]
+    assert mean["agent_rounds"] == [8, 9, 10] and len(mean["returns"]) == 2 and mean["bouts"] == ten["bouts"]
+    assert set(run_scores(mean)) == {"rounds-10-mean-3", "rounds-10-mean-3, cem-with-value"}

@@ -17,10 +17,20 @@ from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
 # sum of the next rewards (notebook 09); ``td`` bootstraps through the model; ``validation-10``
-# chooses the round on twice the validation bouts; ``rounds-10`` goes on for twice the rounds
-# (a variant that only adds rounds starts from a copy of the default's bouts and values: the
-# same seeds give the same first rounds).
-VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10), "rounds-10": dict(rounds=10)}
+# chooses the round on twice the validation bouts; ``rounds-10`` goes on for twice the rounds;
+# ``rounds-10-mean-K``'s agent is the mean of its last K rounds' values (``agent_rounds``, the
+# rule chosen on validation bouts by :func:`validate_agents`).
+VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10), "rounds-10": dict(rounds=10),
+                  "rounds-10-mean-3": dict(rounds=10, agent_rounds=3)}
+# A variant that only adds rounds, or changes which of them make the agent, starts from a copy
+# of the bouts and values of the run it extends (None: the default's): the same seeds give the
+# same first rounds, so they are not fitted again.
+EXTENDS = {"rounds-10": None, "rounds-10-mean-3": "rounds-10"}
+
+
+def value_folder(profile: str, seed: int, variant: str | None = None):
+    """The work folder of the value run of ``variant`` (None: the default) and ``seed``."""
+    return data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}")
 
 
 @releasing_holds
@@ -46,11 +56,11 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     started = time.time()
     agent = planet_boxing_agent(profile, seed, progress)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = hold(data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}"))
+    work = hold(value_folder(profile, seed, variant))
     out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
     config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"], **VALUE_VARIANTS.get(variant, {}))
-    if set(VALUE_VARIANTS.get(variant, {})) == {"rounds"}:
-        start_from(work, data_dir(profile, "planet-boxing-value", f"seed{seed}"))
+    if variant in EXTENDS:
+        start_from(work, value_folder(profile, seed, EXTENDS[variant]))
     discount = {"discount": config.discount} if config.target != "reward-sum" else {}
     planner = for_profile(ValuePlannerConfig, profile, **discount)
     references = {"human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
@@ -64,8 +74,7 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
     on :func:`planet_boxing_value`'s run, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_boxing_value(profile, seed, progress)
-    return compare_plans(GAME, data_dir(profile, "planet-boxing-agent", f"seed{seed}"),
-                         data_dir(profile, "planet-boxing-value", f"seed{seed}"),
+    return compare_plans(GAME, data_dir(profile, "planet-boxing-agent", f"seed{seed}"), value_folder(profile, seed),
                          data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}"), metrics,
                          PLAN_STEPS[profile], seed)
 
@@ -99,7 +108,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
         raise ValueError(f"bouts must be >= 1, got {bouts}")
     metrics = planet_boxing_value(profile, seed, progress)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = data_dir(profile, "planet-boxing-value", f"seed{seed}")
+    work = value_folder(profile, seed)
     validation = [validation_seeds(seed, k) for k in range(bouts)]
     results = {}
     for lever in levers:
@@ -140,7 +149,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
         raise ValueError(f"bouts must be >= 1, got {bouts}")
     metrics = planet_boxing_value(profile, seed, progress, variant)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}")
+    work = value_folder(profile, seed, variant)
     model, planet, _ = load_planet(planet_run)
     round_values(model, planet.bits, work, seed=seed, progress=progress)
     config = LatentValueConfig(**metrics["config"])
