@@ -12,7 +12,8 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
 - ``agent step``: :class:`~wmthesis.planet.train.PlanetMind` ``plan``: encode one frame,
   update the belief, then the CEM; and beside it the latent value agent's step
   (:class:`~wmthesis.planet.value.ValueMind`: encode, update, one transition per action and the
-  value head; beyond the thesis), with its speed-up over the CEM step; and the CEM whose
+  value head; beyond the thesis), with its speed-up over the CEM step, and the same with the
+  mean of 3 rounds' values (``agent_rounds`` 3: three times the heads), over the one value; and the CEM whose
   candidates end in that value (:class:`~wmthesis.planet.value_planner.ValuePlanetMind`: the
   same J, K and I, the horizon of the profile's ``ValuePlannerConfig``), with its time over the
   plain CEM step (``vs_cem``), its first step seeded by the value as evaluated (one more value
@@ -54,7 +55,7 @@ from wmthesis.planet.cem import cem_plan  # noqa: E402
 from wmthesis.planet.explore import build_disagreement  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
 from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
-from wmthesis.planet.value import LatentValue, ValueMind  # noqa: E402
+from wmthesis.planet.value import LatentValue, ValueMind, round_ensemble  # noqa: E402
 from wmthesis.planet.value_planner import ValuePlanetMind  # noqa: E402
 from wmthesis.training import gradient_step  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
@@ -104,6 +105,7 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
     value_cfg = LatentValueConfig()
     value = LatentValue(cfg.belief_size + cfg.state_size, value_cfg.hidden_size, value_cfg.heads).to(dev)
     value_mind = ValueMind(model, value, cfg.bits, seed)
+    mean_mind = ValueMind(model, round_ensemble([value.state_dict()] * 3, value_cfg.hidden_size), cfg.bits, seed)
     planner = for_profile(ValuePlannerConfig, label)
     horizon = planner.horizon
     value_planner = ValuePlanetMind(model, value, horizon=horizon, candidates=cfg.candidates, top_k=cfg.top_k,
@@ -117,6 +119,7 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
     with torch.inference_mode():
         seconds = median_seconds({"bare": bare, "cem": lambda: cem_plan(rollout, N_ACTIONS, *sizes, g),
                                   "step": lambda: mind.plan(frame), "value": lambda: value_mind.plan(frame),
+                                  "value_mean": lambda: mean_mind.plan(frame),
                                   "explore": lambda: exploring.plan(frame),
                                   "value_cem": lambda: value_planner.plan(frame),
                                   "value_cem_zero_mean": lambda: zero_mean.plan(frame)}, repeats)
@@ -131,6 +134,9 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
                  seconds=seconds["explore"], vs_cem=seconds["explore"] / step_s),
             dict(what=f"agent step: encode + latent value ({label})", sizes=f"{N_ACTIONS} actions", seconds=value_s,
                  speedup_vs_cem=step_s / value_s),
+            dict(what=f"agent step: encode + the mean of 3 rounds' values ({label})",
+                 sizes=f"{N_ACTIONS} actions, {3 * value_cfg.heads} heads", seconds=seconds["value_mean"],
+                 vs_value=seconds["value_mean"] / value_s),
             dict(what=f"agent step: encode + CEM with terminal value, seeded by it ({label})",
                  sizes=f"H{horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}",
                  seconds=seconds["value_cem"], vs_cem=seconds["value_cem"] / step_s),

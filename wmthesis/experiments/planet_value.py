@@ -75,11 +75,12 @@ def value_bout(planet_run: Path, value_run: Path, rounds: list[int], env_seed: i
     return {"return": float(rewards.sum()), "first": float(rewards[:FIRST_STEPS].sum()), "steps": len(rewards)}
 
 
-def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int, progress: bool,
+def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int | list[int], progress: bool,
                          cache: Path | None = None, game: str = "boxing") -> dict:
     """The planner with value over ``bouts`` ((env, mind) seeds): full-episode and
     first-500-step scores, cached in ``cache`` (``value_run/value_planner.json`` by default)
-    for the chosen round ``best``, the planner's config and the bouts."""
+    for the value agent ``best`` (its chosen round, or the rounds whose mean it is), the
+    planner's config and the bouts."""
     key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
     cache = value_run / "value_planner.json" if cache is None else cache
     cached = cached_plan(cache, key)

@@ -220,8 +220,10 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
     waiting = {ref: run for run, ref in refs.items()}
     bar = tqdm(total=len(todo), desc=f"sweep ({profile})", unit="run", disable=not progress)
     try:
-        while waiting:
-            ready, _ = ray.wait(list(waiting), num_returns=1)
+        while waiting:  # waits of a second: back in Python between them, where a Ctrl-C is raised
+            ready, _ = ray.wait(list(waiting), num_returns=1, timeout=1.0)  # (Ray's own wait may hold it back)
+            if not ready:
+                continue
             run = waiting.pop(ready[0])
             outcome[run] = _collect(ray, ready[0], run, started)
             bar.update()

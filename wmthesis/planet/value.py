@@ -231,7 +231,9 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     Resumable: every bout is stored as it ends, the values and the scores after each round.
     Returns ``curve`` (one entry per round: ``round``, ``episodes`` (of its own), ``validation``,
     ``returns`` (the test bouts), ``first_returns`` (their first ``first_steps`` steps), ``mean``,
-    ``std``, ``loss``), ``best_round`` and ``run_dir``."""
+    ``std``, ``loss``), ``best_round``, the ``agent`` (the scores of the values that make it, with
+    their ``rounds``: the best round, or with ``config.agent_rounds`` the mean of the last rounds)
+    and ``run_dir``. Every round's value is kept (``rounds`` in the checkpoint)."""
     check_choice("value target", config.target, TARGETS)
     run_dir = Path(run_dir)
     device = next(model.parameters()).device
