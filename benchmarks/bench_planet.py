@@ -206,7 +206,7 @@ def main() -> int:
     results.append(update_row(quick, "quick", args.updates, args.seed))
 
     print_table(results, ["what", "sizes", "seconds", "ratio", "updates_per_s", "updates_per_hour", "frames_per_s",
-                          "vs_bare", "latent_steps_per_s", "speedup_vs_cem", "vs_cem"])
+                          "vs_bare", "latent_steps_per_s", "speedup_vs_cem", "vs_value", "vs_cem"])
     meta = machine_meta(seed=args.seed, repeats=args.repeats, updates=args.updates, threads=torch.get_num_threads(),
                         device=str(next(model.parameters()).device), cpus=os.cpu_count(),
                         gpu=torch.cuda.get_device_name() if torch.cuda.is_available() else None,
