@@ -129,6 +129,12 @@ def play_bout(env_name: str, config: PlaNetConfig, run_dir: Path | None, env_see
             rewards = play_greedy(env, model, trained, env_seed, mind_seed)
     finally:
         env.close()
+    return bout_result(rewards)
+
+
+def bout_result(rewards) -> dict:
+    """One bout's rewards (T,) summed: its ``return``, the return of its first
+    :data:`FIRST_STEPS` steps and its ``steps``."""
     return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
 
 
@@ -236,5 +242,5 @@ def agent_table(metrics: dict) -> str:
         f"| thesis PlaNet (5.6.4) | {reference['thesis PlaNet (5.6.4)']} | |"])
 
 
-__all__ = ["bout_scores", "planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "study_table", "agent_table",
+__all__ = ["bout_scores", "bout_result", "planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "study_table", "agent_table",
            "STUDY", "AGENT", "FIRST_STEPS", "GAME"]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_scores
+from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_result, bout_scores
 from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, cached_for, played_bouts
 from wmthesis.utils import atomic_path
 from wmthesis.viz import save_figure
@@ -37,7 +37,7 @@ def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int
         rewards = play_value_planner(env, model, load_value(value_run, model), planet, planner, env_seed, mind_seed)
     finally:
         env.close()
-    return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
+    return bout_result(rewards)
 
 
 def _planner_defaults(key: dict) -> dict:
@@ -72,7 +72,7 @@ def value_bout(planet_run: Path, value_run: Path, rounds: list[int], env_seed: i
         rewards = play_value(env, model, load_rounds(value_run, model, rounds), planet.bits, env_seed, mind_seed)["rewards"]
     finally:
         env.close()
-    return {"return": float(rewards.sum()), "first": float(rewards[:FIRST_STEPS].sum()), "steps": len(rewards)}
+    return bout_result([float(r) for r in rewards])
 
 
 def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int | list[int], progress: bool,
