@@ -184,3 +184,9 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert mean["curve"] == ten["curve"] and len(ten["curve"]) == 11 and ten["agent_rounds"] == [ten["best_round"]]
     assert mean["agent_rounds"] == [8, 9, 10] and len(mean["returns"]) == 2 and mean["bouts"] == ten["bouts"]
     assert set(run_scores(mean)) == {"rounds-10-mean-3", "rounds-10-mean-3, cem-with-value"}
+    # lean: the same agent from scratch, its rounds fitted again without their greedy bouts
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "lean"]) == 0
+    lean = json.loads((results / "lean" / "metrics.json").read_text())
+    assert [e["loss"] for e in lean["curve"]] == [e["loss"] for e in ten["curve"]]
+    assert lean["returns"] == mean["returns"] and lean["value_planner"]["returns"] == mean["value_planner"]["returns"]
+    assert lean["best_round"] is None and "validation" not in lean["curve"][-1]

@@ -13,7 +13,8 @@ from wmthesis.data import EpisodeStore, play_random_episode
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.value import (LatentValue, ValueMind, after_action, best_round, episode_features,
                                    best_values, evaluation_seeds, fit_value, load_value, play_value, reward_sums,
-                                   round_ensemble, round_values, td_targets, train_value, validation_seeds)
+                                   bout_pool, play_values, round_ensemble, round_values, td_targets, train_value,
+                                   validation_seeds)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
@@ -322,3 +323,50 @@ def test_the_agent_can_be_the_mean_of_the_last_rounds_values_played_once(tmp_pat
         assert torch.allclose(load_value(tmp_path, model)(features), best(features))
     with pytest.raises(ValueError, match="agent_rounds"):
         train_value(model, 5, env, dataclasses.replace(config, agent_rounds=-1), tmp_path, seed=0, progress=False)
+
+
+def test_bouts_in_a_pool_of_processes_are_the_bouts_played_here_stored_in_order():
+    model, env = frozen_rssm(), DelayedPunch()
+    torch.manual_seed(1)
+    value = LatentValue(20, 8, heads=2)
+    seeds = [evaluation_seeds(0, k) for k in range(5)]
+    here = play_values(env, model, value, 5, seeds, epsilon=0.5)
+    order = []
+    with bout_pool(model, (DelayedPunch,)) as pool:
+        assert pool is not None  # two processes on this machine's 2 cores
+        there = play_values(env, model, value, 5, seeds, epsilon=0.5, pool=pool,
+                            on_done=lambda index, episode: order.append((index, episode["actions"].tolist())))
+    assert order == [(k, episode["actions"].tolist()) for k, episode in enumerate(here)]
+    for a, b in zip(here, there):
+        assert set(a) == set(b) and all(np.array_equal(a[key], b[key]) for key in a)
+    assert len({tuple(episode["actions"]) for episode in here}) > 1  # each bout seeded by its own pair
+    with bout_pool(model, None) as pool:
+        assert pool is None
+
+
+def test_a_lean_run_fits_the_same_rounds_without_their_bouts_and_scores_only_its_agent(tmp_path, monkeypatch):
+    import wmthesis.planet.value as value_module
+
+    model, env = frozen_rssm(), DelayedPunch()
+    config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=3, batch_size=8, lr=0.03, rounds=3,
+                               bouts_per_round=2, validation_bouts=2, test_bouts=2, agent_rounds=2)
+    scored = train_value(model, 5, env, config, tmp_path / "scored", seed=0, progress=False)
+    played = []
+    greedy = value_module._greedy_returns
+    monkeypatch.setattr(value_module, "_greedy_returns", lambda *a, **k: played.append(len(a[4])) or greedy(*a, **k))
+    lean = train_value(model, 5, env, dataclasses.replace(config, score_rounds=False), tmp_path / "lean", seed=0,
+                       progress=False, make_env=(DelayedPunch,))
+    assert played == [2]  # the agent's test bouts only: no validation, no bouts after each round
+    assert [set(entry) for entry in lean["curve"]] == [{"round", "episodes", "loss"}] * 4
+    assert [e["loss"] for e in lean["curve"]] == [e["loss"] for e in scored["curve"]]  # the same fits
+    assert lean["best_round"] is None and lean["agent"]["rounds"] == [2, 3] == scored["agent"]["rounds"]
+    assert lean["agent"]["returns"] == scored["agent"]["returns"]  # and the same agent on the same bouts
+    assert "validation" not in lean["agent"]
+    features = torch.randn(4, 20)
+    with torch.no_grad():
+        assert torch.equal(load_value(tmp_path / "lean", model)(features), load_value(tmp_path / "scored", model)(features))
+    with pytest.raises(ValueError, match="score_rounds=False needs agent_rounds"):
+        train_value(model, 5, env, dataclasses.replace(config, score_rounds=False, agent_rounds=0), tmp_path / "x",
+                    seed=0, progress=False)
+    with pytest.raises(ValueError, match="another LatentValueConfig.*score_rounds"):
+        train_value(model, 5, env, config, tmp_path / "lean", seed=0, progress=False)

@@ -155,6 +155,9 @@ class LatentValueConfig:
     ``agent_rounds``: which values make the agent. 0: the round with the best validation mean;
     k > 0: the mean of the last k rounds' values (a snapshot ensemble, which averages out fitted
     Q's swings from round to round instead of choosing among them on a few bouts).
+    ``score_rounds``: every round's value plays its validation and test bouts (the learning curve,
+    and the choice of round); False (lean, with ``agent_rounds`` > 0, which chooses no round):
+    only the agent plays, on the test bouts.
     """
 
     reward_steps: int = 3
@@ -173,6 +176,7 @@ class LatentValueConfig:
     discount: float = 0.95
     td_iterations: int = 3
     agent_rounds: int = 0
+    score_rounds: bool = True
 
 
 @dataclass(frozen=True)

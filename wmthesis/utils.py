@@ -229,13 +229,26 @@ def _alive(pid) -> bool:
     return True
 
 
-def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None) -> list:
+def process_pool(workers: int | None = None):
+    """A pool of spawned processes (one torch thread each) that several :func:`parallel_calls`
+    share, started once: ``workers`` (by default two on a machine with 2 cores or more), or a
+    ``nullcontext`` of None where one process would do. Its processes start at the first call."""
+    workers = min(os.cpu_count() or 1, 2) if workers is None else workers
+    if workers <= 1:
+        return nullcontext(None)
+    return concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                  initializer=worker_init, initargs=(1,))
+
+
+def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None, executor=None) -> list:
     """``fn(*args)`` for each ``(fn, *args)`` in ``calls`` (module-level functions), two at a
     time in spawned processes with one torch thread each on a machine with 2 cores or more
-    (small networks gain less from a second thread than from a second process); results in
-    order. ``on_done(index, result)`` is
-    called as each finishes (to save it at once)."""
+    (small networks gain less from a second thread than from a second process), or in
+    ``executor`` (:func:`process_pool`) where given; results in order. ``on_done(index, result)``
+    is called as each finishes (to save it at once)."""
     on_done = on_done or (lambda index, result: None)
+    if executor is not None:
+        return _gathered(executor, calls, progress, on_done)
     workers = min(len(calls), os.cpu_count() or 1, 2)
     if workers <= 1:
         results = []
@@ -243,14 +256,17 @@ def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None) -> l
             results.append(fn(*args))
             on_done(index, results[-1])
         return results
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=worker_init,
-                                                initargs=(1,)) as executor:
-        futures = {executor.submit(fn, *args): index for index, (fn, *args) in enumerate(calls)}
-        for future in tqdm(concurrent.futures.as_completed(futures), total=len(futures), desc="runs",
-                           disable=not progress):
-            on_done(futures[future], future.result())
-        return [future.result() for future in futures]
+    with process_pool(workers) as executor:
+        return _gathered(executor, calls, progress, on_done)
+
+
+def _gathered(executor, calls: list[tuple], progress: bool, on_done) -> list:
+    """``calls`` submitted to ``executor``; ``on_done`` as each finishes; results in order."""
+    futures = {executor.submit(fn, *args): index for index, (fn, *args) in enumerate(calls)}
+    for future in tqdm(concurrent.futures.as_completed(futures), total=len(futures), desc="runs",
+                       disable=not progress):
+        on_done(futures[future], future.result())
+    return [future.result() for future in futures]
 
 
 def set_threads(threads: int) -> None:

@@ -19,9 +19,12 @@ from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 # sum of the next rewards (notebook 09); ``td`` bootstraps through the model; ``validation-10``
 # chooses the round on twice the validation bouts; ``rounds-10`` goes on for twice the rounds;
 # ``rounds-10-mean-K``'s agent is the mean of its last K rounds' values (``agent_rounds``, the
-# rule chosen on validation bouts by :func:`validate_agents`).
+# rule chosen on validation bouts by :func:`validate_agents`); ``lean`` is that agent from scratch
+# with no greedy bouts after each round (``score_rounds``: the per-round curve is a diagnostic,
+# the mean of the last rounds chooses nothing on it), its bouts two at a time: issue 31's hour.
 VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10), "rounds-10": dict(rounds=10),
-                  "rounds-10-mean-3": dict(rounds=10, agent_rounds=3)}
+                  "rounds-10-mean-3": dict(rounds=10, agent_rounds=3),
+                  "lean": dict(rounds=10, agent_rounds=3, score_rounds=False)}
 # A variant that only adds rounds, or changes which of them make the agent, starts from a copy
 # of the bouts and values of the run it extends (None: the default's): the same seeds give the
 # same first rounds, so they are not fitted again.

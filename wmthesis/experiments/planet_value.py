@@ -131,7 +131,8 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     model, planet, _ = load_planet(planet_run)
     env = make_planet_env(game, planet)
     try:
-        run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS)
+        run = train_value(model, planet.bits, env, config, work, seed=seed, progress=progress, first_steps=FIRST_STEPS,
+                          make_env=(make_planet_env, game, planet))
     finally:
         env.close()
     chosen = run["agent"]
@@ -140,11 +141,10 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                                   progress, game=game)
     lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in baselines.items()}
     lines.update({f"CEM, H{planner.horizon}, with the value at its end": scores["full"]["mean"], **references})
-    figure = save_figure(learning_curve_figure({"latent value on the PlaNet model": {"test": run["curve"]}},
-                                               references=lines, x="episodes",
+    value, unit = score_summary(returns), "bouts" if game == "boxing" else "episodes"
+    figure = save_figure(learning_curve_figure(_value_curves(run["curve"], chosen, value), references=lines, x="episodes",
                                                title=f"{game.capitalize()}: the value agent after each round"),
                          out / "value_curve.png")
-    value, unit = score_summary(returns), "bouts" if game == "boxing" else "episodes"
     seconds = time.time() - started
     metrics = {**_run_header(experiment, profile, seed, seconds, env=game,
                              **({} if variant is None else {"variant": variant})),
@@ -164,6 +164,17 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1))
     return metrics
+
+
+def _value_curves(curve: list[dict], agent: dict, value: dict) -> dict[str, dict]:
+    """The rounds that were scored (a lean run scores none) and the agent, when it is a mean of
+    rounds, as :func:`~wmthesis.planet.figures.learning_curve_figure`'s curves."""
+    rounds = agent["rounds"]
+    curves = {"latent value on the PlaNet model": {"test": [entry for entry in curve if "mean" in entry]}}
+    if len(rounds) > 1:
+        curves[f"the mean of rounds {rounds[0]}-{rounds[-1]}"] = {
+            "test": [{"episodes": curve[-1]["episodes"], "mean": value["mean"], "std": value["std"]}]}
+    return curves
 
 
 def _agent_key(rounds: list[int], config) -> int | list[int]:

@@ -24,6 +24,7 @@ scored best on greedy validation bouts of their own; Q is the mean of an ensembl
 from __future__ import annotations
 
 import dataclasses
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +40,7 @@ from wmthesis.envs.preprocessing import to_float
 from wmthesis.planet.rssm import RSSM, one_hot_previous
 from wmthesis.planet.train import BeliefFilter
 from wmthesis.training import gradient_step, with_added_defaults
-from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint
+from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint, parallel_calls, process_pool
 
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
 TARGETS = ("reward-sum", "discounted-sum", "td")
@@ -199,6 +200,54 @@ def play_value(env, model: RSSM, value: LatentValue, bits: int, env_seed: int, m
     return record.episode
 
 
+def _play_made(make_env: tuple, model: RSSM, value: LatentValue, bits: int, env_seed: int, mind_seed: int,
+               epsilon: float) -> dict[str, np.ndarray]:
+    """:func:`play_value` in an environment of its own, ``make_env`` = ``(fn, *args)``."""
+    fn, *args = make_env
+    env = fn(*args)
+    try:
+        return play_value(env, model, value, bits, env_seed, mind_seed, epsilon)
+    finally:
+        env.close()
+
+
+def play_values(env, model: RSSM, value: LatentValue, bits: int, seeds, epsilon: float = 0.0,
+                pool: tuple | None = None, on_done=None) -> list[dict[str, np.ndarray]]:
+    """:func:`play_value` on each (environment, mind) pair of ``seeds``, in order. With ``pool``
+    (``(executor, make_env)``, :func:`bout_pool`), in its processes, two bouts at a time: the
+    same bouts, each seeded by its pair. ``on_done(index, episode)`` is called in the order of
+    ``seeds``, as soon as each bout and those before it have ended (to store them in order)."""
+    seeds = [tuple(int(v) for v in pair) for pair in seeds]
+    on_done = on_done or (lambda index, episode: None)
+    if pool is None:
+        episodes = []
+        for index, pair in enumerate(seeds):
+            episodes.append(play_value(env, model, value, bits, *pair, epsilon))
+            on_done(index, episodes[-1])
+        return episodes
+    executor, make_env = pool
+    ended, given = {}, [0]
+
+    def in_order(index: int, episode: dict) -> None:
+        ended[index] = episode
+        while given[0] in ended:
+            on_done(given[0], ended.pop(given[0]))
+            given[0] += 1
+
+    calls = [(_play_made, make_env, model, value, bits, *pair, epsilon) for pair in seeds]
+    return parallel_calls(calls, progress=False, on_done=in_order, executor=executor)
+
+
+@contextmanager
+def bout_pool(model: RSSM, make_env: tuple | None):
+    """The ``pool`` of :func:`play_values` for a run: processes of their own (:func:`~wmthesis.utils.process_pool`)
+    that build the game with ``make_env`` (``(fn, *args)``, module-level); None (bouts in this
+    process) without ``make_env``, on one core, or for a model on a GPU."""
+    on_cpu = next(model.parameters()).device.type == "cpu"
+    with process_pool() if make_env is not None and on_cpu else nullcontext(None) as executor:
+        yield None if executor is None else (executor, make_env)
+
+
 def evaluation_seeds(seed: int, k: int) -> tuple[int, int]:
     """The (environment, mind) seeds of greedy test bout ``k``: those of the PlaNet agent's
     evaluation bouts (:func:`~wmthesis.experiments.planet_boxing.planet_boxing_agent`)."""
@@ -213,15 +262,17 @@ def validation_seeds(seed: int, k: int) -> tuple[int, int]:
     return int(env_seed), int(mind_seed)
 
 
-def _greedy_returns(env, model: RSSM, value: LatentValue, bits: int, seeds, first_steps: int = 0):
-    """The greedy bouts' returns; with ``first_steps``, also the returns of their first steps."""
-    rewards = [play_value(env, model, value, bits, *pair)["rewards"] for pair in seeds]
+def _greedy_returns(env, model: RSSM, value: LatentValue, bits: int, seeds, first_steps: int = 0,
+                    pool: tuple | None = None):
+    """The greedy bouts' returns (:func:`play_values`); with ``first_steps``, also the returns of
+    their first steps."""
+    rewards = [episode["rewards"] for episode in play_values(env, model, value, bits, seeds, pool=pool)]
     full = [float(r.sum()) for r in rewards]
     return (full, [float(r[:first_steps].sum()) for r in rewards]) if first_steps else full
 
 
 def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir, *, seed: int,
-                progress: bool = True, first_steps: int = 500) -> dict:
+                progress: bool = True, first_steps: int = 500, make_env: tuple | None = None) -> dict:
     """Play ``random_bouts`` random bouts into ``run_dir/episodes.h5``, fit the value on them;
     then ``config.rounds`` times: ``bouts_per_round`` epsilon-greedy bouts of the value agent
     into the same store, refit on all of it. After each fit the value plays ``validation_bouts``
@@ -233,8 +284,17 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     ``returns`` (the test bouts), ``first_returns`` (their first ``first_steps`` steps), ``mean``,
     ``std``, ``loss``), ``best_round``, the ``agent`` (the scores of the values that make it, with
     their ``rounds``: the best round, or with ``config.agent_rounds`` the mean of the last rounds)
-    and ``run_dir``. Every round's value is kept (``rounds`` in the checkpoint)."""
+    and ``run_dir``. Every round's value is kept (``rounds`` in the checkpoint). Without
+    ``config.score_rounds`` the rounds play no greedy bouts (their entries hold ``round``,
+    ``episodes`` and ``loss``; ``best_round`` is None) and only the agent is scored. With
+    ``make_env`` (``(fn, *args)``, module-level, building ``env``'s game) the bouts play two at a
+    time (:func:`bout_pool`)."""
     check_choice("value target", config.target, TARGETS)
+    if config.agent_rounds < 0:
+        raise ValueError(f"agent_rounds must be >= 0, got {config.agent_rounds}")
+    if not config.score_rounds and not config.agent_rounds:
+        raise ValueError("score_rounds=False needs agent_rounds > 0: without the rounds' validation bouts "
+                         "there is no round to choose")
     run_dir = Path(run_dir)
     device = next(model.parameters()).device
     value = _first_value(model, config, seed)
@@ -245,40 +305,56 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
         _check_model(state, model, saved)
         value.load_state_dict(state["value"])
     curve, cache = state["curve"], []
-    for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
-        with EpisodeStore(run_dir / STORE, "a", preprocessing="planet", seed=seed,
-                          obs_shape=env.observation_space.shape) as store:
-            for index in range(len(store), config.random_bouts):
-                store.append_episode(**play_random_episode(env, seed, index))
-            for index in range(len(store), config.random_bouts + round_ * config.bouts_per_round):
-                env_seed, mind_seed = (int(v) for v in derive_seeds(seed, 4, index, n=2))
-                store.append_episode(**play_value(env, model, value, bits, env_seed, mind_seed, config.epsilon))
-            episodes = len(store) - config.random_bouts
-        data = _dataset(model, run_dir / STORE, config, bits, cache)
-        loss = _fit_round(value, model, data, config, int(derive_seeds(seed, 5, round_)[0]), fitted=round_ > 0)
-        curve.append({"round": round_, "episodes": episodes,
-                      **_scores(env, model, value, bits, config, seed, first_steps), "loss": loss})
-        rounds = state.setdefault("rounds", {})
-        rounds[round_] = {key: v.clone() for key, v in value.state_dict().items()}
-        if best_round(curve) == round_:
-            state["best"] = rounds[round_]
-        with atomic_path(saved) as tmp:
-            torch.save({"value": value.state_dict(), "best": state["best"], "rounds": rounds, "curve": curve,
-                        "config": dataclasses.asdict(config), "model": fingerprint(model)}, tmp)
-    agent = _agent(env, model, bits, config, run_dir, seed=seed, progress=progress, first_steps=first_steps)
-    return {"curve": curve, "best_round": best_round(curve), "agent": agent, "run_dir": str(run_dir)}
+    with bout_pool(model, make_env) as pool:
+        for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
+            episodes = _store_bouts(run_dir / STORE, env, model, value, bits, config, seed, round_, pool)
+            data = _dataset(model, run_dir / STORE, config, bits, cache)
+            loss = _fit_round(value, model, data, config, int(derive_seeds(seed, 5, round_)[0]), fitted=round_ > 0)
+            scores = _scores(env, model, value, bits, config, seed, first_steps, pool) if config.score_rounds else {}
+            curve.append({"round": round_, "episodes": episodes, **scores, "loss": loss})
+            rounds = state.setdefault("rounds", {})
+            rounds[round_] = {key: v.clone() for key, v in value.state_dict().items()}
+            if config.score_rounds and best_round(curve) == round_:
+                state["best"] = rounds[round_]
+            with atomic_path(saved) as tmp:
+                torch.save({"value": value.state_dict(), **({"best": state["best"]} if "best" in state else {}),
+                            "rounds": rounds, "curve": curve, "config": dataclasses.asdict(config),
+                            "model": fingerprint(model)}, tmp)
+        agent = _agent(env, model, bits, config, run_dir, seed=seed, progress=progress, first_steps=first_steps,
+                       pool=pool)
+    return {"curve": curve, "best_round": best_round(curve) if config.score_rounds else None, "agent": agent,
+            "run_dir": str(run_dir)}
+
+
+def _store_bouts(path: Path, env, model: RSSM, value: LatentValue, bits: int, config: LatentValueConfig, seed: int,
+                 round_: int, pool: tuple | None) -> int:
+    """The store at ``path`` filled up to ``round_``: the random bouts, then ``bouts_per_round``
+    epsilon-greedy bouts of ``value`` per round, each stored in order as it ends. Returns the
+    number of the value agent's own bouts."""
+    with EpisodeStore(path, "a", preprocessing="planet", seed=seed, obs_shape=env.observation_space.shape) as store:
+        for index in range(len(store), config.random_bouts):
+            store.append_episode(**play_random_episode(env, seed, index))
+        seeds = [derive_seeds(seed, 4, index, n=2)
+                 for index in range(len(store), config.random_bouts + round_ * config.bouts_per_round)]
+        play_values(env, model, value, bits, seeds, config.epsilon, pool,
+                    on_done=lambda index, episode: store.append_episode(**episode))
+        return len(store) - config.random_bouts
 
 
 def _scores(env, model: RSSM, value: LatentValue, bits: int, config: LatentValueConfig, seed: int,
-            first_steps: int) -> dict:
-    """A value's greedy bouts: ``validation`` (:func:`validation_seeds`) and ``validation_mean``;
-    the test bouts' ``returns`` (:func:`evaluation_seeds`), ``first_returns`` (their first
-    ``first_steps`` steps), ``mean`` and ``std``."""
-    validation = _greedy_returns(env, model, value, bits, [validation_seeds(seed, k) for k in range(config.validation_bouts)])
+            first_steps: int, pool: tuple | None = None, validation: bool = True) -> dict:
+    """A value's greedy bouts: ``validation`` (:func:`validation_seeds`) and ``validation_mean``
+    (unless not ``validation``); the test bouts' ``returns`` (:func:`evaluation_seeds`),
+    ``first_returns`` (their first ``first_steps`` steps), ``mean`` and ``std``."""
+    chosen = {}
+    if validation:
+        returns = _greedy_returns(env, model, value, bits, [validation_seeds(seed, k) for k in range(config.validation_bouts)],
+                                  pool=pool)
+        chosen = {"validation": returns, "validation_mean": float(np.mean(returns))}
     returns, first = _greedy_returns(env, model, value, bits, [evaluation_seeds(seed, k) for k in range(config.test_bouts)],
-                                     first_steps)
-    return {"validation": validation, "validation_mean": float(np.mean(validation)), "returns": returns,
-            "first_returns": first, "mean": float(np.mean(returns)), "std": float(np.std(returns))}
+                                     first_steps, pool)
+    return {**chosen, "returns": returns, "first_returns": first, "mean": float(np.mean(returns)),
+            "std": float(np.std(returns))}
 
 
 def agent_rounds(curve: list[dict], config: LatentValueConfig) -> list[int]:
@@ -290,7 +366,7 @@ def agent_rounds(curve: list[dict], config: LatentValueConfig) -> list[int]:
 
 
 def _agent(env, model: RSSM, bits: int, config: LatentValueConfig, run_dir: Path, *, seed: int, progress: bool,
-           first_steps: int) -> dict:
+           first_steps: int, pool: tuple | None = None) -> dict:
     """The agent's scores with its ``rounds`` (:func:`agent_rounds`): the chosen round's entry of
     the curve, or the mean of several rounds' values playing the same bouts, once. Which rounds
     make the agent is kept in the checkpoint (``agent``), where :func:`load_value` reads it."""
@@ -305,7 +381,8 @@ def _agent(env, model: RSSM, bits: int, config: LatentValueConfig, run_dir: Path
     else:
         rounds = round_values(model, bits, run_dir, seed=seed, progress=progress)
         value = round_ensemble([rounds[r] for r in chosen], config.hidden_size)
-        agent = {"rounds": chosen, **_scores(env, model, value, bits, config, seed, first_steps)}
+        agent = {"rounds": chosen, **_scores(env, model, value, bits, config, seed, first_steps, pool,
+                                             validation=config.score_rounds)}
         state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)  # with the rounds
     with atomic_path(path) as tmp:
         torch.save({**state, "agent": agent}, tmp)
@@ -417,13 +494,13 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
     (:func:`best_round`), or the mean of the rounds' values that made its agent (``agent_rounds``)."""
     path = Path(run_dir) / CHECKPOINT
     state = _load_checked(path, model)
+    chosen = state.get("agent", {}).get("rounds", [])
+    if chosen and ("best" not in state or chosen != [best_round(state["curve"])]):
+        return _kept_mean(state, chosen, path)
     if "best" not in state:
         raise ValueError(f"{path} was fitted before values were chosen on validation bouts; "
                          "run train_value again in a new folder")
-    config = LatentValueConfig(**state["config"])
-    chosen = state.get("agent", {}).get("rounds", [])
-    if chosen and chosen != [best_round(state["curve"])]:
-        return _kept_mean(state, chosen, path)
+    config = LatentValueConfig(**with_added_defaults(LatentValueConfig, state["config"]))
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(next(model.parameters()).device)
     value.load_state_dict(state["best"])
     return value.eval()
@@ -431,4 +508,4 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
 
 __all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
            "reward_sums", "td_targets", "best_values", "action_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value",
-           "round_values", "round_ensemble", "agent_rounds", "load_rounds"]
+           "round_values", "round_ensemble", "agent_rounds", "load_rounds", "play_values", "bout_pool"]
