@@ -370,3 +370,15 @@ def test_a_lean_run_fits_the_same_rounds_without_their_bouts_and_scores_only_its
                     seed=0, progress=False)
     with pytest.raises(ValueError, match="another LatentValueConfig.*score_rounds"):
         train_value(model, 5, env, config, tmp_path / "lean", seed=0, progress=False)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+def test_a_model_on_the_gpu_plays_its_bouts_in_this_process_and_learns_as_on_the_cpu(tmp_path):
+    model, env = frozen_rssm().cuda(), DelayedPunch()
+    with bout_pool(model, (DelayedPunch,)) as pool:
+        assert pool is None  # a CUDA model is not sent to processes of its own
+    config = LatentValueConfig(hidden_size=32, random_bouts=20, fit_updates=300, batch_size=64, rounds=2,
+                               bouts_per_round=2, test_bouts=3, agent_rounds=2, score_rounds=False)
+    run = train_value(model, 5, env, config, tmp_path, seed=0, progress=False, make_env=(DelayedPunch,))
+    assert run["agent"]["rounds"] == [1, 2] and run["agent"]["returns"] == [22.0] * 3  # always punching
+    assert next(load_value(tmp_path, model).parameters()).is_cuda
