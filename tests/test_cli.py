@@ -1,4 +1,5 @@
 """The command line: collect and view a store; bad input gives a message and exit status 2."""
+import pytest
 from wmthesis.__main__ import main
 from wmthesis.experiments.sokoban_search import boxoban_rows
 from wmthesis.data import EpisodeStore
@@ -190,3 +191,13 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert [e["loss"] for e in lean["curve"]] == [e["loss"] for e in ten["curve"]]
     assert lean["returns"] == mean["returns"] and lean["value_planner"]["returns"] == mean["value_planner"]["returns"]
     assert lean["best_round"] is None and "validation" not in lean["curve"][-1]
+    # the planner's levers on the lean value's validation bouts, cached in its folder
+    from wmthesis.experiments import planet_value
+    from wmthesis.experiments.planet_boxing_value import validate_planners
+
+    levers = ("H3 from a zero mean", "the value's rewards")
+    checked = validate_planners("smoke", 0, levers=levers, variant="lean", progress=False)
+    assert checked["the value's rewards"]["config"]["rewards"] == "value" and checked[levers[0]]["config"]["value_prior"] == 0
+    assert all(len(scores["returns"]) == 1 for scores in checked.values())
+    monkeypatch.setattr(planet_value, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
+    assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked

@@ -127,6 +127,32 @@ def test_imagining_the_priors_mean_is_one_path_by_hand_and_draws_nothing():
         ValuePlanetMind(model, value, imagine="median", **SIZES)
 
 
+def test_the_values_rewards_score_every_imagined_step_by_hand_and_one_step_is_the_value_agent():
+    model, value = model_and_value()
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    actions = torch.nn.functional.one_hot(torch.tensor([[2, 0, 4], [1, 1, 3]]), 5).float()
+    with torch.no_grad():
+        generator = torch.Generator().manual_seed(5)
+        h1, p1 = model.transition(belief.expand(2, -1), state.expand(2, -1), actions[:, 0])
+        s1 = p1.sample(generator)
+        h2, p2 = model.transition(h1, s1, actions[:, 1])
+        s2 = p2.sample(generator)
+        h3, p3 = model.transition(h2, s2, actions[:, 2])
+        q = [value(torch.cat([h, p.mean], -1)) for h, p in ((h1, p1), (h2, p2), (h3, p3))]
+        by_hand = q[0] + 0.9 * q[1] + 0.81 * q[2]  # no reward head anywhere
+        ours = value_returns(model, value, belief, state, actions, torch.Generator().manual_seed(5), discount=0.9,
+                             rewards="value")
+        assert torch.allclose(ours, by_hand)
+        heads = value_returns(model, value, belief, state, actions, torch.Generator().manual_seed(5), discount=0.9)
+        assert not torch.allclose(heads, by_hand)  # the thesis's reward head in between
+        one = value_returns(model, value, belief, state, torch.eye(5)[:, None], rewards="value")
+        assert torch.allclose(one, value(after_action(model, belief.expand(5, -1), state.expand(5, -1), torch.arange(5))))
+    with pytest.raises(ValueError, match="rewards must be one of"):
+        ValuePlanetMind(model, None, rewards="value", **SIZES)
+    with pytest.raises(ValueError, match="rewards must be one of"):
+        ValuePlanetMind(model, value, rewards="critic", **SIZES)
+
+
 def test_the_value_seeds_cems_first_step_with_the_z_scores_of_q():
     from wmthesis.planet.cem import cem_belief
     from wmthesis.planet.value_planner import value_scores

@@ -188,12 +188,15 @@ class ValuePlannerConfig:
     ``imagine``: the imagined states are the prior's samples (``sample``, the thesis's) or its
     ``mean``; ``value_prior`` > 0 seeds CEM's first step with that many z-scores of the value's Q
     (0: the thesis's zero mean). Chosen on the value's validation bouts of Boxing (quick, seed 0,
-    10 bouts): seeded, 10.8 ± 9.8; from the zero mean, 3.6 ± 5.2; +7.2 ± 3.0 paired."""
+    10 bouts): seeded, 10.8 ± 9.8; from the zero mean, 3.6 ± 5.2; +7.2 ± 3.0 paired.
+    ``rewards``: the imagined steps' rewards from the model's reward head (``model``, the
+    thesis's) or each step scored by the value's Q of its action (``value``)."""
 
     horizon: int = 3
     discount: float = 1.0
     imagine: str = "sample"
     value_prior: float = 1.0
+    rewards: str = "model"
     # what a run saved before a field was added did, where the field's default has changed since
     ADDED_AS: ClassVar[dict] = {"value_prior": 0.0}
 

@@ -83,24 +83,32 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
 
 
 # Issue 31's levers on CEM with the value, each measured on the value's validation bouts (never
-# on the evaluation bouts): its horizon, its imagined states, the value seeding its search.
+# on the evaluation bouts): its horizon, its imagined states, the value seeding its search, and
+# where the imagined rewards come from (``rewards="value"``: every step scored by the value's Q).
 # Each is stated against the default planner (``{}``: as evaluated, the value seeding CEM); the
-# first, CEM from the thesis's zero mean, is the row the others are paired against.
+# first, CEM from the thesis's zero mean, is the row the others are paired against. H1 is the
+# value agent's own choice, for reference.
 PLANNER_LEVERS = {"H3 from a zero mean": dict(value_prior=0.0), "H2 from a zero mean": dict(horizon=2, value_prior=0.0),
                   "prior's mean": dict(imagine="mean", value_prior=0.0), "value seeds CEM": {},
-                  "prior's mean, value seeds CEM": dict(imagine="mean")}
+                  "prior's mean, value seeds CEM": dict(imagine="mean"), "H2": dict(horizon=2),
+                  "value seeds CEM at 3 z-scores": dict(value_prior=3.0), "the value's rewards": dict(rewards="value"),
+                  "the value's rewards, prior's mean": dict(rewards="value", imagine="mean"),
+                  "H1: the value agent": dict(horizon=1)}
 LEVER_BOUTS = {"smoke": 1, "quick": 10, "thesis": 10}  # validation bouts per lever
 
 
 def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
-                      bouts: int | None = None, progress: bool = True) -> dict[str, dict]:
-    """CEM with the chosen value (:func:`planet_boxing_value`, run first if need be) under each
-    of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on ``bouts`` (the profile's
-    :data:`LEVER_BOUTS` by default) of the value's validation bouts (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation
-    bouts), each lever cached in the value's folder. Returns lever -> the planner's ``config``
-    and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
-    from wmthesis.config import ValuePlannerConfig, for_profile
+                      bouts: int | None = None, progress: bool = True, variant: str | None = None) -> dict[str, dict]:
+    """CEM with the value agent of ``variant``'s run (:func:`planet_boxing_value`, run first if
+    need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on
+    ``bouts`` (the profile's :data:`LEVER_BOUTS` by default) of the value's validation bouts
+    (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation bouts), each
+    lever cached in the value's folder. Returns lever -> the planner's ``config`` and its
+    ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
+    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
+    from wmthesis.experiments.planet_value import _agent_key
     from wmthesis.planet.value import validation_seeds
+    from wmthesis.training import with_added_defaults
 
     profile = profile_name(profile)
     levers = tuple(PLANNER_LEVERS) if levers is None else levers
@@ -109,16 +117,18 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
         check_choice("planner lever", lever, tuple(PLANNER_LEVERS))
     if bouts < 1:
         raise ValueError(f"bouts must be >= 1, got {bouts}")
-    metrics = planet_boxing_value(profile, seed, progress)
+    metrics = planet_boxing_value(profile, seed, progress, variant)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = value_folder(profile, seed)
+    work = value_folder(profile, seed, variant)
+    config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
     validation = [validation_seeds(seed, k) for k in range(bouts)]
     results = {}
     for lever in levers:
         planner = for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever])
-        folder = data_dir(profile, "planet-boxing-value", f"seed{seed}", "planner-validation", _slug(lever))
-        results[lever] = value_planner_scores(planet_run, work, planner, validation, metrics["best_round"], progress,
-                                              cache=folder / "scores.json")
+        folder = work / "planner-validation" / _slug(lever)
+        results[lever] = value_planner_scores(planet_run, work, planner, validation,
+                                              _agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config),
+                                              progress, cache=folder / "scores.json")
     return results
 
 

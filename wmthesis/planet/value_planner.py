@@ -36,24 +36,31 @@ from wmthesis.planet.value import LatentValue, action_values
 
 
 IMAGINE = ("sample", "mean")
+REWARDS = ("model", "value")  # where an imagined step's reward comes from (value_returns)
 
 
 def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, state: torch.Tensor,
                   actions: torch.Tensor, generator: torch.Generator | None = None,
-                  discount: float = 1.0, imagine: str = "sample") -> torch.Tensor:
+                  discount: float = 1.0, imagine: str = "sample", rewards: str = "model") -> torch.Tensor:
     """The returns R (J,) of one-hot action sequences ``actions`` (J, H, A) from ``belief``
     (1 or J, B) and ``state`` (1 or J, S): imagined rewards, the last step's (and after) from
     ``value`` (module docstring); ``value=None``: imagined rewards alone. ``imagine``: the
-    imagined states are the prior's samples (the thesis's) or its ``mean``."""
+    imagined states are the prior's samples (the thesis's) or its ``mean``. ``rewards``: each
+    imagined step's reward from the model's reward head (``model``, the thesis's), or (``value``)
+    every step scored by the value, ``sum_k gamma^k Q(h_{t+k}, s_{t+k}, a_{t+k})``: the learned
+    sums of real rewards in place of a reward head that barely ranks a landed punch."""
     count, horizon = actions.shape[:2]
     belief, state = belief.expand(count, -1), state.expand(count, -1)
     total = actions.new_zeros(count)
     for t in range(horizon):
         belief, prior = model.transition(belief, state, actions[:, t])
-        if value is not None and t == horizon - 1:
-            return total + discount ** t * value(torch.cat([belief, prior.mean], -1))
+        if value is not None and (t == horizon - 1 or rewards == "value"):
+            total = total + discount ** t * value(torch.cat([belief, prior.mean], -1))
+            if t == horizon - 1:
+                return total
         state = prior.sample(generator) if imagine == "sample" else prior.mean
-        total = total + discount ** t * model.reward(belief, state)
+        if value is None or rewards == "model":
+            total = total + discount ** t * model.reward(belief, state)
     return total
 
 
@@ -72,14 +79,15 @@ class ValuePlanetMind(PlanetMind):
     posterior's sample, CEM's sizes) whose candidates end in ``value`` (:func:`value_returns`)."""
 
     def __init__(self, model: RSSM, value: LatentValue | None, *, discount: float = 1.0, imagine: str = "sample",
-                 value_prior: float = 0.0, **planner):
+                 value_prior: float = 0.0, rewards: str = "model", **planner):
         super().__init__(model, **planner)
-        _check_planner(discount, imagine, value_prior, value)
+        _check_planner(discount, imagine, value_prior, value, rewards)
         self.value, self.discount, self.imagine, self.value_prior = value, float(discount), imagine, float(value_prior)
+        self.rewards = rewards
 
     def returns(self, actions: torch.Tensor) -> torch.Tensor:
         return value_returns(self.model, self.value, self.belief, self.state, actions, self.generator, self.discount,
-                             self.imagine)
+                             self.imagine, self.rewards)
 
     def first_mean(self) -> torch.Tensor | None:
         if not self.value_prior:
@@ -87,11 +95,14 @@ class ValuePlanetMind(PlanetMind):
         return value_scores(self.model, self.value, self.belief, self.state, self.value_prior, self.sizes["horizon"])
 
 
-def _check_planner(discount: float, imagine: str, value_prior: float, value) -> None:
+def _check_planner(discount: float, imagine: str, value_prior: float, value, rewards: str = "model") -> None:
     if not 0.0 < discount <= 1.0:
         raise ValueError(f"discount must be in (0, 1], got {discount}")
     if imagine not in IMAGINE:
         raise ValueError(f"imagine must be one of {IMAGINE}, got {imagine!r}")
+    if rewards not in REWARDS or (rewards == "value" and value is None):
+        raise ValueError(f"rewards must be one of {REWARDS} (value needs a value), got {rewards!r} "
+                         f"with value={value is not None}")
     if value_prior < 0 or (value_prior and value is None):
         raise ValueError(f"value_prior must be >= 0 and needs a value, got {value_prior} with value={value is not None}")
 
@@ -103,7 +114,7 @@ def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfi
     rewards, one per agent step."""
     mind = ValuePlanetMind(model, value, horizon=planner.horizon, candidates=planet.candidates, top_k=planet.top_k,
                            iterations=planet.iterations, bits=planet.bits, discount=planner.discount,
-                           imagine=planner.imagine, value_prior=planner.value_prior,
+                           imagine=planner.imagine, value_prior=planner.value_prior, rewards=planner.rewards,
                            generator=torch.Generator(next(model.parameters()).device).manual_seed(int(mind_seed)))
     record = EpisodeBuffer()
     loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
@@ -133,7 +144,8 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
                             planet.horizon, **sizes)
         first = value_scores(model, value, belief, state, planner.value_prior, planner.horizon) if planner.value_prior else None
         ours = cem_belief(lambda a: value_returns(model, value, belief, state, a, generator, planner.discount,
-                                                  planner.imagine), model.n_actions, planner.horizon, mean=first, **sizes)
+                                                  planner.imagine, planner.rewards), model.n_actions, planner.horizon,
+                          mean=first, **sizes)
         q = action_values(model, value, belief, state)[0]
         for name, pick in zip(PLANNERS, (thesis.mean[0].argmax(), ours.mean[0].argmax(), q.argmax())):
             chosen[name].append(int(pick))
@@ -141,4 +153,4 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
     return {name: np.asarray(picks, np.int64) for name, picks in chosen.items()}
 
 
-__all__ = ["value_returns", "value_scores", "IMAGINE", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
+__all__ = ["value_returns", "value_scores", "IMAGINE", "REWARDS", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
