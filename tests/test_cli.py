@@ -201,3 +201,10 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert all(len(scores["returns"]) == 1 for scores in checked.values())
     monkeypatch.setattr(planet_value, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
     assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
+    # where the lean value changes the plan: from one belief per step, cached for its rounds
+    from wmthesis.experiments.planet_boxing_value import value_plan_choices
+
+    compared = value_plan_choices("smoke", 0, progress=False, variant="lean")
+    assert compared["steps"] == 5 and all(len(c) == 5 for c in compared["choices"].values())
+    cached = json.loads((tmp_path / "data/smoke/planet-boxing-value/lean-seed0/plan_choices.json").read_text())
+    assert cached["key"]["round"] == [8, 9, 10] and cached["choices"] == compared["choices"]

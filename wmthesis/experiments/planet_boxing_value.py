@@ -72,14 +72,15 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
                            seed=seed, progress=progress, references=references, variant=variant, started=started)
 
 
-def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True,
+                       variant: str | None = None) -> dict:
     """Where the value changes the plan on Boxing (:func:`~wmthesis.experiments.planet_value.compare_plans`
-    on :func:`planet_boxing_value`'s run, run first if need be; cached)."""
+    on the run of :func:`planet_boxing_value` with ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
-    metrics = planet_boxing_value(profile, seed, progress)
-    return compare_plans(GAME, data_dir(profile, "planet-boxing-agent", f"seed{seed}"), value_folder(profile, seed),
-                         data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}"), metrics,
-                         PLAN_STEPS[profile], seed)
+    metrics = planet_boxing_value(profile, seed, progress, variant)
+    return compare_plans(GAME, data_dir(profile, "planet-boxing-agent", f"seed{seed}"), value_folder(profile, seed, variant),
+                         data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,))),
+                         metrics, PLAN_STEPS[profile], seed)
 
 
 # Issue 31's levers on CEM with the value, each measured on the value's validation bouts (never

@@ -216,7 +216,8 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
     with EpisodeStore(work / STORE, "r") as store:
         bout = store.episode(-1)
     frames, taken = bout["observations"][:steps], bout["actions"][:steps]
-    key = {"round": metrics["best_round"], "steps": len(taken), "planner": dataclasses.asdict(planner)}
+    agent = metrics["best_round"] if metrics["best_round"] is not None else metrics["agent_rounds"]  # lean: its rounds
+    key = {"round": agent, "steps": len(taken), "planner": dataclasses.asdict(planner)}
     cached = cached_plan(work / "plan_choices.json", key)
     if cached is None:
         choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
