@@ -12,7 +12,8 @@ import time
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
-from wmthesis.experiments.planet_value import PLAN_STEPS, compare_plans, fit_and_compare, start_from, value_planner_scores
+from wmthesis.experiments.planet_value import (PLAN_STEPS, agent_key, compare_plans, fit_and_compare, start_from,
+                                              value_planner_scores)
 from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
@@ -87,8 +88,9 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
 # on the evaluation bouts): its horizon, its imagined states, the value seeding its search, and
 # where the imagined rewards come from (``rewards="value"``: every step scored by the value's Q).
 # Each is stated against the default planner (``{}``: as evaluated, the value seeding CEM); the
-# first, CEM from the thesis's zero mean, is the row the others are paired against. H1 is the
-# value agent's own choice, for reference.
+# first lever played is the row the others are paired against (by default CEM from the thesis's
+# zero mean; notebook 10 pairs against the planner as evaluated). H1 is the value agent's own
+# choice, for reference.
 PLANNER_LEVERS = {"H3 from a zero mean": dict(value_prior=0.0), "H2 from a zero mean": dict(horizon=2, value_prior=0.0),
                   "prior's mean": dict(imagine="mean", value_prior=0.0), "value seeds CEM": {},
                   "prior's mean, value seeds CEM": dict(imagine="mean"), "H2": dict(horizon=2),
@@ -107,7 +109,6 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     lever cached in the value's folder. Returns lever -> the planner's ``config`` and its
     ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
-    from wmthesis.experiments.planet_value import _agent_key
     from wmthesis.planet.value import validation_seeds
     from wmthesis.training import with_added_defaults
 
@@ -128,7 +129,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
         planner = for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever])
         folder = work / "planner-validation" / _slug(lever)
         results[lever] = value_planner_scores(planet_run, work, planner, validation,
-                                              _agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config),
+                                              agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config),
                                               progress, cache=folder / "scores.json")
     return results
 

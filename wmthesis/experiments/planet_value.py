@@ -137,7 +137,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
         env.close()
     chosen = run["agent"]
     returns = chosen["returns"]
-    scores = value_planner_scores(planet_run, work, planner, bouts, _agent_key(chosen["rounds"], config),
+    scores = value_planner_scores(planet_run, work, planner, bouts, agent_key(chosen["rounds"], config),
                                   progress, game=game)
     lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in baselines.items()}
     lines.update({f"CEM, H{planner.horizon}, with the value at its end": scores["full"]["mean"], **references})
@@ -177,7 +177,7 @@ def _value_curves(curve: list[dict], agent: dict, value: dict) -> dict[str, dict
     return curves
 
 
-def _agent_key(rounds: list[int], config) -> int | list[int]:
+def agent_key(rounds: list[int], config) -> int | list[int]:
     """The value agent in a cache key: its chosen round (as keys were written before the agent
     could be several rounds' mean), or the rounds it averages."""
     return rounds if config.agent_rounds else rounds[0]
@@ -245,4 +245,4 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare"]
+__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare"]
