@@ -17,7 +17,8 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
   candidates end in that value (:class:`~wmthesis.planet.value_planner.ValuePlanetMind`: the
   same J, K and I, the horizon of the profile's ``ValuePlannerConfig``), with its time over the
   plain CEM step (``vs_cem``), its first step seeded by the value as evaluated (one more value
-  call per step); and the same from the thesis's zero mean, without that call. And the step of
+  call per step); the same from the thesis's zero mean, without that call; and with every
+  imagined step scored by the value (``rewards="value"``: H value calls per candidate). And the step of
   the collecting planner with Plan2Explore's bonus (:mod:`~wmthesis.planet.explore`: 5 one-step
   heads per imagined step; beyond the thesis), over the plain CEM step.
 - The same two at the ``quick`` profile's planner sizes.
@@ -108,12 +109,13 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
     mean_mind = ValueMind(model, round_ensemble([value.state_dict()] * 3, value_cfg.hidden_size), cfg.bits, seed)
     planner = for_profile(ValuePlannerConfig, label)
     horizon = planner.horizon
-    value_planner = ValuePlanetMind(model, value, horizon=horizon, candidates=cfg.candidates, top_k=cfg.top_k,
-                                    iterations=cfg.iterations, bits=cfg.bits, imagine=planner.imagine,
-                                    value_prior=planner.value_prior, generator=torch.Generator(dev).manual_seed(seed))
-    zero_mean = ValuePlanetMind(model, value, horizon=horizon, candidates=cfg.candidates, top_k=cfg.top_k,
-                                iterations=cfg.iterations, bits=cfg.bits, imagine=planner.imagine, value_prior=0.0,
-                                generator=torch.Generator(dev).manual_seed(seed))
+    def value_cem(**changes) -> ValuePlanetMind:
+        options = {**dict(imagine=planner.imagine, value_prior=planner.value_prior, rewards=planner.rewards), **changes}
+        return ValuePlanetMind(model, value, horizon=horizon, candidates=cfg.candidates, top_k=cfg.top_k,
+                               iterations=cfg.iterations, bits=cfg.bits, generator=torch.Generator(dev).manual_seed(seed),
+                               **options)
+
+    value_planner, zero_mean, value_rewards = value_cem(), value_cem(value_prior=0.0), value_cem(rewards="value")
     size = cfg.frame_size
     frame = np.random.default_rng(seed).integers(0, 32, (size, size, 3), dtype=np.uint8) * 8
     with torch.inference_mode():
@@ -122,7 +124,8 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
                                   "value_mean": lambda: mean_mind.plan(frame),
                                   "explore": lambda: exploring.plan(frame),
                                   "value_cem": lambda: value_planner.plan(frame),
-                                  "value_cem_zero_mean": lambda: zero_mean.plan(frame)}, repeats)
+                                  "value_cem_zero_mean": lambda: zero_mean.plan(frame),
+                                  "value_cem_rewards": lambda: value_rewards.plan(frame)}, repeats)
     bare_s, cem_s, step_s, value_s = seconds["bare"], seconds["cem"], seconds["step"], seconds["value"]
     steps = cfg.iterations * cfg.horizon * cfg.candidates
     name = f"H{cfg.horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}"
@@ -142,7 +145,10 @@ def planning_rows(model, cfg: PlaNetConfig, label: str, repeats: int, seed: int)
                  seconds=seconds["value_cem"], vs_cem=seconds["value_cem"] / step_s),
             dict(what=f"agent step: CEM with terminal value, from the zero mean ({label})",
                  sizes=f"H{horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}",
-                 seconds=seconds["value_cem_zero_mean"], vs_cem=seconds["value_cem_zero_mean"] / step_s)]
+                 seconds=seconds["value_cem_zero_mean"], vs_cem=seconds["value_cem_zero_mean"] / step_s),
+            dict(what=f"agent step: CEM, every imagined step scored by the value ({label})",
+                 sizes=f"H{horizon} J{cfg.candidates} K{cfg.top_k} I{cfg.iterations}",
+                 seconds=seconds["value_cem_rewards"], vs_cem=seconds["value_cem_rewards"] / step_s)]
 
 
 def update_row(cfg: PlaNetConfig, label: str, updates: int, seed: int) -> dict:
