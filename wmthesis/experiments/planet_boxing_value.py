@@ -96,6 +96,8 @@ PLANNER_LEVERS = {"H3 from a zero mean": dict(value_prior=0.0), "H2 from a zero 
                   "prior's mean, value seeds CEM": dict(imagine="mean"), "H2": dict(horizon=2),
                   "value seeds CEM at 3 z-scores": dict(value_prior=3.0), "the value's rewards": dict(rewards="value"),
                   "the value's rewards, prior's mean": dict(rewards="value", imagine="mean"),
+                  "H2, the value's rewards": dict(horizon=2, rewards="value"),
+                  "the value's rewards, discount 0.5": dict(rewards="value", discount=0.5),
                   "H1: the value agent": dict(horizon=1)}
 LEVER_BOUTS = {"smoke": 1, "quick": 10, "thesis": 10}  # validation bouts per lever
 

@@ -16,10 +16,13 @@ from wmthesis.utils import atomic_path, parallel_calls
 
 def _run_header(experiment: str, profile: str, seed: int, seconds: float, **run) -> dict:
     """The first entries of a ``metrics.json``: the experiment, ``run``'s own (its variant, ...),
-    profile and seed, today's date, this machine and the wall time of ``seconds``."""
+    profile and seed, today's date, this machine, its torch threads (a seed repeats its curve on
+    a CPU only with the same number: reductions split differently) and the wall time of ``seconds``."""
+    import torch
+
     return {"experiment": experiment, **run, "profile": profile, "seed": seed, "date": date.today().isoformat(),
             "machine": f"{platform.node()} ({platform.machine()}, {os.cpu_count()} cores)",
-            "wall_seconds": round(seconds, 1)}
+            "threads": torch.get_num_threads(), "wall_seconds": round(seconds, 1)}
 
 
 def _first_run_seconds(path: Path, seconds: float) -> float:
