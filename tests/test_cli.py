@@ -191,6 +191,20 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert [e["loss"] for e in lean["curve"]] == [e["loss"] for e in ten["curve"]]
     assert lean["returns"] == mean["returns"] and lean["value_planner"]["returns"] == mean["value_planner"]["returns"]
     assert lean["best_round"] is None and "validation" not in lean["curve"][-1]
+    # lean-value-rewards: lean's value from a copy (no round fitted again) under the planner chosen
+    # on validation bouts; its CEM bout is that planner's with lean's own value
+    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.experiments.planet_value import value_planner_bout
+
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "lean-value-rewards"]) == 0
+    rewarded = json.loads((results / "lean-value-rewards" / "metrics.json").read_text())
+    assert rewarded["curve"] == lean["curve"] and rewarded["returns"] == lean["returns"]
+    planner = rewarded["value_planner"]["config"]
+    assert planner == {**lean["value_planner"]["config"], "rewards": "value", "discount": 0.5}
+    bout = value_planner_bout(tmp_path / "data/smoke/planet-boxing-agent/seed0",
+                              tmp_path / "data/smoke/planet-boxing-value/lean-seed0", ValuePlannerConfig(**planner),
+                              *rewarded["bouts"][0])
+    assert rewarded["value_planner"]["returns"][0] == bout["return"]
     # the planner's levers on the lean value's validation bouts, cached in its folder
     from wmthesis.experiments import planet_value
     from wmthesis.experiments.planet_boxing_value import validate_planners
