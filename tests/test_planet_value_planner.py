@@ -106,6 +106,12 @@ def test_the_planners_over_seeds_each_seed_then_the_mean_and_its_t_interval():
     assert rows["CEM with the value, full bouts"] == ["10.0", "20.0", "15.0 [-48.5, 78.5]"]
     assert rows["CEM with the value, first 500 steps"][:2] == ["5.0", "10.0"]
     assert planner_rows({0: metrics(7.0)})[3] == ["CEM with the value, full bouts", "7.0", "7.0"]  # one seed: no interval
+    # another variant's CEM beside, seed for seed (by seed, not by order)
+    rows = planner_rows({0: metrics(10.0), 3: metrics(20.0)}, beside={"default": {3: metrics(4.0), 0: metrics(2.0)}})
+    assert rows[-2] == ["CEM with the value (default), full bouts", "2.0", "4.0", "3.0 [-9.7, 15.7]"]
+    assert rows[-1][:3] == ["CEM with the value (default), first 500 steps", "1.0", "2.0"]
+    with pytest.raises(ValueError, match="seeds"):
+        planner_rows({0: metrics(1.0)}, beside={"default": {1: metrics(1.0)}})
 
 
 def test_imagining_the_priors_mean_is_one_path_by_hand_and_draws_nothing():

@@ -219,20 +219,30 @@ def _slug(name: str) -> str:
     return "".join(c if c.isalnum() else "-" for c in name.lower()).strip("-")
 
 
-def planner_rows(by_seed: dict[int, dict]) -> list[list[str]]:
+def planner_rows(by_seed: dict[int, dict], beside: dict[str, dict[int, dict]] | None = None) -> list[list[str]]:
     """The planners over seeds (``by_seed``: seed -> :func:`planet_boxing_value`'s metrics), one
     row each: every seed's mean over its bouts, then the mean over seeds with its 95% t-interval
-    (:func:`~wmthesis.experiments.summary.aggregate`)."""
+    (:func:`~wmthesis.experiments.summary.aggregate`). ``beside``: label -> the same seeds' runs of
+    another variant, whose CEM with the value is added as rows named with the label."""
     from wmthesis.experiments.summary import aggregate
 
-    players = {"random play": lambda m: m["random"]["mean"], "PlaNet's CEM (thesis), full bouts": lambda m: m["planet"]["mean"],
-               "value alone, full bouts": lambda m: m["value"]["mean"],
-               "value alone, first 500 steps": lambda m: m.get("value_first", {}).get("mean"),  # runs since 2026-11-24
-               "CEM with the value, full bouts": lambda m: m["value_planner"]["full"]["mean"],
-               "CEM with the value, first 500 steps": lambda m: m["value_planner"]["first"]["mean"]}
+    def planner(part, runs):
+        return lambda seed: runs[seed]["value_planner"][part]["mean"]
+
+    players = {"random play": lambda seed: by_seed[seed]["random"]["mean"],
+               "PlaNet's CEM (thesis), full bouts": lambda seed: by_seed[seed]["planet"]["mean"],
+               "value alone, full bouts": lambda seed: by_seed[seed]["value"]["mean"],
+               "value alone, first 500 steps": lambda seed: by_seed[seed].get("value_first", {}).get("mean"),  # since 2026-11-24
+               "CEM with the value, full bouts": planner("full", by_seed),
+               "CEM with the value, first 500 steps": planner("first", by_seed)}
+    for label, runs in (beside or {}).items():
+        if set(runs) != set(by_seed):
+            raise ValueError(f"{label!r} has seeds {sorted(runs)}, not the seeds {sorted(by_seed)}")
+        players |= {f"CEM with the value ({label}), full bouts": planner("full", runs),
+                    f"CEM with the value ({label}), first 500 steps": planner("first", runs)}
     rows = []
     for name, score in players.items():
-        scores = [score(m) for m in by_seed.values()]
+        scores = [score(seed) for seed in by_seed]
         if None in scores:  # not measured in an older run
             continue
         summary = aggregate(scores)
