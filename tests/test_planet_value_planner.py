@@ -245,7 +245,7 @@ def test_the_planner_levers_table_is_paired_against_the_first_lever():
 
     rows = planner_lever_rows({"value seeds CEM": scores([2.0, 4.0, 0.0], [1.0, 1.0, 1.0]),
                                "prior's mean": scores([5.0, 5.0, 5.0], [2.0, 3.0, 4.0])})
-    assert rows[0] == ["value seeds CEM", "(as evaluated)", "2.0 ± 1.6", "1.0", "+0.0 ± 0.0"]
+    assert rows[0] == ["value seeds CEM", "(the default)", "2.0 ± 1.6", "1.0", "+0.0 ± 0.0"]
     # differences 3, 1, 5: mean 3, standard error 2 / sqrt(3)
     assert rows[1] == ["prior's mean", "imagine=mean, value_prior=0.0", "5.0 ± 0.0", "3.0", "+3.0 ± 1.2"]
     # the levers are stated against the default planner: the first is the thesis's CEM start

@@ -92,11 +92,12 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
 
 # Issue 31's levers on CEM with the value, each measured on the value's validation bouts (never
 # on the evaluation bouts): its horizon, its imagined states, the value seeding its search, and
-# where the imagined rewards come from (``rewards="value"``: every step scored by the value's Q).
-# Each is stated against the default planner (``{}``: as evaluated, the value seeding CEM); the
-# first lever played is the row the others are paired against (by default CEM from the thesis's
-# zero mean; notebook 10 pairs against the planner as evaluated). H1 is the value agent's own
-# choice, for reference.
+# where the imagined rewards come from (``rewards="value"``: every step scored by the value's Q)
+# and how much the later steps weigh (``discount``). Each is stated against the default planner
+# (``{}``: the value seeding CEM); the first lever played is the row the others are paired against
+# (by default CEM from the thesis's zero mean; notebook 10 pairs against the default planner).
+# H1 is the value agent's own choice, for reference. The lever chosen on seed 0's validation bouts
+# is the planner of ``lean-value-rewards`` (:data:`PLANNERS`).
 PLANNER_LEVERS = {"H3 from a zero mean": dict(value_prior=0.0), "H2 from a zero mean": dict(horizon=2, value_prior=0.0),
                   "prior's mean": dict(imagine="mean", value_prior=0.0), "value seeds CEM": {},
                   "prior's mean, value seeds CEM": dict(imagine="mean"), "H2": dict(horizon=2),
@@ -204,7 +205,7 @@ def planner_lever_rows(results: dict[str, dict], changes: dict[str, str] | None 
     from wmthesis.metrics import paired_difference
 
     if changes is None:
-        changes = {lever: ", ".join(f"{k}={v}" for k, v in PLANNER_LEVERS.get(lever, {}).items()) or "(as evaluated)"
+        changes = {lever: ", ".join(f"{k}={v}" for k, v in PLANNER_LEVERS.get(lever, {}).items()) or "(the default)"
                    for lever in results}
     first = next(iter(results.values()))
     rows = []
