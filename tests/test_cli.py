@@ -215,6 +215,8 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert all(len(scores["returns"]) == 1 for scores in checked.values())
     monkeypatch.setattr(planet_value, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
     assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
+    # a variant that changes the planner alone plays its levers on the value it shares with lean
+    assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards", progress=False) == checked
     # where the lean value changes the plan: from one belief per step, cached for its rounds
     from wmthesis.experiments.planet_boxing_value import value_plan_choices
 

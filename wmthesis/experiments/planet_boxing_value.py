@@ -115,7 +115,8 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on
     ``bouts`` (the profile's :data:`LEVER_BOUTS` by default) of the value's validation bouts
     (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation bouts), each
-    lever cached in the value's folder. Returns lever -> the planner's ``config`` and its
+    lever cached in the value's folder (a variant that changes the planner alone plays on the
+    value of the run it copies, in that run's folder). Returns lever -> the planner's ``config`` and its
     ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
     from wmthesis.planet.value import validation_seeds
@@ -130,7 +131,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
         raise ValueError(f"bouts must be >= 1, got {bouts}")
     metrics = planet_boxing_value(profile, seed, progress, variant)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = value_folder(profile, seed, variant)
+    work = value_folder(profile, seed, EXTENDS[variant] if variant in PLANNERS else variant)  # its value's run
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
     validation = [validation_seeds(seed, k) for k in range(bouts)]
     results = {}
