@@ -23,10 +23,9 @@ from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 # rule chosen on validation bouts by :func:`validate_agents`); ``lean`` is that agent from scratch
 # with no greedy bouts after each round (``score_rounds``: the per-round curve is a diagnostic,
 # the mean of the last rounds chooses nothing on it), its bouts two at a time: issue 31's hour.
+LEAN = dict(rounds=10, agent_rounds=3, score_rounds=False)
 VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10), "rounds-10": dict(rounds=10),
-                  "rounds-10-mean-3": dict(rounds=10, agent_rounds=3),
-                  "lean": dict(rounds=10, agent_rounds=3, score_rounds=False),
-                  "lean-value-rewards": dict(rounds=10, agent_rounds=3, score_rounds=False)}
+                  "rounds-10-mean-3": dict(rounds=10, agent_rounds=3), "lean": LEAN, "lean-value-rewards": LEAN}
 # A variant's planner where it is not the default CEM with the value: ``lean-value-rewards`` is
 # ``lean``'s value with the lever chosen on its validation bouts (seed 0, 10 bouts; notebook 10):
 # every imagined step scored by the value's Q, at a discount of 0.5 a step, 28.9 against the
