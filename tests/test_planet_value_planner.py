@@ -235,6 +235,22 @@ def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_re
     assert [p["return"] for p in played_bouts(path, other, False, calls)] == [0.0, 1.0, 2.0, 3.0]
 
 
+def test_groups_of_bouts_play_in_one_pool_each_saved_in_its_own_file(tmp_path):
+    import json
+
+    from wmthesis.experiments.results import played_groups
+
+    paths = [tmp_path / "a.json", tmp_path / "b.json"]
+    keys = [{"lever": "a"}, {"lever": "b"}]
+    calls = [[(dict, [("return", float(10 * g + i))]) for i in range(3)] for g in range(2)]
+    paths[1].write_text(json.dumps({"key": keys[1], "plays": {"0": {"return": -1.0}}}))  # ended before a cut
+    plays = played_groups([(paths[g], keys[g], calls[g], None) for g in range(2)], False)
+    assert [[p["return"] for p in group] for group in plays] == [[0.0, 1.0, 2.0], [-1.0, 11.0, 12.0]]
+    for g in range(2):  # each group's bouts in its own file, under its own key
+        saved = json.loads(paths[g].read_text())
+        assert saved["key"] == keys[g] and sorted(saved["plays"]) == ["0", "1", "2"]
+
+
 def test_the_planner_levers_table_is_paired_against_the_first_lever():
     from wmthesis.config import ValuePlannerConfig
     from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS, planner_lever_rows

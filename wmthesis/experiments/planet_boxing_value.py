@@ -13,7 +13,7 @@ from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
 from wmthesis.experiments.planet_value import (PLAN_STEPS, agent_key, compare_plans, fit_and_compare, start_from,
-                                              value_planner_scores)
+                                              value_planners_scores)
 from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
@@ -104,19 +104,27 @@ PLANNER_LEVERS = {"H3 from a zero mean": dict(value_prior=0.0), "H2 from a zero 
                   "the value's rewards, prior's mean": dict(rewards="value", imagine="mean"),
                   "H2, the value's rewards": dict(horizon=2, rewards="value"),
                   "the value's rewards, discount 0.5": dict(rewards="value", discount=0.5),
+                  "the value's rewards, discount 0.3": dict(rewards="value", discount=0.3),
+                  "the value's rewards, discount 0.7": dict(rewards="value", discount=0.7),
+                  "the value's rewards, discount 0.5, prior's mean": dict(rewards="value", discount=0.5, imagine="mean"),
                   "H1: the value agent": dict(horizon=1)}
 LEVER_BOUTS = {"smoke": 1, "quick": 10, "thesis": 10}  # validation bouts per lever
 
 
 def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
-                      bouts: int | None = None, progress: bool = True, variant: str | None = None) -> dict[str, dict]:
+                      bouts: int | None = None, progress: bool = True, variant: str | None = None,
+                      executor=None, metrics: dict | None = None) -> dict[str, dict]:
     """CEM with the value agent of ``variant``'s run (:func:`planet_boxing_value`, run first if
     need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on
     ``bouts`` (the profile's :data:`LEVER_BOUTS` by default) of the value's validation bouts
     (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation bouts), each
     lever cached in the value's folder (a variant that changes the planner alone plays on the
-    value of the run it copies, in that run's folder). Returns lever -> the planner's ``config`` and its
-    ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
+    value of the run it copies, in that run's folder). All levers' bouts are played in one pool,
+    lever by lever: ``executor`` (:func:`~wmthesis.utils.process_pool`), two at a time by
+    default; a machine with more cores plays them that many at a time. ``metrics``: the value
+    run's, where it was read from its ``metrics.json`` (a machine that holds only the models,
+    ``tools/validate_levers.py``). Returns lever -> the
+    planner's ``config`` and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
     from wmthesis.planet.value import validation_seeds
     from wmthesis.training import with_added_defaults
@@ -128,19 +136,17 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
         check_choice("planner lever", lever, tuple(PLANNER_LEVERS))
     if bouts < 1:
         raise ValueError(f"bouts must be >= 1, got {bouts}")
-    metrics = planet_boxing_value(profile, seed, progress, variant)
+    metrics = planet_boxing_value(profile, seed, progress, variant) if metrics is None else metrics
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = value_folder(profile, seed, EXTENDS[variant] if variant in PLANNERS else variant)  # its value's run
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
     validation = [validation_seeds(seed, k) for k in range(bouts)]
-    results = {}
-    for lever in levers:
-        planner = for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever])
-        folder = work / "planner-validation" / _slug(lever)
-        results[lever] = value_planner_scores(planet_run, work, planner, validation,
-                                              agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config),
-                                              progress, cache=folder / "scores.json")
-    return results
+    planners = [(for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]),
+                 work / "planner-validation" / _slug(lever) / "scores.json") for lever in levers]
+    scores = value_planners_scores(planet_run, work, planners, validation,
+                                   agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config),
+                                   progress, executor=executor)
+    return dict(zip(levers, scores))
 
 
 # Which fitted values make the value agent (``LatentValueConfig.agent_rounds``), each measured on

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_result, bout_scores
-from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, cached_for, played_bouts
+from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, cached_for, played_bouts, played_groups
 from wmthesis.utils import atomic_path
 from wmthesis.viz import save_figure
 
@@ -81,18 +81,28 @@ def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list
     first-500-step scores, cached in ``cache`` (``value_run/value_planner.json`` by default)
     for the value agent ``best`` (its chosen round, or the rounds whose mean it is), the
     planner's config and the bouts."""
-    key = {"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
     cache = value_run / "value_planner.json" if cache is None else cache
-    cached = cached_plan(cache, key)
-    if cached is not None:
-        return cached["scores"]
-    plays = played_bouts(cache.with_name(cache.stem + "-bouts.json"), key, progress,
-                         [(value_planner_bout, planet_run, value_run, planner, *bout, game) for bout in bouts],
-                         read_key=_planner_defaults)
-    scores = {**bout_scores(plays), "config": dataclasses.asdict(planner)}
-    with atomic_path(cache) as tmp:
-        tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
-    return scores
+    return value_planners_scores(planet_run, value_run, [(planner, cache)], bouts, best, progress, game)[0]
+
+
+def value_planners_scores(planet_run: Path, value_run: Path, planners: list[tuple], bouts: list, best: int | list[int],
+                          progress: bool, game: str = "boxing", executor=None) -> list[dict]:
+    """:func:`value_planner_scores` for each ``(planner, cache)`` of ``planners``, their bouts
+    all in one pool (``executor``, :func:`~wmthesis.utils.process_pool`; two at a time by
+    default), each planner's saved as they end."""
+    keys = [{"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
+            for planner, _ in planners]
+    cached = [cached_plan(cache, key) for (_, cache), key in zip(planners, keys)]
+    todo = [j for j, c in enumerate(cached) if c is None]
+    plays = played_groups([(planners[j][1].with_name(planners[j][1].stem + "-bouts.json"), keys[j],
+                            [(value_planner_bout, planet_run, value_run, planners[j][0], *bout, game) for bout in bouts],
+                            _planner_defaults) for j in todo], progress, executor)
+    for j, played in zip(todo, plays):
+        scores = {**bout_scores(played), "config": dataclasses.asdict(planners[j][0])}
+        with atomic_path(planners[j][1]) as tmp:
+            tmp.write_text(json.dumps({"key": keys[j], "scores": scores}, indent=1))
+        cached[j] = {"scores": scores}
+    return [c["scores"] for c in cached]
 
 
 def start_from(work: Path, default: Path, names: tuple[str, ...] | None = None) -> None:
@@ -245,4 +255,4 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare"]
+__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "value_planners_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare"]

@@ -68,20 +68,31 @@ def _jsonable(value):
 
 
 def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple],
-                 read_key: Callable[[dict], dict] | None = None) -> list[dict]:
+                 read_key: Callable[[dict], dict] | None = None, executor=None) -> list[dict]:
     """``calls`` (one bout each), each bout saved in ``path`` as it ends: a run cut off plays
-    only the bouts it had not finished (those saved for the same ``key``, :func:`cached_for`)."""
-    saved = cached_for(path, key, read_key)
-    done = {int(i): play for i, play in (saved or {}).get("plays", {}).items()}
-    todo = [i for i in range(len(calls)) if i not in done]
+    only the bouts it had not finished (those saved for the same ``key``, :func:`cached_for`).
+    ``executor``: a :func:`~wmthesis.utils.process_pool` to play them in (two at a time by default)."""
+    return played_groups([(path, key, calls, read_key)], progress, executor)[0]
+
+
+def played_groups(groups: list[tuple], progress: bool, executor=None) -> list[list[dict]]:
+    """:func:`played_bouts` for each ``(path, key, calls, read_key)`` of ``groups``, all in one
+    pool, submitted group by group (the first groups end first on a machine with more workers
+    than one group has bouts). Returns each group's plays."""
+    done, todo = [], []
+    for g, (path, key, calls, read_key) in enumerate(groups):
+        saved = cached_for(path, key, read_key)
+        done.append({int(i): play for i, play in (saved or {}).get("plays", {}).items()})
+        todo += [(g, i) for i in range(len(calls)) if i not in done[g]]
 
     def save(index: int, play: dict) -> None:
-        done[todo[index]] = play
-        with atomic_path(path) as tmp:
-            tmp.write_text(json.dumps({"key": key, "plays": done}, indent=1))
+        g, i = todo[index]
+        done[g][i] = play
+        with atomic_path(groups[g][0]) as tmp:
+            tmp.write_text(json.dumps({"key": groups[g][1], "plays": done[g]}, indent=1))
 
-    parallel_calls([calls[i] for i in todo], progress, on_done=save)
-    return [done[i] for i in range(len(calls))]
+    parallel_calls([groups[g][2][i] for g, i in todo], progress, on_done=save, executor=executor)
+    return [[done[g][i] for i in range(len(calls))] for g, (_, _, calls, _) in enumerate(groups)]
 
 
 def cached_for(path: Path, key: dict, read_key: Callable[[dict], dict] | None = None) -> dict | None:

@@ -1,0 +1,59 @@
+"""Play planner levers on the value's validation bouts of several seeds in one pool of
+processes, as many at a time as the machine has cores (issue 31's levers; see
+``validate_planners``). Each bout is saved in the value run's folder as it ends, so a run cut off
+resumes where it stopped, here or on the 2-core machine. The value runs must be finished: their
+``metrics.json`` is read, and only the models (the PlaNet agent's checkpoint and the value's)
+are needed, not the bouts they were fitted on.
+
+    python tools/validate_levers.py --profile quick --variant lean --seeds 1 0 \\
+        --levers "value seeds CEM" "the value's rewards, discount 0.5" [--workers 16]
+
+Seeds are submitted in the order given, and within a seed the levers: on a machine cut off by a
+time limit, the first ones end first.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import threading
+import json
+import time
+
+from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS, planner_lever_rows, validate_planners
+from wmthesis.utils import data_dir, process_pool
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--profile", default="quick", choices=("smoke", "quick", "thesis"))
+    parser.add_argument("--variant", default="lean")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--levers", nargs="+", default=list(PLANNER_LEVERS), choices=tuple(PLANNER_LEVERS))
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--stagger", type=float, default=30.0,
+                        help="seconds between seeds, for each seed's bouts to be submitted before the next's")
+    args = parser.parse_args()
+
+    results = {}
+    with process_pool(args.workers) as pool:
+        def play(seed: int) -> None:
+            metrics = json.loads((data_dir("results", "planet-boxing-value", f"{args.profile}-seed{seed}", args.variant)
+                                  / "metrics.json").read_text())
+            results[seed] = validate_planners(args.profile, seed, tuple(args.levers), variant=args.variant,
+                                              executor=pool, metrics=metrics)
+
+        threads = []
+        for seed in args.seeds:
+            threads.append(threading.Thread(target=play, args=(seed,)))
+            threads[-1].start()
+            time.sleep(args.stagger)
+        for thread in threads:
+            thread.join()
+    for seed in args.seeds:
+        print(f"\nseed {seed}")
+        for row in planner_lever_rows(results[seed]):
+            print(" | ".join(row))
+
+
+if __name__ == "__main__":
+    main()
