@@ -217,6 +217,22 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
     # a variant that changes the planner alone plays its levers on the value it shares with lean
     assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards", progress=False) == checked
+    # tools/validate_levers.py: from the finished run's metrics.json, in a pool of its own; a lever
+    # not played yet is played there and saved where validate_planners finds it
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from wmthesis.experiments.planet_boxing_value import planner_lever_rows
+
+    tool = Path(__file__).resolve().parents[1] / "tools" / "validate_levers.py"
+    spread = subprocess.run([sys.executable, str(tool), "--profile", "smoke", "--variant", "lean", "--seeds", "0",
+                             "--workers", "2", "--stagger", "0", "--levers", *levers, "H1: the value agent"],
+                            env=os.environ, capture_output=True, text=True, check=True).stdout
+    played = validate_planners("smoke", 0, levers=(*levers, "H1: the value agent"), variant="lean", progress=False)
+    assert played["H1: the value agent"]["config"]["horizon"] == 1
+    assert spread.split("seed 0\n")[1].splitlines() == [" | ".join(row) for row in planner_lever_rows(played)]
     # where the lean value changes the plan: from one belief per step, cached for its rounds
     from wmthesis.experiments.planet_boxing_value import value_plan_choices
 

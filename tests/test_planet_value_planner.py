@@ -235,6 +235,14 @@ def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_re
     assert [p["return"] for p in played_bouts(path, other, False, calls)] == [0.0, 1.0, 2.0, 3.0]
 
 
+def test_a_planner_variant_copies_a_run_fitted_with_its_own_value_config():
+    from wmthesis.experiments.planet_boxing_value import EXTENDS, PLANNERS, VALUE_VARIANTS
+
+    for variant in PLANNERS:  # its value is copied, not fitted: the copy must be the value it names
+        assert VALUE_VARIANTS[variant] == VALUE_VARIANTS[EXTENDS[variant]], variant
+        assert EXTENDS[variant] not in PLANNERS  # a planner-only run holds no value of its own to copy
+
+
 def test_groups_of_bouts_play_in_one_pool_each_saved_in_its_own_file(tmp_path):
     import json
 
