@@ -14,10 +14,10 @@ time limit, the first ones end first.
 from __future__ import annotations
 
 import argparse
-import os
-import threading
 import json
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS, planner_lever_rows, validate_planners
 from wmthesis.utils import data_dir, process_pool
@@ -34,21 +34,18 @@ def main() -> None:
                         help="seconds between seeds, for each seed's bouts to be submitted before the next's")
     args = parser.parse_args()
 
-    results = {}
-    with process_pool(args.workers) as pool:
-        def play(seed: int) -> None:
-            metrics = json.loads((data_dir("results", "planet-boxing-value", f"{args.profile}-seed{seed}", args.variant)
-                                  / "metrics.json").read_text())
-            results[seed] = validate_planners(args.profile, seed, tuple(args.levers), variant=args.variant,
-                                              executor=pool, metrics=metrics)
+    def play(seed: int) -> dict:
+        metrics = json.loads((data_dir("results", "planet-boxing-value", f"{args.profile}-seed{seed}", args.variant)
+                              / "metrics.json").read_text())
+        return validate_planners(args.profile, seed, tuple(args.levers), variant=args.variant, executor=pool,
+                                 metrics=metrics)
 
-        threads = []
-        for seed in args.seeds:
-            threads.append(threading.Thread(target=play, args=(seed,)))
-            threads[-1].start()
+    with process_pool(args.workers) as pool, ThreadPoolExecutor(len(args.seeds)) as seeds:
+        futures = {}
+        for seed in args.seeds:  # each seed's bouts submitted before the next seed's
+            futures[seed] = seeds.submit(play, seed)
             time.sleep(args.stagger)
-        for thread in threads:
-            thread.join()
+        results = {seed: future.result() for seed, future in futures.items()}  # a seed's error raised here
     for seed in args.seeds:
         print(f"\nseed {seed}")
         for row in planner_lever_rows(results[seed]):

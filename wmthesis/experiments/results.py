@@ -68,17 +68,16 @@ def _jsonable(value):
 
 
 def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple],
-                 read_key: Callable[[dict], dict] | None = None, executor=None) -> list[dict]:
+                 read_key: Callable[[dict], dict] | None = None) -> list[dict]:
     """``calls`` (one bout each), each bout saved in ``path`` as it ends: a run cut off plays
-    only the bouts it had not finished (those saved for the same ``key``, :func:`cached_for`).
-    ``executor``: a :func:`~wmthesis.utils.process_pool` to play them in (two at a time by default)."""
-    return played_groups([(path, key, calls, read_key)], progress, executor)[0]
+    only the bouts it had not finished (those saved for the same ``key``, :func:`cached_for`)."""
+    return played_groups([(path, key, calls, read_key)], progress)[0]
 
 
 def played_groups(groups: list[tuple], progress: bool, executor=None) -> list[list[dict]]:
     """:func:`played_bouts` for each ``(path, key, calls, read_key)`` of ``groups``, all in one
-    pool, submitted group by group (the first groups end first on a machine with more workers
-    than one group has bouts). Returns each group's plays."""
+    pool (``executor``, a :func:`~wmthesis.utils.process_pool`; two at a time by default),
+    submitted group by group: the first groups end first. Returns each group's plays."""
     done, todo = [], []
     for g, (path, key, calls, read_key) in enumerate(groups):
         saved = cached_for(path, key, read_key)
