@@ -19,8 +19,9 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS, planner_lever_rows, validate_planners
-from wmthesis.utils import data_dir, process_pool
+from wmthesis.experiments.planet_boxing_value import (PLANNER_LEVERS, planner_lever_rows, results_folder,
+                                                       validate_planners)
+from wmthesis.utils import process_pool
 
 
 def main() -> None:
@@ -35,8 +36,7 @@ def main() -> None:
     args = parser.parse_args()
 
     def play(seed: int) -> dict:
-        metrics = json.loads((data_dir("results", "planet-boxing-value", f"{args.profile}-seed{seed}", args.variant)
-                              / "metrics.json").read_text())
+        metrics = json.loads((results_folder(args.profile, seed, args.variant) / "metrics.json").read_text())
         return validate_planners(args.profile, seed, tuple(args.levers), variant=args.variant, executor=pool,
                                  metrics=metrics)
 

@@ -25,8 +25,7 @@ from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 # the mean of the last rounds chooses nothing on it), its bouts two at a time: issue 31's hour.
 LEAN = dict(rounds=10, agent_rounds=3, score_rounds=False)
 VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10), "rounds-10": dict(rounds=10),
-                  "rounds-10-mean-3": dict(rounds=10, agent_rounds=3), "lean": LEAN, "lean-value-rewards": LEAN,
-                  "lean-value-rewards-0.7": LEAN}
+                  "rounds-10-mean-3": dict(rounds=10, agent_rounds=3), "lean": LEAN}
 # A variant's planner where it is not the default CEM with the value: ``lean-value-rewards`` is
 # ``lean``'s value with the lever chosen on its validation bouts (seed 0, 10 bouts; notebook 10):
 # every imagined step scored by the value's Q, at a discount of 0.5 a step, 28.9 against the
@@ -40,11 +39,17 @@ PLANNERS = {"lean-value-rewards": dict(rewards="value", discount=0.5),
 # the same seeds give the same first rounds, so they are not fitted again.
 EXTENDS = {"rounds-10": None, "rounds-10-mean-3": "rounds-10", "lean-value-rewards": "lean",
            "lean-value-rewards-0.7": "lean"}
+VALUE_VARIANTS |= {variant: VALUE_VARIANTS[EXTENDS[variant]] for variant in PLANNERS}  # its value is the run's it copies
 
 
 def value_folder(profile: str, seed: int, variant: str | None = None):
     """The work folder of the value run of ``variant`` (None: the default) and ``seed``."""
     return data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}")
+
+
+def results_folder(profile: str, seed: int, variant: str | None = None):
+    """Where the value run of ``variant`` (None: the default) and ``seed`` writes its ``metrics.json`` and figures."""
+    return data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
 
 
 @releasing_holds
@@ -71,7 +76,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     agent = planet_boxing_agent(profile, seed, progress)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = hold(value_folder(profile, seed, variant))
-    out = data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
+    out = results_folder(profile, seed, variant)
     config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"], **VALUE_VARIANTS.get(variant, {}))
     if variant in EXTENDS:
         start_from(work, value_folder(profile, seed, EXTENDS[variant]))
@@ -90,7 +95,7 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
     profile = profile_name(profile)
     metrics = planet_boxing_value(profile, seed, progress, variant)
     return compare_plans(GAME, data_dir(profile, "planet-boxing-agent", f"seed{seed}"), value_folder(profile, seed, variant),
-                         data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,))),
+                         results_folder(profile, seed, variant),
                          metrics, PLAN_STEPS[profile], seed)
 
 
@@ -281,5 +286,5 @@ def value_table(metrics: dict) -> str:
         f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
 
 
-__all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",
+__all__ = ["planet_boxing_value", "results_folder", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",
            "VALUE_VARIANTS", "PLANNERS", "AGENT_RULES", "validate_agents", "agent_rows"]
