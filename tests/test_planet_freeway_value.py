@@ -172,3 +172,8 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     assert {k: td["config"][k] for k in VALUE_VARIANTS["adam-td"]["value"]} == VALUE_VARIANTS["adam-td"]["value"]
     assert td["config"]["target"] != adam["config"]["target"]
     assert not (tmp_path / "smoke" / "planet-freeway-value" / "seed0").exists()  # never the blind model's run
+    # a planner variant on that model: freeway-adam's value and baselines, its own horizon
+    longer = reproduce("planet-freeway-value", "smoke", 0, variant="adam-horizon-12", progress=False)
+    assert longer["value_planner"]["config"]["horizon"] == 12 != adam["value_planner"]["config"]["horizon"]
+    assert longer["curve"] == adam["curve"] and longer["best_round"] == adam["best_round"]  # the same value
+    assert longer["baselines"] == adam["baselines"]

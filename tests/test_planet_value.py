@@ -217,7 +217,7 @@ def test_a_td_value_looks_past_its_rewards_where_the_sum_of_three_cannot(tmp_pat
     summed = train_value(model, 5, env, config, tmp_path / "sum", seed=0, progress=False)
     assert td["curve"][0]["returns"][0] >= 15  # walks right at once: 18 of 24 steps on the last cell
     assert summed["curve"][0]["returns"][0] < 5  # stays by the wall for the small reward (2.4 in all)
-    with pytest.raises(ValueError, match="unknown value target 'mc'; valid: reward-sum, discounted-sum, td"):
+    with pytest.raises(ValueError, match="unknown value target 'mc'; valid: reward-sum, discounted-sum, log-discounted-sum, td"):
         train_value(model, 5, env, dataclasses.replace(config, target="mc"), tmp_path / "x", seed=0, progress=False)
 
 
@@ -257,6 +257,35 @@ def test_the_discounted_sum_target_discounts_each_reward_and_the_plain_sum_does_
     for r, d, p in zip(rewards, discounted, plain):
         by_hand = [sum(0.5 ** k * r[t + k] for k in range(4) if t + k < len(r)) for t in range(len(r))]
         assert np.allclose(d["sums"].numpy(), by_hand) and np.allclose(p["sums"].numpy(), reward_sums(r, 4))
+    logged = _dataset(model, tmp_path / "episodes.h5", dataclasses.replace(base, target="log-discounted-sum"), 5, [])
+    for d, g in zip(discounted, logged):  # floored at a reward just past the window, 0.5^4
+        assert np.allclose(g["sums"].numpy(), np.log(d["sums"].numpy() + 0.5 ** 4))
+
+
+def test_a_log_value_fits_the_logarithm_and_gives_q_on_the_scale_of_rewards(tmp_path):
+    from wmthesis.planet.value import log_scaled
+
+    torch.manual_seed(0)
+    plain, logged = LatentValue(6, 8, heads=2), LatentValue(6, 8, heads=2, log=True)
+    logged.load_state_dict(plain.state_dict())
+    features = torch.randn(5, 6)
+    with torch.no_grad():
+        assert torch.allclose(logged(features), plain(features).exp())  # the exponential of the heads' mean
+        assert torch.equal(logged.each(features), plain.each(features))  # the heads fit the logarithm
+        ensemble = round_ensemble([plain.state_dict(), LatentValue(6, 8, heads=2).state_dict()], 8, log=True)
+        assert ensemble.log and torch.allclose(ensemble(features), ensemble.each(features).mean(-1).exp())
+    assert log_scaled({"target": "log-discounted-sum"}) and not log_scaled(LatentValueConfig()) and not log_scaled({})
+    # a run with the log target keeps it: its agent, loaded, is on the scale of rewards
+    model, env = frozen_rssm(), DelayedPunch()
+    config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=3, batch_size=8, lr=0.03, rounds=1,
+                               bouts_per_round=1, validation_bouts=1, test_bouts=1, target="log-discounted-sum",
+                               reward_steps=4, discount=0.5)
+    train_value(model, 5, env, config, tmp_path, seed=0, progress=False)
+    value = load_value(tmp_path, model)
+    with torch.no_grad():
+        assert value.log and (value(torch.randn(4, 20)) > 0).all()
+    mean = train_value(model, 5, env, dataclasses.replace(config, agent_rounds=2), tmp_path, seed=0, progress=False)
+    assert mean["agent"]["rounds"] == [0, 1] and load_value(tmp_path, model).log  # the mean of rounds, logged too
 
 
 def test_every_round_is_kept_and_a_run_saved_without_them_refits_the_same_values(tmp_path):

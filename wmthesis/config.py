@@ -146,7 +146,9 @@ class LatentValueConfig:
 
     ``target``: ``reward-sum`` (the sum above, the agent of notebook 09), ``discounted-sum`` (each
     of the ``n`` rewards discounted by ``discount`` per step: a long window for rewards far
-    apart, such as Freeway's crossings) or ``td``: temporal
+    apart, such as Freeway's crossings), ``log-discounted-sum`` (its logarithm,
+    ``log(sum + discount^n)``: one step nearer a reward 90 steps away counts as much as one step
+    nearer a reward 3 steps away; Q is the exponential of the heads' mean) or ``td``: temporal
     differences through the frozen model, ``r_t + ... + discount^(n-1) r_{t+n-1} + discount^n
     max_a Q(h_{t+n}, s_{t+n}, a)``, the bootstrap from the value fitted before (a fitted-Q
     iteration whose target network is the previous fit), refreshed ``td_iterations`` times per

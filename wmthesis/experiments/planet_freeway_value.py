@@ -48,6 +48,15 @@ VALUE_VARIANTS = {
     # the model imagines the cars, and a car-blind model's td value learned UP at every step (21.0)
     "adam-td": dict(model="freeway-adam", data=VARIANT, base="freeway-adam",
                     value=dict(target="td", reward_steps=30, discount=0.99)),
+    # freeway-adam's value at the end of the thesis's 12 steps: a car-seeing model imagines a
+    # collision only within its horizon, and one step's progress (half a pixel) is below what a
+    # value can rank, while twelve steps up against a collision's push back are not
+    "adam-horizon-12": dict(model="freeway-adam", data=VARIANT, base="freeway-adam", planner=dict(horizon=12)),
+    # ... and a value that ranks those end states: the discounted sum's logarithm, on which a step
+    # nearer the far side weighs the same (a factor of 1/0.97) at the foot of the road as at its top,
+    # where the sum itself differs by 0.002 a step at the foot, under what its fit can tell apart
+    "adam-log": dict(model="freeway-adam", data=VARIANT, base="freeway-adam", planner=dict(horizon=12),
+                     value=dict(target="log-discounted-sum")),
 }
 
 

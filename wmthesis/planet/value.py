@@ -10,7 +10,9 @@ over the next few steps:
     target: r_t + r_{t+1} + ... + r_{t+n-1}   (n = ``reward_steps``, within the episode)
 
 (or each reward discounted, ``gamma^k r_{t+k}``: the ``discounted-sum`` target, for games whose
-rewards lie far apart, such as Freeway's crossings; or temporal differences, ``td``)
+rewards lie far apart, such as Freeway's crossings; its logarithm, ``log-discounted-sum``, fitted
+as ``log(sum + gamma^n)`` so that a step nearer a far reward weighs as much as one near it: one
+step is a factor of 1/gamma on any scale; or temporal differences, ``td``)
 
 where ``r_t`` is the reward of taking ``a_t``. The features are the one-step prior of the
 planner's first imagined step, so the action enters through the RSSM's own transition. The
@@ -43,7 +45,7 @@ from wmthesis.training import gradient_step, with_added_defaults
 from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint, parallel_calls, process_pool
 
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
-TARGETS = ("reward-sum", "discounted-sum", "td")
+TARGETS = ("reward-sum", "discounted-sum", "log-discounted-sum", "td")
 
 
 def reward_sums(rewards: np.ndarray, steps: int, discount: float = 1.0) -> np.ndarray:
@@ -92,20 +94,30 @@ def after_action(model: RSSM, belief: torch.Tensor, state: torch.Tensor, actions
 
 class LatentValue(nn.Module):
     """An ensemble of ``heads`` two-layer heads of width ``hidden``: features (..., F) -> Q (...,),
-    the mean of the heads (:meth:`each` gives them apart, (..., heads))."""
+    the mean of the heads (:meth:`each` gives them apart, (..., heads)). With ``log``, the heads
+    fit the logarithm of Q (the ``log-discounted-sum`` target) and Q is the exponential of their
+    mean, on the scale of rewards."""
 
-    def __init__(self, features: int, hidden: int, heads: int = 1):
+    def __init__(self, features: int, hidden: int, heads: int = 1, log: bool = False):
         super().__init__()
         if heads < 1:
             raise ValueError(f"heads must be >= 1, got {heads}")
         self.heads = nn.ModuleList(nn.Sequential(nn.Linear(features, hidden), nn.ReLU(), nn.Linear(hidden, hidden),
                                                  nn.ReLU(), nn.Linear(hidden, 1)) for _ in range(heads))
+        self.log = log
 
     def each(self, features: torch.Tensor) -> torch.Tensor:
         return torch.cat([head(features) for head in self.heads], -1)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        return self.each(features).mean(-1)
+        q = self.each(features).mean(-1)
+        return q.exp() if self.log else q
+
+
+def log_scaled(config: LatentValueConfig | dict) -> bool:
+    """Whether a value of ``config`` (or its saved dict) fits the logarithm of its target."""
+    target = config.get("target") if isinstance(config, dict) else config.target
+    return target == "log-discounted-sum"
 
 
 @torch.inference_mode()
@@ -162,12 +174,15 @@ def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int, cach
     ``td``) reward sums ``sums`` (T,), and each step's ``beliefs`` (T, H) and ``states`` (T, S)
     for the bootstrap. ``cache`` holds the episodes already read (the model is frozen), so each
     round computes only its new bouts."""
-    discount = config.discount if config.target in ("td", "discounted-sum") else 1.0
+    discount = config.discount if config.target in ("td", "discounted-sum", "log-discounted-sum") else 1.0
     with EpisodeStore(path, "r") as store:
         for index in range(len(cache), len(store)):
             episode = store.episode(index)
             features, beliefs, states = episode_features(model, episode, bits, index, beliefs=True)
-            sums = torch.as_tensor(reward_sums(episode["rewards"], config.reward_steps, discount), device=features.device)
+            sums = reward_sums(episode["rewards"], config.reward_steps, discount)
+            if log_scaled(config):  # floored at a reward just past the window
+                sums = np.log(sums + discount ** config.reward_steps)
+            sums = torch.as_tensor(sums, device=features.device)
             cache.append({"features": features, "sums": sums, "beliefs": beliefs, "states": states})
     return cache
 
@@ -380,7 +395,7 @@ def _agent(env, model: RSSM, bits: int, config: LatentValueConfig, run_dir: Path
         agent = {**state["curve"][chosen[0]], "rounds": chosen}
     else:
         rounds = round_values(model, bits, run_dir, seed=seed, progress=progress)
-        value = round_ensemble([rounds[r] for r in chosen], config.hidden_size)
+        value = round_ensemble([rounds[r] for r in chosen], config.hidden_size, log_scaled(config))
         agent = {"rounds": chosen, **_scores(env, model, value, bits, config, seed, first_steps, pool,
                                              validation=config.score_rounds)}
         state = torch.load(path, map_location=next(model.parameters()).device, weights_only=False)  # with the rounds
@@ -393,7 +408,7 @@ def _first_value(model: RSSM, config: LatentValueConfig, seed: int) -> LatentVal
     """The value before its first fit: its weights from the seed alone, however the process began."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(int(derive_seeds(seed, 7)[0]))
-        value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads)
+        value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads, log_scaled(config))
     return value.to(next(model.parameters()).device)
 
 
@@ -425,15 +440,16 @@ def round_values(model: RSSM, bits: int, run_dir, *, seed: int, progress: bool =
     return rounds
 
 
-def round_ensemble(states: list[dict], hidden: int) -> LatentValue:
+def round_ensemble(states: list[dict], hidden: int, log: bool = False) -> LatentValue:
     """One value whose heads are those of several rounds' values (state dicts of
     :class:`LatentValue`, the same number of heads each): Q is the mean over the rounds (a
-    snapshot ensemble, which averages out fitted Q's swings from round to round)."""
+    snapshot ensemble, which averages out fitted Q's swings from round to round; with ``log``,
+    the values' logarithms are averaged)."""
     if not states:
         raise ValueError("round_ensemble needs at least one round's value")
     heads = 1 + max(int(key.split(".")[1]) for key in states[0])
     features = states[0]["heads.0.0.weight"].shape[1]
-    value = LatentValue(features, hidden, heads * len(states)).to(states[0]["heads.0.0.weight"].device)
+    value = LatentValue(features, hidden, heads * len(states), log).to(states[0]["heads.0.0.weight"].device)
     value.load_state_dict({f"heads.{i * heads + int(key.split('.')[1])}.{key.split('.', 2)[2]}": tensor
                            for i, state in enumerate(states) for key, tensor in state.items()})
     return value.eval()
@@ -479,7 +495,7 @@ def _kept_mean(state: dict, rounds: list[int], path: Path) -> LatentValue:
     missing = [r for r in rounds if r not in state.get("rounds", {})]
     if missing:
         raise ValueError(f"{path} does not keep the values of rounds {missing}; run round_values on it first")
-    return round_ensemble([state["rounds"][r] for r in rounds], state["config"]["hidden_size"])
+    return round_ensemble([state["rounds"][r] for r in rounds], state["config"]["hidden_size"], log_scaled(state["config"]))
 
 
 def load_rounds(run_dir, model: RSSM, rounds: list[int]) -> LatentValue:
@@ -501,11 +517,12 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
         raise ValueError(f"{path} was fitted before values were chosen on validation bouts; "
                          "run train_value again in a new folder")
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, state["config"]))
-    value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads).to(next(model.parameters()).device)
+    value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads,
+                        log_scaled(config)).to(next(model.parameters()).device)
     value.load_state_dict(state["best"])
     return value.eval()
 
 
 __all__ = ["LatentValue", "ValueMind", "after_action", "episode_features", "fit_value", "load_value", "play_value",
-           "reward_sums", "td_targets", "best_values", "action_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value",
+           "reward_sums", "log_scaled", "td_targets", "best_values", "action_values", "TARGETS", "evaluation_seeds", "validation_seeds", "best_round", "train_value",
            "round_values", "round_ensemble", "agent_rounds", "load_rounds", "play_values", "bout_pool"]
