@@ -174,7 +174,7 @@ def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int, cach
     ``td``) reward sums ``sums`` (T,), and each step's ``beliefs`` (T, H) and ``states`` (T, S)
     for the bootstrap. ``cache`` holds the episodes already read (the model is frozen), so each
     round computes only its new bouts."""
-    discount = config.discount if config.target in ("td", "discounted-sum", "log-discounted-sum") else 1.0
+    discount = config.discount if config.target != "reward-sum" else 1.0
     with EpisodeStore(path, "r") as store:
         for index in range(len(cache), len(store)):
             episode = store.episode(index)
