@@ -177,3 +177,17 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     assert longer["value_planner"]["config"]["horizon"] == 12 != adam["value_planner"]["config"]["horizon"]
     assert longer["curve"] == adam["curve"] and longer["best_round"] == adam["best_round"]  # the same value
     assert longer["baselines"] == adam["baselines"]
+    # the planner levers on validation episodes, played once, in the folder of the run that fitted the value
+    from wmthesis.experiments.planet_freeway_value import validate_planners
+    from wmthesis.planet.value import validation_seeds
+
+    with pytest.raises(ValueError, match="unknown Freeway planner lever 'H99'; valid: H3, H12"):
+        validate_planners("smoke", 0, "freeway-adam", levers=("H99",), progress=False)
+    levers = validate_planners("smoke", 0, "adam-horizon-12", levers=("H3", "H12"), progress=False)
+    assert levers["H12"]["config"]["horizon"] == 12 and levers["H3"]["config"] == adam["value_planner"]["config"]
+    saved = work / "planner-validation" / "h12" / "scores.json"
+    assert json.loads(saved.read_text())["key"]["bouts"] == [list(validation_seeds(0, 0))]  # not an evaluation episode
+    stamp = saved.stat().st_mtime_ns
+    assert validate_planners("smoke", 0, "freeway-adam", levers=("H12",), progress=False) == {"H12": levers["H12"]}
+    assert saved.stat().st_mtime_ns == stamp  # read, not played again
+    assert not (tmp_path / "smoke" / "planet-freeway-value" / "adam-horizon-12-seed0" / "planner-validation").exists()

@@ -12,8 +12,8 @@ import time
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
-from wmthesis.experiments.planet_value import (PLAN_STEPS, agent_key, compare_plans, fit_and_compare, start_from,
-                                              value_planners_scores)
+from wmthesis.experiments.planet_value import (PLAN_STEPS, agent_key, compare_plans, fit_and_compare, lever_cache, slug,
+                                              start_from, value_planners_scores)
 from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
@@ -152,7 +152,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
     validation = [validation_seeds(seed, k) for k in range(bouts)]
     planners = [(for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]),
-                 work / "planner-validation" / _slug(lever) / "scores.json") for lever in levers]
+                 lever_cache(work, lever)) for lever in levers]
     scores = value_planners_scores(planet_run, work, planners, validation,
                                    agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config),
                                    progress, executor=executor)
@@ -197,7 +197,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     results = {}
     for rule in rules:
         rounds = agent_rounds(metrics["curve"], dataclasses.replace(config, agent_rounds=AGENT_RULES[rule]))
-        plays = played_bouts(work / "agent-validation" / f"{_slug(rule)}.json", {"rounds": rounds, "bouts": validation},
+        plays = played_bouts(work / "agent-validation" / f"{slug(rule)}.json", {"rounds": rounds, "bouts": validation},
                              progress, [(value_bout, planet_run, work, rounds, *bout, GAME) for bout in validation])
         results[rule] = {"rounds": rounds, **bout_scores(plays)}
     return results
@@ -230,10 +230,6 @@ def planner_lever_rows(results: dict[str, dict], changes: dict[str, str] | None 
         rows.append([lever, changes[lever], f"{scores['full']['mean']:.1f} ± {scores['full']['std']:.1f}",
                      f"{scores['first']['mean']:.1f}", f"{diff['difference']:+.1f} ± {diff['standard_error']:.1f}"])
     return rows
-
-
-def _slug(name: str) -> str:
-    return "".join(c if c.isalnum() else "-" for c in name.lower()).strip("-")
 
 
 def planner_rows(by_seed: dict[int, dict], beside: dict[str, dict[int, dict]] | None = None) -> list[list[str]]:

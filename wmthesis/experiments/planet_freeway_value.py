@@ -20,8 +20,8 @@ from pathlib import Path
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
 from wmthesis.experiments.planet_boxing import STUDY, bout_scores, play_bout
-from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, compare_plans, fit_and_compare, played_bouts,
-                                               start_from)
+from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, agent_key, compare_plans, fit_and_compare,
+                                               lever_cache, played_bouts, start_from, value_planners_scores)
 from wmthesis.experiments.results import _read_json
 from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
 from wmthesis.viz import save_figure
@@ -71,6 +71,13 @@ def base_variant(variant: str | None = None) -> str | None:
     in :data:`VALUE_VARIANTS`): None for the default on ``freeway-tuned``'s model; the variant
     itself where it plays them."""
     return VALUE_VARIANTS.get(variant, {}).get("base")
+
+
+def value_variant(variant: str | None = None) -> str | None:
+    """The run whose value a ``variant`` plays with: itself where it fits one (a ``value`` of its
+    own, or a base), else the base it copies the value from."""
+    changes = VALUE_VARIANTS.get(variant, {})
+    return variant if "value" in changes or variant == base_variant(variant) else base_variant(variant)
 
 
 def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
@@ -184,6 +191,46 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
     return rows
 
 
+# Which planner ends in a Freeway value, each measured on the value's validation episodes (never
+# on the evaluation episodes): CEM's horizon, and its imagined states drawn or the prior's mean.
+PLANNER_LEVERS = {"H3": {}, "H12": dict(horizon=12), "H12 from the prior's mean": dict(horizon=12, imagine="mean")}
+LEVER_EPISODES = {"smoke": 1, "quick": 5, "thesis": 10}  # validation episodes per lever
+
+
+def validate_planners(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                      levers: tuple[str, ...] | None = None, episodes: int | None = None,
+                      progress: bool = True) -> dict[str, dict]:
+    """CEM with the value agent of ``variant``'s run (:func:`planet_freeway_value`, run first if
+    need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default) on
+    ``episodes`` (the profile's :data:`LEVER_EPISODES` by default) of the value's validation
+    episodes (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation
+    episodes), in one pool, each lever cached in the folder of the run that fitted the value
+    (:func:`value_variant`: a variant that changes the planner alone shares its base's levers).
+    Returns lever -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
+    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
+    from wmthesis.planet.value import validation_seeds
+    from wmthesis.training import with_added_defaults
+
+    profile = profile_name(profile)
+    levers = tuple(PLANNER_LEVERS) if levers is None else levers
+    for lever in levers:
+        check_choice("Freeway planner lever", lever, tuple(PLANNER_LEVERS))
+    episodes = LEVER_EPISODES[profile] if episodes is None else episodes
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    fitted = value_variant(variant)
+    metrics = planet_freeway_value(profile, seed, progress, fitted)
+    work, _ = value_folders(profile, seed, fitted)
+    config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
+    planners = [(for_profile(ValuePlannerConfig, profile, discount=config.discount, **PLANNER_LEVERS[lever]),
+                 lever_cache(work, lever)) for lever in levers]
+    scores = value_planners_scores(frozen_model(profile, seed, model_variant(fitted), progress), work, planners,
+                                   [validation_seeds(seed, k) for k in range(episodes)],
+                                   agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config), progress,
+                                   game=GAME)
+    return dict(zip(levers, scores))
+
+
 CHECK_VERSION = 2  # open_loop_check's cache: 2 added the diagnostics' embedding_spread
 
 
@@ -245,4 +292,5 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
                          PLAN_STEPS[profile], seed)
 
 
-__all__ = ["planet_freeway_value", "value_folders", "model_variant", "base_variant", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+__all__ = ["planet_freeway_value", "value_folders", "model_variant", "base_variant", "value_variant", "validate_planners",
+           "PLANNER_LEVERS", "LEVER_EPISODES", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]

@@ -105,6 +105,17 @@ def value_planners_scores(planet_run: Path, value_run: Path, planners: list[tupl
     return [c["scores"] for c in cached]
 
 
+def lever_cache(work: Path, lever: str) -> Path:
+    """Where a planner lever's validation scores are cached in a value run's ``work`` folder:
+    ``planner-validation/<the lever's name, lower case, dashes>/scores.json``."""
+    return work / "planner-validation" / slug(lever) / "scores.json"
+
+
+def slug(name: str) -> str:
+    """A lever's or rule's name as a folder or file name: lower case, dashes for the rest."""
+    return "".join(c if c.isalnum() else "-" for c in name.lower()).strip("-")
+
+
 def start_from(work: Path, default: Path, names: tuple[str, ...] | None = None) -> None:
     """Start a value run in ``work`` from a copy of files of ``default`` (by default a value
     run's bouts and values: a variant that only adds rounds; the rounds it shares are the same
@@ -255,4 +266,4 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "value_planners_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare"]
+__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "value_planners_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare", "lever_cache", "slug"]
