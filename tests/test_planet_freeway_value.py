@@ -191,3 +191,18 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     assert validate_planners("smoke", 0, "freeway-adam", levers=("H12",), progress=False) == {"H12": levers["H12"]}
     assert saved.stat().st_mtime_ns == stamp  # read, not played again
     assert not (tmp_path / "smoke" / "planet-freeway-value" / "adam-horizon-12-seed0" / "planner-validation").exists()
+
+
+def test_levers_and_their_validation_bouts_are_checked_before_anything_plays(tmp_path, monkeypatch):
+    from wmthesis.experiments.planet_freeway_value import validate_planners
+    from wmthesis.experiments.planet_value import checked_levers
+
+    choices = {"a": {}, "b": {}}
+    assert checked_levers("lever", None, choices, None, 5) == (("a", "b"), 5)
+    assert checked_levers("lever", ["b"], choices, 2, 5) == (("b",), 2)
+    with pytest.raises(ValueError, match="unknown lever 'c'; valid: a, b"):
+        checked_levers("lever", ("a", "c"), choices, None, 5)
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    with pytest.raises(ValueError, match="validation bouts must be >= 1, got 0"):
+        validate_planners("smoke", 0, levers=("H3",), episodes=0, progress=False)
+    assert not any(tmp_path.iterdir())  # refused before any run began

@@ -12,8 +12,8 @@ import time
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
-from wmthesis.experiments.planet_value import (PLAN_STEPS, agent_key, compare_plans, fit_and_compare, lever_cache, slug,
-                                              start_from, value_planners_scores)
+from wmthesis.experiments.planet_value import (PLAN_STEPS, agent_key, checked_levers, compare_plans, fit_and_compare,
+                                              lever_cache, slug, start_from, value_planners_scores)
 from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
@@ -140,12 +140,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     from wmthesis.training import with_added_defaults
 
     profile = profile_name(profile)
-    levers = tuple(PLANNER_LEVERS) if levers is None else levers
-    bouts = LEVER_BOUTS[profile] if bouts is None else bouts
-    for lever in levers:
-        check_choice("planner lever", lever, tuple(PLANNER_LEVERS))
-    if bouts < 1:
-        raise ValueError(f"bouts must be >= 1, got {bouts}")
+    levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, progress, variant) if metrics is None else metrics
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = value_folder(profile, seed, EXTENDS[variant] if variant in PLANNERS else variant)  # its value's run
@@ -181,12 +176,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     from wmthesis.planet.value import agent_rounds, round_values, validation_seeds
 
     profile = profile_name(profile)
-    rules = tuple(AGENT_RULES) if rules is None else rules
-    for rule in rules:
-        check_choice("agent rule", rule, tuple(AGENT_RULES))
-    bouts = LEVER_BOUTS[profile] if bouts is None else bouts
-    if bouts < 1:
-        raise ValueError(f"bouts must be >= 1, got {bouts}")
+    rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, progress, variant)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = value_folder(profile, seed, variant)

@@ -20,8 +20,9 @@ from pathlib import Path
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
 from wmthesis.experiments.planet_boxing import STUDY, bout_scores, play_bout
-from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, agent_key, compare_plans, fit_and_compare,
-                                               lever_cache, played_bouts, start_from, value_planners_scores)
+from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, agent_key, checked_levers, compare_plans,
+                                               fit_and_compare, lever_cache, played_bouts, start_from,
+                                               value_planners_scores)
 from wmthesis.experiments.results import _read_json
 from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
 from wmthesis.viz import save_figure
@@ -212,12 +213,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, variant: str | 
     from wmthesis.training import with_added_defaults
 
     profile = profile_name(profile)
-    levers = tuple(PLANNER_LEVERS) if levers is None else levers
-    for lever in levers:
-        check_choice("Freeway planner lever", lever, tuple(PLANNER_LEVERS))
-    episodes = LEVER_EPISODES[profile] if episodes is None else episodes
-    if episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, episodes, LEVER_EPISODES[profile])
     fitted = value_variant(variant)
     metrics = planet_freeway_value(profile, seed, progress, fitted)
     work, _ = value_folders(profile, seed, fitted)

@@ -17,7 +17,7 @@ import numpy as np
 
 from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_result, bout_scores
 from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, cached_for, played_bouts, played_groups
-from wmthesis.utils import atomic_path
+from wmthesis.utils import atomic_path, check_choice
 from wmthesis.viz import save_figure
 
 
@@ -103,6 +103,20 @@ def value_planners_scores(planet_run: Path, value_run: Path, planners: list[tupl
             tmp.write_text(json.dumps({"key": keys[j], "scores": scores}, indent=1))
         cached[j] = {"scores": scores}
     return [c["scores"] for c in cached]
+
+
+def checked_levers(kind: str, names: tuple[str, ...] | None, choices: dict, count: int | None,
+                   default: int) -> tuple[tuple[str, ...], int]:
+    """The levers (or rules) to validate: ``names`` (all of ``choices`` when None), each refused
+    unless it is one of ``choices``, and how many validation bouts each plays, ``count``
+    (``default`` when None), at least one."""
+    names = tuple(choices) if names is None else tuple(names)
+    for name in names:
+        check_choice(kind, name, tuple(choices))
+    count = default if count is None else count
+    if count < 1:
+        raise ValueError(f"the validation bouts must be >= 1, got {count}")
+    return names, count
 
 
 def lever_cache(work: Path, lever: str) -> Path:
@@ -266,4 +280,4 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "value_planners_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare", "lever_cache", "slug"]
+__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "value_planners_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare", "lever_cache", "slug", "checked_levers"]
