@@ -12,8 +12,8 @@ import time
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
-from wmthesis.experiments.planet_value import (PLAN_STEPS, agent_key, checked_levers, compare_plans, fit_and_compare,
-                                              lever_cache, slug, start_from, value_planners_scores)
+from wmthesis.experiments.planet_value import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores,
+                                              slug, start_from)
 from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
@@ -135,23 +135,17 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     run's, where it was read from its ``metrics.json`` (a machine that holds only the models,
     ``tools/validate_levers.py``). Returns lever -> the
     planner's ``config`` and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
-    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
+    from wmthesis.config import ValuePlannerConfig, for_profile
     from wmthesis.planet.value import validation_seeds
-    from wmthesis.training import with_added_defaults
 
     profile = profile_name(profile)
     levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, progress, variant) if metrics is None else metrics
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = value_folder(profile, seed, EXTENDS[variant] if variant in PLANNERS else variant)  # its value's run
-    config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
-    validation = [validation_seeds(seed, k) for k in range(bouts)]
-    planners = [(for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]),
-                 lever_cache(work, lever)) for lever in levers]
-    scores = value_planners_scores(planet_run, work, planners, validation,
-                                   agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config),
-                                   progress, executor=executor)
-    return dict(zip(levers, scores))
+    planners = {lever: for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]) for lever in levers}
+    return lever_scores(planet_run, work, metrics, planners, [validation_seeds(seed, k) for k in range(bouts)],
+                        progress, executor=executor)
 
 
 # Which fitted values make the value agent (``LatentValueConfig.agent_rounds``), each measured on

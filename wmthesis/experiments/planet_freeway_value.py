@@ -20,9 +20,8 @@ from pathlib import Path
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
 from wmthesis.experiments.planet_boxing import STUDY, bout_scores, play_bout
-from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, agent_key, checked_levers, compare_plans,
-                                               fit_and_compare, lever_cache, played_bouts, start_from,
-                                               value_planners_scores)
+from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans,
+                                               fit_and_compare, lever_scores, played_bouts, start_from)
 from wmthesis.experiments.results import _read_json
 from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
 from wmthesis.viz import save_figure
@@ -208,23 +207,18 @@ def validate_planners(profile: str | None = None, seed: int = 0, variant: str | 
     episodes), in one pool, each lever cached in the folder of the run that fitted the value
     (:func:`value_variant`: a variant that changes the planner alone shares its base's levers).
     Returns lever -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
-    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
+    from wmthesis.config import ValuePlannerConfig, for_profile
     from wmthesis.planet.value import validation_seeds
-    from wmthesis.training import with_added_defaults
 
     profile = profile_name(profile)
     levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, episodes, LEVER_EPISODES[profile])
     fitted = value_variant(variant)
     metrics = planet_freeway_value(profile, seed, progress, fitted)
     work, _ = value_folders(profile, seed, fitted)
-    config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
-    planners = [(for_profile(ValuePlannerConfig, profile, discount=config.discount, **PLANNER_LEVERS[lever]),
-                 lever_cache(work, lever)) for lever in levers]
-    scores = value_planners_scores(frozen_model(profile, seed, model_variant(fitted), progress), work, planners,
-                                   [validation_seeds(seed, k) for k in range(episodes)],
-                                   agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config), progress,
-                                   game=GAME)
-    return dict(zip(levers, scores))
+    planners = {lever: for_profile(ValuePlannerConfig, profile, discount=metrics["config"]["discount"], **PLANNER_LEVERS[lever])
+                for lever in levers}
+    return lever_scores(frozen_model(profile, seed, model_variant(fitted), progress), work, metrics, planners,
+                        [validation_seeds(seed, k) for k in range(episodes)], progress, game=GAME)
 
 
 CHECK_VERSION = 2  # open_loop_check's cache: 2 added the diagnostics' embedding_spread

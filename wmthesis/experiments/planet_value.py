@@ -119,10 +119,20 @@ def checked_levers(kind: str, names: tuple[str, ...] | None, choices: dict, coun
     return names, count
 
 
-def lever_cache(work: Path, lever: str) -> Path:
-    """Where a planner lever's validation scores are cached in a value run's ``work`` folder:
-    ``planner-validation/<the lever's name, lower case, dashes>/scores.json``."""
-    return work / "planner-validation" / slug(lever) / "scores.json"
+def lever_scores(planet_run: Path, work: Path, metrics: dict, planners: dict, bouts: list, progress: bool,
+                 game: str = "boxing", executor=None) -> dict[str, dict]:
+    """CEM with the value agent of the finished value run in ``work`` (its ``metrics``) under
+    each lever of ``planners`` (name -> ValuePlannerConfig) on ``bouts``, all in one pool
+    (:func:`value_planners_scores`), each cached in
+    ``work/planner-validation/<the lever's name, lower case, dashes>/scores.json``. Returns
+    name -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
+    from wmthesis.config import LatentValueConfig
+    from wmthesis.training import with_added_defaults
+
+    config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
+    agent = agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config)
+    caches = [(planner, work / "planner-validation" / slug(name) / "scores.json") for name, planner in planners.items()]
+    return dict(zip(planners, value_planners_scores(planet_run, work, caches, bouts, agent, progress, game, executor)))
 
 
 def slug(name: str) -> str:
@@ -280,4 +290,4 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "value_planners_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare", "lever_cache", "slug", "checked_levers"]
+__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "value_planners_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare", "lever_scores", "slug", "checked_levers"]
