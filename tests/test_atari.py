@@ -116,3 +116,39 @@ def test_bad_options_fail_listing_the_valid_ones():
         make_env("boxing", action_repeat=0)
     with pytest.raises(ValueError, match="bits"):
         quantize(np.zeros(3, np.uint8), bits=0)
+
+
+def test_freeway_lookahead_with_the_emulator_as_its_model_outplays_up_and_leaves_the_game_as_it_was():
+    from wmthesis.envs.freeway import CHICKEN_Y, lookahead_action, play_lookahead
+
+    def up_every_step(env, seed=0):
+        env.reset(seed=seed)
+        return [float(env.step(1)[1]) for _ in range(300)]
+
+    env = make_env("freeway", max_steps=300)
+    up = up_every_step(env)
+    once = play_lookahead(env, 1, 0)
+    assert once["rewards"].tolist() == up and set(once["actions"]) == {1}  # horizon 1: nothing to wait for
+    three = play_lookahead(env, 3, 0)
+    assert sum(up) == 4 and three["rewards"].sum() == 5  # waiting for a car to pass pays in 300 steps
+    assert 0 < (three["actions"] == 0).sum() < 100 and len(three["observations"]) == 300
+    assert np.array_equal(three["observations"][0], env.reset(seed=0)[0])  # each frame seen before its action
+    env.reset(seed=0)
+    for _ in range(40):
+        env.step(1)
+    ram = env.unwrapped.ale.getRAM().copy()
+    assert lookahead_action(env, 6) in (0, 1)
+    assert np.array_equal(env.unwrapped.ale.getRAM(), ram)  # every plan was played on a copy
+    assert ram[CHICKEN_Y] > 6  # the chicken's height: it left the start after 40 steps up
+
+
+def test_freeway_lookahead_refuses_other_games_and_bad_horizons():
+    from wmthesis.envs.freeway import lookahead_action
+
+    with pytest.raises(ValueError, match="plays Freeway, got 'boxing'"):
+        lookahead_action(make_env("boxing"), 3)
+    freeway = make_env("freeway")
+    freeway.reset(seed=0)
+    for horizon in (0, 2.5, True):
+        with pytest.raises(ValueError, match="horizon must be a positive integer"):
+            lookahead_action(freeway, horizon)

@@ -206,3 +206,47 @@ def test_levers_and_their_validation_bouts_are_checked_before_anything_plays(tmp
     with pytest.raises(ValueError, match="validation bouts must be >= 1, got 0"):
         validate_planners("smoke", 0, levers=("H3",), episodes=0, progress=False)
     assert not any(tmp_path.iterdir())  # refused before any run began
+
+
+def test_lookahead_ceiling_plays_each_horizon_once_on_the_evaluation_episodes(tmp_path, monkeypatch):
+    from wmthesis.experiments.planet_boxing import play_bout
+    from wmthesis.experiments.planet_freeway_value import GAME, LOOKAHEAD_EPISODES, UP, lookahead_ceiling
+    from wmthesis.planet.profiles import planet_config
+    from wmthesis.planet.value import evaluation_seeds
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    with pytest.raises(ValueError, match=r"lookahead horizons must be positive integers, got \(3, 0\)"):
+        lookahead_ceiling("smoke", 0, horizons=(3, 0), progress=False)
+    scores = lookahead_ceiling("smoke", 0, horizons=(1, 3), progress=False)
+    assert list(scores) == [1, 3] and all(len(s["returns"]) == LOOKAHEAD_EPISODES["smoke"] for s in scores.values())
+    up = play_bout(GAME, planet_config(GAME, "smoke"), None, *evaluation_seeds(0, 0), UP)
+    assert scores[1]["returns"] == [up["return"]] and scores[1]["first_returns"] == [up["first"]]  # horizon 1 is UP
+    saved = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "lookahead-bouts.json"
+    played = saved.stat().st_mtime_ns
+    assert lookahead_ceiling("smoke", 0, horizons=(1, 3), progress=False) == scores
+    assert saved.stat().st_mtime_ns == played  # a finished ceiling plays nothing again
+
+
+def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_own_episode(tmp_path, monkeypatch):
+    from wmthesis.envs.freeway import play_lookahead
+    from wmthesis.experiments.planet_freeway_value import GAME, UP, when_to_wait
+    from wmthesis.experiments.planet_value import PLAN_STEPS
+    from wmthesis.planet.profiles import planet_config
+    from wmthesis.planet.train import make_planet_env
+    from wmthesis.planet.value import evaluation_seeds
+    from wmthesis.planet.value_planner import PLANNERS
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    found = when_to_wait("smoke", 0, variant=None, horizon=3, progress=False)
+    env = make_planet_env(GAME, planet_config(GAME, "smoke"))
+    lookahead = play_lookahead(env, 3, evaluation_seeds(0, 0)[0])["actions"][:PLAN_STEPS["smoke"]]
+    assert found["choices"]["lookahead"] == lookahead.tolist() and found["steps"] == len(lookahead)
+    assert found["waits"] == int((lookahead != UP).sum())
+    assert set(found["planners"]) == set(PLANNERS)
+    for name in PLANNERS:
+        picks = np.asarray(found["choices"][name])
+        assert found["planners"][name]["ups_kept"] == pytest.approx(np.mean(picks[lookahead == UP] == UP))
+    cached = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "when_to_wait.json"
+    written = cached.stat().st_mtime_ns
+    assert when_to_wait("smoke", 0, variant=None, horizon=3, progress=False)["choices"] == found["choices"]
+    assert cached.stat().st_mtime_ns == written  # cached: nothing planned again

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
-from wmthesis.experiments.planet_boxing import STUDY, bout_scores, play_bout
+from wmthesis.experiments.planet_boxing import STUDY, bout_result, bout_scores, play_bout
 from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans,
                                                fit_and_compare, lever_scores, played_bouts, start_from)
 from wmthesis.experiments.results import _read_json
@@ -270,6 +270,101 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
             "files": [str(figure)]}
 
 
+# What would a planner with a perfect model score? Horizon 1 is UP at every step; the episodes
+# are the first of the evaluation episodes (Freeway is deterministic: the same cars on each).
+LOOKAHEAD_HORIZONS = (1, 3, 6, 12)
+LOOKAHEAD_EPISODES = {"smoke": 1, "quick": 2, "thesis": 10}
+
+
+def lookahead_bout(profile: str, horizon: int, env_seed: int) -> dict:
+    """One episode of Freeway with the profile's PlaNet settings, planned in the emulator itself
+    (:func:`~wmthesis.envs.freeway.play_lookahead`, ``horizon`` steps): its ``return``, the
+    return of its first 500 steps and its ``steps``."""
+    from wmthesis.envs.freeway import play_lookahead
+    from wmthesis.planet.profiles import planet_config
+    from wmthesis.planet.train import make_planet_env
+
+    env = make_planet_env(GAME, planet_config(GAME, profile))
+    try:
+        return bout_result(play_lookahead(env, horizon, env_seed)["rewards"])
+    finally:
+        env.close()
+
+
+def lookahead_ceiling(profile: str | None = None, seed: int = 0, horizons: tuple[int, ...] = LOOKAHEAD_HORIZONS,
+                      progress: bool = True) -> dict[int, dict]:
+    """The ceiling of planning on Freeway: a planner whose model is the emulator itself
+    (:mod:`wmthesis.envs.freeway`: "wait, then UP" plans of ``horizon`` steps, scored by crossings
+    and the chicken's height) on the first :data:`LOOKAHEAD_EPISODES` of the evaluation episodes
+    (:func:`~wmthesis.planet.value.evaluation_seeds`), for each of ``horizons``. Each episode is
+    saved as it ends in the default value's results folder (``lookahead-bouts.json``). Returns
+    horizon -> ``full`` and ``first``-500-step scores with their returns."""
+    from wmthesis.planet.value import evaluation_seeds
+
+    profile = profile_name(profile)
+    bad = [h for h in horizons if isinstance(h, bool) or not isinstance(h, int) or h < 1]
+    if bad or not horizons:
+        raise ValueError(f"lookahead horizons must be positive integers, got {tuple(horizons)!r}")
+    seeds = [evaluation_seeds(seed, k)[0] for k in range(LOOKAHEAD_EPISODES[profile])]
+    _, out = value_folders(profile, seed)
+    plays = played_bouts(out / "lookahead-bouts.json", {"seeds": seeds, "horizons": list(horizons)}, progress,
+                         [(lookahead_bout, profile, h, s) for h in horizons for s in seeds])
+    return {h: bout_scores(plays[i * len(seeds):(i + 1) * len(seeds)]) for i, h in enumerate(horizons)}
+
+
+def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None = "adam-log", horizon: int = 6,
+                 progress: bool = True) -> dict:
+    """Does a learned model know when to wait? Along the first :data:`PLAN_STEPS` steps of the
+    emulator lookahead's own episode (:func:`~wmthesis.envs.freeway.play_lookahead`, ``horizon``
+    steps, the first evaluation episode: it waits, NOOP, where going on would meet a car), the
+    action each planner of :func:`~wmthesis.planet.value_planner.plan_choices` takes from the
+    same belief, filtered from the same frames: the thesis's CEM on the model of ``variant``'s
+    value run (:func:`planet_freeway_value`, run first if need be), CEM with its value and the
+    value alone. Cached in that run's results folder (``when_to_wait.json``). Returns ``steps``,
+    ``waits`` (the lookahead's NOOPs among them), ``choices`` (planner -> actions, the
+    lookahead's under ``lookahead``) and per planner ``waits_kept`` (the share of the
+    lookahead's waits on which it does not press UP) and ``ups_kept`` (the share of its UPs on
+    which it presses UP)."""
+    import dataclasses
+
+    import numpy as np
+
+    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.envs.freeway import play_lookahead
+    from wmthesis.planet.train import load_planet, make_planet_env
+    from wmthesis.planet.value import evaluation_seeds, load_value
+    from wmthesis.planet.value_planner import plan_choices
+    from wmthesis.training import with_added_defaults
+
+    profile = profile_name(profile)
+    metrics = planet_freeway_value(profile, seed, progress, variant)
+    work, _ = value_folders(profile, seed, value_variant(variant))
+    planner = ValuePlannerConfig(**with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"]))
+    steps = PLAN_STEPS[profile]
+    key = {"horizon": horizon, "steps": steps, "planner": dataclasses.asdict(planner),
+           "agent": metrics.get("agent_rounds", metrics["best_round"])}
+    _, out = value_folders(profile, seed, variant)
+    cached = _read_json(out / "when_to_wait.json")
+    if cached is None or cached.get("key") != key:
+        model, planet, _ = load_planet(frozen_model(profile, seed, model_variant(variant), progress))
+        env = make_planet_env(GAME, planet)
+        try:
+            episode = play_lookahead(env, horizon, evaluation_seeds(seed, 0)[0])
+        finally:
+            env.close()
+        frames, taken = episode["observations"][:steps], episode["actions"][:steps]
+        choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
+        cached = {"key": key, "choices": {"lookahead": taken.tolist(), **{n: c.tolist() for n, c in choices.items()}}}
+        with atomic_path(out / "when_to_wait.json") as tmp:
+            tmp.write_text(json.dumps(cached))
+    choices = {name: np.asarray(c) for name, c in cached["choices"].items()}
+    wait = choices["lookahead"] != UP
+    shares = {name: {"waits_kept": float(np.mean(c[wait] != UP)) if wait.any() else float("nan"),
+                     "ups_kept": float(np.mean(c[~wait] == UP))}
+              for name, c in choices.items() if name != "lookahead"}
+    return {"steps": len(wait), "waits": int(wait.sum()), "choices": cached["choices"], "planners": shares}
+
+
 def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str | None = None,
                          progress: bool = True) -> dict:
     """Where the value changes the plan on Freeway
@@ -283,4 +378,4 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
 
 
 __all__ = ["planet_freeway_value", "value_folders", "model_variant", "base_variant", "value_variant", "validate_planners",
-           "PLANNER_LEVERS", "LEVER_EPISODES", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+           "PLANNER_LEVERS", "LEVER_EPISODES", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "LOOKAHEAD_HORIZONS", "LOOKAHEAD_EPISODES", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
