@@ -328,6 +328,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     import dataclasses
 
     import numpy as np
+    from gymnasium.wrappers import TimeLimit
 
     from wmthesis.config import ValuePlannerConfig
     from wmthesis.envs.freeway import play_lookahead
@@ -347,7 +348,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     cached = _read_json(out / "when_to_wait.json")
     if cached is None or cached.get("key") != key:
         model, planet, _ = load_planet(frozen_model(profile, seed, model_variant(variant), progress))
-        env = make_planet_env(GAME, planet)
+        env = TimeLimit(make_planet_env(GAME, planet), max_episode_steps=steps)  # the steps compared, no more
         try:
             episode = play_lookahead(env, horizon, evaluation_seeds(seed, 0)[0])
         finally:
