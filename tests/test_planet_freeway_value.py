@@ -250,3 +250,18 @@ def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_ow
     written = cached.stat().st_mtime_ns
     assert when_to_wait("smoke", 0, variant=None, horizon=3, progress=False)["choices"] == found["choices"]
     assert cached.stat().st_mtime_ns == written  # cached: nothing planned again
+
+
+def test_hold_back_shares_tell_a_planner_that_waits_with_the_lookahead_from_one_that_does_not():
+    from scipy.stats import fisher_exact
+
+    from wmthesis.experiments.planet_freeway_value import hold_back_shares
+
+    lookahead = np.array([0] * 20 + [1] * 80)  # waits (NOOP) on 20 steps, goes on 80
+    same = hold_back_shares(lookahead, np.where(lookahead == 0, 2, 1))  # DOWN is holding back too
+    assert same["waits_kept"] == 1.0 and same["ups_kept"] == 1.0 and same["p"] < 1e-15
+    blind = hold_back_shares(lookahead, np.tile([0, 1, 1, 1], 25))  # a quarter of each, whatever comes
+    assert blind["waits_kept"] == 0.25 and blind["ups_kept"] == 0.75 and blind["odds_ratio"] == 1.0 and blind["p"] == 1.0
+    picks = np.array([0] * 12 + [1] * 8 + [0] * 30 + [1] * 50)
+    assert hold_back_shares(lookahead, picks)["p"] == pytest.approx(fisher_exact([[12, 8], [30, 50]]).pvalue)
+    assert np.isnan(hold_back_shares(np.ones(5, int), np.zeros(5, int))["waits_kept"])  # no wait to keep

@@ -322,9 +322,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     value run (:func:`planet_freeway_value`, run first if need be), CEM with its value and the
     value alone. Cached in that run's results folder (``when_to_wait.json``). Returns ``steps``,
     ``waits`` (the lookahead's NOOPs among them), ``choices`` (planner -> actions, the
-    lookahead's under ``lookahead``) and per planner ``waits_kept`` (the share of the
-    lookahead's waits on which it does not press UP) and ``ups_kept`` (the share of its UPs on
-    which it presses UP)."""
+    lookahead's under ``lookahead``) and per planner :func:`hold_back_shares`."""
     import dataclasses
 
     import numpy as np
@@ -358,12 +356,26 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
         cached = {"key": key, "choices": {"lookahead": taken.tolist(), **{n: c.tolist() for n, c in choices.items()}}}
         with atomic_path(out / "when_to_wait.json") as tmp:
             tmp.write_text(json.dumps(cached))
-    choices = {name: np.asarray(c) for name, c in cached["choices"].items()}
-    wait = choices["lookahead"] != UP
-    shares = {name: {"waits_kept": float(np.mean(c[wait] != UP)) if wait.any() else float("nan"),
-                     "ups_kept": float(np.mean(c[~wait] == UP))}
-              for name, c in choices.items() if name != "lookahead"}
-    return {"steps": len(wait), "waits": int(wait.sum()), "choices": cached["choices"], "planners": shares}
+    lookahead = np.asarray(cached["choices"]["lookahead"])
+    shares = {name: hold_back_shares(lookahead, np.asarray(c)) for name, c in cached["choices"].items() if name != "lookahead"}
+    return {"steps": len(lookahead), "waits": int((lookahead != UP).sum()), "choices": cached["choices"], "planners": shares}
+
+
+def hold_back_shares(lookahead, picks) -> dict[str, float]:
+    """A planner's ``picks`` (T,) beside the ``lookahead``'s actions (T,) on the same steps:
+    ``waits_kept`` (the share of the lookahead's waits, any action but UP, on which it does not
+    press UP either; NaN without a wait), ``ups_kept`` (the share of its UPs on which it presses
+    UP), and Fisher's exact test of holding back against the lookahead's waiting (scipy):
+    ``odds_ratio`` and its two-sided ``p``."""
+    import numpy as np
+    from scipy.stats import fisher_exact
+
+    wait, held = np.asarray(lookahead) != UP, np.asarray(picks) != UP
+    table = [[int((held & wait).sum()), int((~held & wait).sum())], [int((held & ~wait).sum()), int((~held & ~wait).sum())]]
+    test = fisher_exact(table)
+    return {"waits_kept": float(held[wait].mean()) if wait.any() else float("nan"),
+            "ups_kept": float((~held[~wait]).mean()) if (~wait).any() else float("nan"),
+            "odds_ratio": float(test.statistic), "p": float(test.pvalue)}
 
 
 def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str | None = None,
@@ -379,4 +391,4 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
 
 
 __all__ = ["planet_freeway_value", "value_folders", "model_variant", "base_variant", "value_variant", "validate_planners",
-           "PLANNER_LEVERS", "LEVER_EPISODES", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "LOOKAHEAD_HORIZONS", "LOOKAHEAD_EPISODES", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+           "PLANNER_LEVERS", "LEVER_EPISODES", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "hold_back_shares", "LOOKAHEAD_HORIZONS", "LOOKAHEAD_EPISODES", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
