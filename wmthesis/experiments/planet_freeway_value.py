@@ -10,6 +10,11 @@ crosses. So the value differs from Boxing's in two ways (:data:`FREEWAY_VALUE`):
 the discounted sum of the next 150 rewards (``discounted-sum``: a crossing 90 steps ahead still
 counts 0.97^90 = 0.06 of a point), and its first data are the PlaNet agent's own episodes (its
 seed episodes and the bouts it collected), copied from the PlaNet run, not random play.
+
+Two checks ask what holds the planners back. :func:`lookahead_ceiling` plans with a perfect model,
+the emulator itself (:mod:`wmthesis.envs.freeway`), at several horizons; :func:`when_to_wait` asks
+the learned model's planners, along that lookahead's own episode, whether they hold back where it
+waits for a car.
 """
 from __future__ import annotations
 
