@@ -54,7 +54,7 @@ VALUE_VARIANTS = {
     "adam-td": dict(model="freeway-adam", data=VARIANT, base="freeway-adam",
                     value=dict(target="td", reward_steps=30, discount=0.99)),
     # freeway-adam's value at the end of the thesis's 12 steps: a car-seeing model imagines a
-    # collision only within its horizon, and one step's progress (half a pixel) is below what a
+    # collision only within its horizon, and one step's progress (0.7 of a pixel) is below what a
     # value can rank, while twelve steps up against a collision's push back are not
     "adam-horizon-12": dict(model="freeway-adam", data=VARIANT, base="freeway-adam", planner=dict(horizon=12)),
     # ... and a value that ranks those end states: the discounted sum's logarithm, on which a step
