@@ -237,6 +237,9 @@ def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_ow
     from wmthesis.planet.value_planner import PLANNERS
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    with pytest.raises(ValueError, match=r"lookahead horizons must be positive integers, got \(0,\)"):
+        when_to_wait("smoke", 0, variant=None, horizon=0, progress=False)
+    assert not (tmp_path / "smoke").exists()  # refused before any model or value was trained
     found = when_to_wait("smoke", 0, variant=None, horizon=3, progress=False)
     env = make_planet_env(GAME, planet_config(GAME, "smoke"))
     lookahead = play_lookahead(env, 3, evaluation_seeds(0, 0)[0])["actions"][:PLAN_STEPS["smoke"]]

@@ -307,14 +307,19 @@ def lookahead_ceiling(profile: str | None = None, seed: int = 0, horizons: tuple
     from wmthesis.planet.value import evaluation_seeds
 
     profile = profile_name(profile)
-    bad = [h for h in horizons if isinstance(h, bool) or not isinstance(h, int) or h < 1]
-    if bad or not horizons:
-        raise ValueError(f"lookahead horizons must be positive integers, got {tuple(horizons)!r}")
+    _check_horizons(horizons)
     seeds = [evaluation_seeds(seed, k)[0] for k in range(LOOKAHEAD_EPISODES[profile])]
     _, out = value_folders(profile, seed)
     plays = played_bouts(out / "lookahead-bouts.json", {"seeds": seeds, "horizons": list(horizons)}, progress,
                          [(lookahead_bout, profile, h, s) for h in horizons for s in seeds])
     return {h: bout_scores(plays[i * len(seeds):(i + 1) * len(seeds)]) for i, h in enumerate(horizons)}
+
+
+def _check_horizons(horizons: tuple[int, ...]) -> None:
+    """Refuse lookahead ``horizons`` that are not all positive integers (or none at all), before
+    anything is played or fitted."""
+    if not horizons or any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in horizons):
+        raise ValueError(f"lookahead horizons must be positive integers, got {tuple(horizons)!r}")
 
 
 def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None = "adam-log", horizon: int = 6,
@@ -341,6 +346,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     from wmthesis.training import with_added_defaults
 
     profile = profile_name(profile)
+    _check_horizons((horizon,))
     metrics = planet_freeway_value(profile, seed, progress, variant)
     work, _ = value_folders(profile, seed, value_variant(variant))
     planner = ValuePlannerConfig(**with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"]))
