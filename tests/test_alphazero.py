@@ -547,11 +547,11 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
 
 
 def test_a_corrupt_cached_result_is_computed_again(tmp_path):
-    from wmthesis.experiments.results import _read_json
+    from wmthesis.runs import read_json
 
     path = tmp_path / "baselines.json"
-    assert _read_json(path) is None
+    assert read_json(path) is None
     path.write_text('{"key": 1, "returns"')  # cut off mid-write by hand
-    assert _read_json(path) is None
+    assert read_json(path) is None
     path.write_text('{"key": 1}')
-    assert _read_json(path) == {"key": 1}
+    assert read_json(path) == {"key": 1}

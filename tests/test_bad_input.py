@@ -13,7 +13,7 @@ from wmthesis.__main__ import main
 from wmthesis.envs import make_env
 from wmthesis.envs.sokoban import SokobanEnv
 from wmthesis.training import NonFiniteLoss, gradient_step
-from wmthesis.utils import LOCK_NAME, FolderHeld, hold, release, releasing_holds
+from wmthesis.runs import LOCK_NAME, FolderHeld, hold, release, releasing_holds
 
 
 # ----------------------------------------------------------------------------- actions
@@ -141,7 +141,7 @@ def test_the_alphazero_heads_and_the_reward_model_stop_on_nan():
 # ----------------------------------------------------------------------------- held folders
 HOLDER = """
 import sys, time
-from wmthesis.utils import hold
+from wmthesis.runs import hold
 hold(sys.argv[1])
 print("held", flush=True)
 time.sleep(60)

@@ -246,7 +246,7 @@ def test_a_planner_variant_copies_a_run_fitted_with_its_own_value_config():
 def test_groups_of_bouts_play_in_one_pool_each_saved_in_its_own_file(tmp_path):
     import json
 
-    from wmthesis.experiments.results import played_groups
+    from wmthesis.runs import played_groups
 
     paths = [tmp_path / "a.json", tmp_path / "b.json"]
     keys = [{"lever": "a"}, {"lever": "b"}]

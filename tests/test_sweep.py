@@ -13,7 +13,7 @@ import pytest
 
 from wmthesis.__main__ import main
 from wmthesis.experiments import reproduce
-from wmthesis.experiments.results import _first_run_seconds
+from wmthesis.runs import first_run_seconds
 from wmthesis.experiments.summary import aggregate, read_runs, write_summary
 from wmthesis.experiments.sweep import SweepRun, finished, parse_runs, parse_seeds, start_ray, sweep
 
@@ -118,7 +118,7 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert value_rows == {None: 26.8, "cem-with-value": 31.5}
     table = (tmp_path / "results" / "summary.md").read_text()
     assert "| boxing-wm |  | quick | 3 | 15.0 | 5.6 | [1.2, 28.8] | 0: 10.0, 1: 14.0, 2: 21.0 | 0, 1, 60 |" in table
-    assert "human 12.1 (iris results/data/HUMAN.json)" in table and "Student-t" in table
+    assert "human 12.1 (eloialonso/iris results/data/HUMAN.json)" in table and "Student-t" in table
     csv_lines = (tmp_path / "results" / "summary.csv").read_text().splitlines()
     assert csv_lines[0].startswith("experiment,variant,profile,n,mean,std,ci_low,ci_high")
     assert csv_lines[1].startswith("boxing-wm,,quick,3,15.0,")
@@ -150,13 +150,13 @@ def test_the_summary_aggregates_the_sokoban_agents_report_evaluations_over_seeds
 
 def test_a_run_called_again_keeps_the_wall_time_of_the_run_that_computed_it(tmp_path):
     path = tmp_path / "metrics.json"
-    assert _first_run_seconds(path, 21.9) == 21.9  # no earlier run
+    assert first_run_seconds(path, 21.9) == 21.9  # no earlier run
     path.write_text(json.dumps({"wall_seconds": 7200.0}))  # written before first_run_wall_seconds existed
-    assert _first_run_seconds(path, 21.9) == 7200.0
+    assert first_run_seconds(path, 21.9) == 7200.0
     path.write_text(json.dumps({"wall_seconds": 30.0, "first_run_wall_seconds": 5400.0}))
-    assert _first_run_seconds(path, 21.9) == 5400.0
+    assert first_run_seconds(path, 21.9) == 5400.0
     path.write_text("{not json")
-    assert _first_run_seconds(path, 21.9) == 21.9
+    assert first_run_seconds(path, 21.9) == 21.9
 
 
 def test_the_summary_skips_corrupt_and_foreign_files_naming_them(tmp_path):

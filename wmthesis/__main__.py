@@ -39,7 +39,8 @@ from pathlib import Path
 
 from wmthesis.config import PROFILES, CollectConfig, for_profile
 from wmthesis.envs import ATARI_GAMES, ENV_NAMES
-from wmthesis.utils import FolderHeld, data_dir
+from wmthesis.utils import data_dir
+from wmthesis.runs import FolderHeld
 
 
 def at_least(minimum: int):
@@ -136,7 +137,7 @@ def cmd_solve_sokoban(args) -> int:
     from wmthesis.experiments.sokoban_search import work_folder
     from wmthesis.sokoban_search.evaluation import solve_boards
     from wmthesis.sokoban_search.iteration import evaluation_search, load_run
-    from wmthesis.utils import atomic_path
+    from wmthesis.runs import atomic_path
 
     profile = profile_name(args.profile)
     boards = load_levels(args.levels)

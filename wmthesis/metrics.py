@@ -38,6 +38,11 @@ def score_summary(returns) -> dict:
             "max": float(returns.max()), "episodes": int(returns.size)}
 
 
+def score_cell(summary: dict) -> str:
+    """A :func:`score_summary` as a table cell: mean ± std (n)."""
+    return f"{summary['mean']:.1f} ± {summary['std']:.1f} (n={summary['episodes']})"
+
+
 def score_difference(returns, baseline) -> dict:
     """How far ``returns`` lie above ``baseline`` (two agents' episode returns): the difference
     of the means and its standard error, ``sqrt(s_a^2 / n_a + s_b^2 / n_b)`` with sample

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from wmthesis.utils import atomic_path
+from wmthesis.runs import atomic_path
 
 
 class ConfigMismatch(ValueError):

@@ -1,5 +1,6 @@
-"""Small helpers shared by every module: device choice, seeding, atomic file writes, timing,
-weight fingerprints."""
+"""Small helpers shared by every module: device choice, seeding, choices checked, the data folder,
+timing, weight fingerprints, pickles read back, pools of processes (files and run folders:
+:mod:`wmthesis.runs`)."""
 from __future__ import annotations
 
 import atexit
@@ -47,23 +48,6 @@ def seed_everything(seed: int) -> np.random.Generator:
     np.random.seed(seed % 2**32)
     torch.manual_seed(seed)
     return np.random.default_rng(seed)
-
-
-@contextmanager
-def atomic_path(path: str | os.PathLike):
-    """Yield a temporary path next to `path`; move it into place only if the block succeeds.
-
-    A crash mid-write leaves the previous file (if any) untouched.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 # Classes that checkpoints pickled under the package's earlier layout (one folder per kind:
@@ -134,99 +118,6 @@ def fingerprint(model) -> str | None:
         digest.update(name.encode())
         digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
     return digest.hexdigest()[:16]
-
-
-# ----------------------------------------------------------------------------- held folders
-LOCK_NAME = ".wmthesis-lock"
-_held: dict[Path, int] = {}  # folders this process holds -> how many holders inside it
-
-
-class FolderHeld(RuntimeError):
-    """Another live process holds a run's data folder."""
-
-
-def hold(folder: str | os.PathLike) -> Path:
-    """Hold ``folder`` for this process (until :func:`release` or exit): a lock file in it names
-    the process id, the command line and the start time. A folder held by another live process
-    raises :class:`FolderHeld` naming the holder; a lock left by a dead process is taken over,
-    with a message. Holding again from the same process only counts. Returns the folder."""
-    folder = Path(folder).resolve()
-    if folder in _held:
-        _held[folder] += 1
-        return folder
-    folder.mkdir(parents=True, exist_ok=True)
-    lock = folder / LOCK_NAME
-    mine = {"pid": os.getpid(), "command": " ".join(sys.argv) or sys.executable,
-            "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-    while True:
-        try:
-            with open(lock, "x") as f:
-                json.dump(mine, f)
-            break
-        except FileExistsError:
-            holder = _read_lock(lock)
-            if holder is not None and _alive(holder.get("pid")):
-                raise FolderHeld(f"{folder} is held by another run: process {holder.get('pid')} "
-                                 f"({holder.get('command')!r}, since {holder.get('started')}); wait for it to end, "
-                                 f"or use another seed or data folder") from None
-            print(f"{folder}: taking over the lock of a run that is gone ({holder}); its finished steps resume",
-                  file=sys.stderr)
-            lock.unlink(missing_ok=True)
-    _held[folder] = 1
-    return folder
-
-
-def release(folder: str | os.PathLike) -> None:
-    """Let go of one hold of ``folder``; the lock file goes with the last."""
-    folder = Path(folder).resolve()
-    if folder not in _held:
-        return
-    _held[folder] -= 1
-    if _held[folder] == 0:
-        del _held[folder]
-        (folder / LOCK_NAME).unlink(missing_ok=True)
-
-
-def releasing_holds(fn):
-    """Decorator: folders :func:`hold` took during the call are let go when it returns or fails."""
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        before = dict(_held)
-        try:
-            return fn(*args, **kwargs)
-        finally:
-            for folder, count in list(_held.items()):
-                for _ in range(count - before.get(folder, 0)):
-                    release(folder)
-    return wrapper
-
-
-@atexit.register
-def _release_all() -> None:
-    for folder in list(_held):
-        _held[folder] = 1
-        release(folder)
-
-
-def _read_lock(lock: Path) -> dict | None:
-    try:
-        return json.loads(lock.read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def _alive(pid) -> bool:
-    if not isinstance(pid, int) or pid <= 0:
-        return False
-    if pid == os.getpid():
-        return False  # our own lock from before a fork/exec is stale for this holder count
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def process_pool(workers: int | None = None):

@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from wmthesis.alphazero.heads import value_targets
-from wmthesis.alphazero.latent_mdp import LatentMDP, _split_episodes, _stack_rows, rollout_episodes
+from wmthesis.alphazero.latent_mdp import LatentMDP, split_episodes, stack_rows, rollout_episodes
 from wmthesis.alphazero.replay import Game
 from wmthesis.metrics import correlation
 from wmthesis.training import gradient_step
@@ -123,7 +123,7 @@ def action_predictability(mdp: LatentMDP, latents, horizons=(3, 8), val_fraction
     for k in horizons:
         windows = [(x[:len(x) - k + 1], a[:len(x) - k + 1], np.convolve(r, np.ones(k))[k - 1:len(x)].astype(np.float32))
                    for x, a, r in episodes if len(x) >= k]  # sums r_t + ... + r_{t+k-1}
-        train, val = (_stack_rows(part) for part in _split_episodes(windows, val_fraction))
+        train, val = (stack_rows(part) for part in split_episodes(windows, val_fraction))
         result[str(k)] = _fit_q(train, val, mdp.n_actions, epochs, hidden, seed)
     return result
 

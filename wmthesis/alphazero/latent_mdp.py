@@ -158,8 +158,8 @@ def rollout_rows(mdp: LatentMDP, latents, delay: int, val_fraction: float = 0.1)
     rows, ``{"train": (X, a, r), "val": (X, a, r)}``: features ``[z_t h_{t-1}]`` with h from
     the memory reading each episode; the last ``val_fraction`` of episodes held out."""
     games = [reward_rows(*episode, delay) for episode in rollout_episodes(mdp, latents)]
-    train, val = _split_episodes(games, val_fraction)
-    return {"train": _stack_rows(train), "val": _stack_rows(val)}
+    train, val = split_episodes(games, val_fraction)
+    return {"train": stack_rows(train), "val": stack_rows(val)}
 
 
 def rollout_episodes(mdp: LatentMDP, latents) -> list[tuple]:
@@ -178,13 +178,13 @@ def rollout_episodes(mdp: LatentMDP, latents) -> list[tuple]:
     return episodes
 
 
-def _split_episodes(items: list, val_fraction: float) -> tuple[list, list]:
+def split_episodes(items: list, val_fraction: float) -> tuple[list, list]:
     """The first and the last ``val_fraction`` of ``items`` (all of them twice if only one)."""
     n_val = max(1, int(round(len(items) * val_fraction))) if len(items) > 1 else 0
     return items[:len(items) - n_val], items[len(items) - n_val:] or items
 
 
-def _stack_rows(rows) -> tuple:
+def stack_rows(rows) -> tuple:
     return tuple(np.concatenate(parts) for parts in zip(*rows))
 
 

@@ -20,7 +20,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from wmthesis.utils import atomic_path, derive_seeds
+from wmthesis.utils import derive_seeds
+
+from wmthesis.runs import atomic_path
 
 REPLAY_NAME = "replay.h5"
 FORMAT = "wmthesis-replay"

@@ -58,14 +58,15 @@ from tqdm import tqdm
 
 from wmthesis.alphazero.heads import (VALUE_TARGETS, AlphaZeroHeads, Evaluator, make_optimiser, train_round)
 from wmthesis.alphazero.imitation import agreement, expert_games
-from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, State, _stack_rows, reward_fit, reward_rows,
+from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, State, stack_rows, reward_fit, reward_rows,
                                            rollout_rows, train_reward_model)
 from wmthesis.alphazero.mcts import MCTS
 from wmthesis.alphazero.replay import REPLAY_NAME, Game, Replay, game_seeds
 from wmthesis.config import AlphaZeroConfig
 from wmthesis.core import Callback, Mind, Proportional, loop
 from wmthesis.training import check_resumable
-from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint, read_pickle
+from wmthesis.utils import check_choice, derive_seeds, fingerprint, read_pickle
+from wmthesis.runs import atomic_path
 
 VARIANTS = {
     "unchanged": {},  # thesis 4.3 as written
@@ -358,7 +359,7 @@ def _train_reward(run: AlphaZeroRun, rows: dict, config, epochs: int, seed: int)
     the replay (self-play data: the states and actions the search actually visits), then
     record its fit on the held-out random episodes in ``run.reward_fits``."""
     games = [reward_rows(g.features, g.actions, g.rewards, config.reward_delay) for g in run.replay]
-    data = _stack_rows([rows["train"], *games])
+    data = stack_rows([rows["train"], *games])
     rng = np.random.default_rng(derive_seeds(seed, 4, len(run.reward_fits) + 1))
     loss = train_reward_model(run.reward_model, run.reward_optimiser, data, epochs, config.batch_size, rng)
     run.reward_fits.append({"game": run.games, "loss": loss, **reward_fit(run.reward_model, rows["val"])})

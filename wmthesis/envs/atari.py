@@ -56,9 +56,9 @@ def make_atari(game: str, preprocessing: str = "none", action_repeat: int = 4,
     """
     check_choice("Atari game", game, tuple(CROPS))
     check_choice("preprocessing", preprocessing, PREPROCESSING)
-    _check_positive("action_repeat", action_repeat)
+    check_positive("action_repeat", action_repeat)
     if max_steps is not None:
-        _check_positive("max_steps", max_steps)
+        check_positive("max_steps", max_steps)
     import ale_py
 
     gym.register_envs(ale_py)
@@ -71,7 +71,7 @@ def make_atari(game: str, preprocessing: str = "none", action_repeat: int = 4,
     return EpisodeGuard(env)
 
 
-def _check_positive(name: str, value) -> None:
+def check_positive(name: str, value) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
 

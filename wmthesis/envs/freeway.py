@@ -16,7 +16,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from wmthesis.envs.atari import _check_positive
+from wmthesis.envs.atari import check_positive
 
 # Player 1's height on the road (it rises as the chicken crosses), from AtariARI's RAM
 # annotations (Anand et al. 2019, mila-iqia/atari-representation-learning).
@@ -29,7 +29,7 @@ def lookahead_action(env: gym.Env, horizon: int) -> int:
     "wait, then UP" plan of ``horizon`` steps, each played from a copy of ``env``'s emulator
     state; the state is the same afterwards. ``env``: Freeway from :func:`~wmthesis.envs.make_env`
     (any wrappers), its frame skip the action repeat."""
-    _check_positive("horizon", horizon)
+    check_positive("horizon", horizon)
     game = env.unwrapped
     if getattr(game, "_game", None) != "freeway":
         raise ValueError(f"lookahead_action plays Freeway, got {getattr(game, '_game', type(game).__name__)!r}")

@@ -21,18 +21,18 @@ from __future__ import annotations
 import os
 
 from wmthesis.config import profile_name
-from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, ALPHAZERO_REFERENCE, RECORDING_STEPS,
+from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS,
                                             boxing_wm_alphazero)
-from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, PLANET_REFERENCE,
+from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, 
                                          planet_experiment, planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
 from wmthesis.experiments.planet_boxing_value import planet_boxing_value
 from wmthesis.experiments.planet_freeway_value import planet_freeway_value
-from wmthesis.experiments.sokoban_search import SOKOBAN_SEARCH_REFERENCE, sokoban_search
+from wmthesis.experiments.sokoban_search import sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
-                                                       SOKOBAN_WM_EVAL, SOKOBAN_WM_REFERENCE, SOKOBAN_WM_VARIANTS,
+                                                       SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS,
                                                        sokoban_wm_configs, sokoban_world_models)
-from wmthesis.experiments.world_models import BOXING_REFERENCE, DREAM_CHANGES, boxing_dream, boxing_world_models
+from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.utils import check_choice, worker_init
 
@@ -97,12 +97,12 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
         return {run: future.result() for run, future in futures.items()}
 
 
-__all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", "SOKOBAN_SEARCH_REFERENCE",
+__all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", 
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
-           "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE", "SOKOBAN_WM_REFERENCE",
-           "boxing_world_models", "boxing_dream", "DREAM_CHANGES", "BOXING_REFERENCE",
-           "boxing_wm_alphazero", "ALPHAZERO_REFERENCE", "ALPHAZERO_DIAGNOSIS_DEPTH", "RECORDING_STEPS",
+           "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE",
+           "boxing_world_models", "boxing_dream", "DREAM_CHANGES",
+           "boxing_wm_alphazero", "ALPHAZERO_DIAGNOSIS_DEPTH", "RECORDING_STEPS",
            "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "planet_boxing_value",
            "planet_freeway_value",
-           "PLANET_GAMES", "PLANET_REFERENCE", "ATARI_CHANGES",
+           "PLANET_GAMES", "ATARI_CHANGES",
            "SOKOBAN_CHANGES", "PLANET_EVAL_EPISODES", "PLANET_OPEN_LOOP"]

@@ -10,12 +10,12 @@ import numpy as np
 
 from wmthesis.alphazero.evaluation import evaluation_seeds, greedy_returns
 from wmthesis.config import CollectConfig, MemoryConfig, VisionConfig, for_profile, profile_name
-from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header
-from wmthesis.utils import atomic_path, check_choice, data_dir, hold, read_pickle, releasing_holds
+from wmthesis.runs import first_run_seconds, read_json, run_header
+from wmthesis.utils import check_choice, data_dir, read_pickle
+from wmthesis.runs import atomic_path, hold, releasing_holds
+from wmthesis.references import human, published, random_play
 from wmthesis.viz import save_figure
 
-ALPHAZERO_REFERENCE = {"random": 0.1, "human": 12.1,
-                       "thesis World Models + AlphaZero": "no score: 'did not train to properly plan', abandoned"}
 ALPHAZERO_DIAGNOSIS_DEPTH = {"smoke": 5, "quick": 10, "thesis": 10}
 RECORDING_STEPS = 400  # the rerun recording shows the first steps of one evaluation game
 
@@ -119,11 +119,11 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
                                (("reward", shown.rewards), ("predicted_reward", shown.predicted_rewards),
                                 ("root_value", shown.root_values))})
     metrics = {
-        **_run_header("boxing-wm-alphazero", profile, seed, time.time() - started, variants=list(variants)),
+        **run_header("boxing-wm-alphazero", profile, seed, time.time() - started, variants=list(variants)),
         "score": scores[f"AlphaZero {variants[-1]}"], "scores": scores, "against_random": against_random,
         "evaluation": {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps, "notes": baselines["notes"]},
         "random_play_in_store": {"max_steps": cfg.max_steps, **score_summary(random_in_store)},
-        "reference": ALPHAZERO_REFERENCE,
+        "reference": published("boxing-wm-alphazero"),
         "runs": runs,
         "diagnosis": {"reward_error": reward_error, "value_fit_on_random_rollouts": value_fit,
                       "action_fit_on_random_rollouts": action_fit, "search": {name: {
@@ -137,7 +137,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         "memory_history": memory_history,
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
-    metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
+    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
@@ -188,7 +188,7 @@ def _policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> lis
 
     key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
-    cached = _read_json(work / "policy_head.json")
+    cached = read_json(work / "policy_head.json")
     if cached is not None and cached["key"] == key:
         return cached["returns"]
     mind, env = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max)
@@ -247,7 +247,7 @@ def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int
     key = {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
            "controller_mtime": controller_path.stat().st_mtime_ns if controller_path.is_file() else None}
-    cached = _read_json(work / "baselines.json")
+    cached = read_json(work / "baselines.json")
     if cached is not None and cached["key"] == key:
         return cached
     minds, notes = {"random": lambda agent_seed: RandomMind(18, agent_seed)}, []
@@ -271,12 +271,12 @@ def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int
 
 
 def _score_figure(scores: dict):
-    """Evaluation scores (mean +- std) of every agent, beside random (0.1) and human (12.1)."""
+    """Evaluation scores (mean +- std) of every agent, beside random and human play (published)."""
     fig, ax = plt.subplots(figsize=(6, 0.5 + 0.45 * len(scores)))
     names = list(scores)
     ax.barh(names, [scores[n]["mean"] for n in names], xerr=[scores[n]["std"] for n in names], capsize=3,
             color=[f"C{i}" for i in range(len(names))])
-    for value, style, label in ((0.1, "--", "random (published)"), (12.1, ":", "human (published)")):
+    for value, style, label in ((random_play("boxing"), "--", "random (published)"), (human("boxing"), ":", "human (published)")):
         ax.axvline(value, color="0.4", ls=style, lw=1, label=label)
     ax.invert_yaxis()
     ax.set_xlabel("Boxing score (mean ± std)")

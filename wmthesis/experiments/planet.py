@@ -11,8 +11,11 @@ import numpy as np
 
 from wmthesis.config import profile_name
 from wmthesis.planet.profiles import planet_config
-from wmthesis.experiments.results import _read_json, _run_header, same_training
-from wmthesis.utils import atomic_path, check_choice, data_dir, derive_seeds, hold, releasing_holds
+from wmthesis.runs import read_json, run_header
+from wmthesis.planet.train import same_training
+from wmthesis.utils import check_choice, data_dir, derive_seeds
+from wmthesis.runs import atomic_path, hold, releasing_holds
+from wmthesis.references import HUMAN, RANDOM, published
 from wmthesis.viz import save_figure
 
 # Experiment -> (environment, the thesis's variants for that game, the default variant).
@@ -24,17 +27,6 @@ PLANET_GAMES = {
                        "freeway-tuned"),                                                     # 5.6.5-5.6.6
 }
 
-PLANET_REFERENCE = {
-    # The thesis's own Boxing figure (5.6.4, KL scale 0.03, free nats 12): "around 30", no step
-    # count. (Figures "6.2±10.7 at 100k, 35.2±8.3 at 500k, 78.2±19.1 at 1M" once quoted here are
-    # not in the thesis.)
-    "planet-boxing": {"random": 0.1, "human": 12.1, "thesis PlaNet (5.6.4)": "around 30",
-                      "SimPLe 100k": 7.8, "DreamerV3 100k": 78.0},
-    "planet-freeway": {"random": 0.0, "human": 29.6, "thesis PlaNet": 0.0, "DreamerV3 100k": 0.0,
-                       "SimPLe": 16.7, "STORM": 33.5},
-    # The thesis judged Sokoban-small's PlaNet by its open-loop rollouts (Fig. 58), no score.
-    "planet-sokoban": {},
-}
 
 # Greedy evaluation episodes after training (not in the thesis, which reported 5 runs' tests).
 PLANET_EVAL_EPISODES = {"smoke": 2, "quick": 3, "thesis": 10}
@@ -90,7 +82,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     run = train_planet(env_name, config, work, seed=seed, variant=variant, progress=progress)
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
     n_eval = PLANET_EVAL_EPISODES[profile]
-    cached = _read_json(out / "metrics.json")
+    cached = read_json(out / "metrics.json")
     if (same_training(cached, run) and cached.get("env_steps") == run["env_steps"]
             and cached["score"]["episodes"] == n_eval
             and all(Path(f).is_file() and Path(f).stat().st_size > 0
@@ -113,8 +105,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
         save_figure(horizon_error_figure({label: rollout["mse"]}, title=f"open-loop error, {label}"),
               out / "horizon_error.png"),
     ]
-    references = {key: value for key, value in PLANET_REFERENCE[name].items()
-                  if key in ("random", "human") and isinstance(value, float)}
+    references = {ref.name: ref.value for ref in (RANDOM.get(env_name), HUMAN.get(env_name)) if ref is not None}
     if not references:
         references = {"random (seed episodes)": float(np.mean(random_returns))}
     figures.append(save_figure(learning_curve_figure({label: meta["curve"]}, references=references,
@@ -123,7 +114,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
                               {"truth": rollout["truth"][0], "prediction": rollout["prediction"][0]},
                               {"pixel_error": horizon_errors(rollout["truth"][0], rollout["prediction"][0])})
     metrics = {
-        **_run_header(name, profile, seed, run["seconds"] + time.time() - started, env=env_name, variant=variant),
+        **run_header(name, profile, seed, run["seconds"] + time.time() - started, env=env_name, variant=variant),
         "env_steps": run["env_steps"], "updates": run["updates"], "episodes": run["episodes"],
         "score": score_summary(returns),
         "final_test": run["final_test"],
@@ -131,7 +122,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
         "open_loop": {"context": context, "horizon": horizon, "cutoff": cutoff,
                       "error_at_cutoff": error_at(rollout["mse"], cutoff),
                       "mse": [float(v) for v in rollout["mse"]]},
-        "reference": PLANET_REFERENCE[name],
+        "reference": published(name),
         "config": run["config"], "curve": meta["curve"],
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
@@ -146,7 +137,7 @@ def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval
     from wmthesis.planet.train import make_planet_env, play_greedy
 
     path = work / "evaluation.json"
-    cached = _read_json(path)
+    cached = read_json(path)
     if cached is not None and cached["updates"] == updates and len(cached["returns"]) == n_eval:
         return cached["returns"]
     env = make_planet_env(env_name, config)

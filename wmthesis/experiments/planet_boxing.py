@@ -17,10 +17,13 @@ from pathlib import Path
 
 from wmthesis.config import PlaNetConfig, profile_name
 from wmthesis.data import EpisodeBuffer
-from wmthesis.experiments.planet import PLANET_REFERENCE
 from wmthesis.planet.profiles import planet_config
-from wmthesis.experiments.results import _read_json, _run_header, played_bouts, same_training
-from wmthesis.utils import atomic_path, data_dir, derive_seeds, hold, parallel_calls, releasing_holds
+from wmthesis.runs import read_json, run_header, played_bouts
+from wmthesis.planet.train import same_training
+from wmthesis.utils import data_dir, derive_seeds, parallel_calls
+from wmthesis.runs import atomic_path, hold, releasing_holds
+from wmthesis.metrics import score_cell
+from wmthesis.references import HUMAN, THESIS_PLANET_BOXING, THESIS_PLANET_BOXING_SCORE, human, published, random_play
 from wmthesis.viz import record_frames, save_figure
 
 GAME = "boxing"
@@ -96,7 +99,7 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
                 f"(repeat last {tuned['repeat last'][1]:.4f}, {tuned['repeat last'][h5]:.4f}; unchanged "
                 f"{summary['unchanged']['model'][1]['mean']:.4f}, {summary['unchanged']['model'][h5]['mean']:.4f}); "
                 f"beats both baselines: {tuned['beats_baselines']}")
-    metrics = {**_run_header("planet-boxing-study", profile, seed, time.time() - started, env=GAME),
+    metrics = {**run_header("planet-boxing-study", profile, seed, time.time() - started, env=GAME),
                "headline": headline, "seeds": seeds, "updates": config.pretrain_updates, "seed_episodes": config.seed_episodes,
                "summary": summary,
                "runs": {f"{v}-seed{s}": {key: scores[v][i][key] for key in ("errors", "diagnostics", "updates",
@@ -167,7 +170,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     config = boxing_config(profile, TUNED, study=False)
     run = train_planet(GAME, config, work, seed=seed, progress=progress, start_from=study)
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
-    cached = _read_json(out / "metrics.json")
+    cached = read_json(out / "metrics.json")
     if same_training(cached, run) and len(cached["agent"]["returns"]) == sizes["bouts"]:
         return cached
     bouts = [tuple(int(v) for v in derive_seeds(seed, 3, k, n=2)) for k in range(sizes["bouts"])]
@@ -178,19 +181,19 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     agent, random = plays[:len(bouts)], plays[len(bouts):]
     scores = {"agent": bout_scores(agent), "random": bout_scores(random)}
     _, _, meta = load_planet(work)
-    references = {"random (published)": PLANET_REFERENCE["planet-boxing"]["random"],
-                  "human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
+    references = {"random (published)": random_play(GAME), "human": human(GAME),
+                  "thesis PlaNet (around 30)": THESIS_PLANET_BOXING_SCORE}
     figure = save_figure(learning_curve_figure({"PlaNet, KL scale 0.03, free nats 12": meta["curve"]},
                                                references=references, title="PlaNet on Boxing: test score"),
                          out / "learning_curve.png")
     full = scores["agent"]["full"]
     headline = (f"score {full['mean']:.1f} +- {full['std']:.1f} over {full['episodes']} bouts (random play "
                 f"{scores['random']['full']['mean']:.1f}); first {FIRST_STEPS} steps {scores['agent']['first']['mean']:.1f}")
-    metrics = {**_run_header("planet-boxing-agent", profile, seed, run["seconds"] + time.time() - started, env=GAME),
+    metrics = {**run_header("planet-boxing-agent", profile, seed, run["seconds"] + time.time() - started, env=GAME),
                "headline": headline, "env_steps": run["env_steps"], "updates": run["updates"], "episodes": run["episodes"],
                **scores, "difference": score_difference(scores["agent"]["returns"], scores["random"]["returns"]),
                "difference_first": score_difference(scores["agent"]["first_returns"], scores["random"]["first_returns"]),
-               "bouts": bouts, "curve": meta["curve"], "reference": PLANET_REFERENCE["planet-boxing"],
+               "bouts": bouts, "curve": meta["curve"], "reference": published("planet-boxing"),
                "files": {"figures": [str(figure)]}}
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1))
@@ -200,10 +203,6 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
 
 
 # ---------------------------------------------------------------------------- tables
-def _score_cell(summary: dict) -> str:
-    """A :func:`~wmthesis.metrics.score_summary` as a table cell: mean ± std (n)."""
-    return f"{summary['mean']:.1f} ± {summary['std']:.1f} (n={summary['episodes']})"
-
 
 def study_table(metrics: dict) -> str:
     """The study's summary as a markdown table: per configuration, the model's error on the
@@ -230,16 +229,15 @@ def study_table(metrics: dict) -> str:
 def agent_table(metrics: dict) -> str:
     """The agent's bouts beside random play on the same bouts and the references (markdown)."""
     diff, first = metrics["difference"], metrics["difference_first"]
-    reference = metrics["reference"]
     return "\n".join([
         "| player | full bout | first 500 agent steps |", "|---|---|---|",
         f"| PlaNet (KL scale 0.03, free nats 12), {metrics['env_steps']:,} agent steps, {metrics['updates']:,} updates "
-        f"| {_score_cell(metrics['agent']['full'])} | {_score_cell(metrics['agent']['first'])} |",
-        f"| random play, same bouts | {_score_cell(metrics['random']['full'])} | {_score_cell(metrics['random']['first'])} |",
+        f"| {score_cell(metrics['agent']['full'])} | {score_cell(metrics['agent']['first'])} |",
+        f"| random play, same bouts | {score_cell(metrics['random']['full'])} | {score_cell(metrics['random']['first'])} |",
         f"| agent - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) "
         f"| {first['difference']:.1f} ± {first['standard_error']:.1f} (s.e.) |",
-        f"| human (standard reference) | {reference['human']} | |",
-        f"| thesis PlaNet (5.6.4) | {reference['thesis PlaNet (5.6.4)']} | |"])
+        f"| human ({HUMAN[GAME].source}) | {human(GAME)} | |",
+        f"| thesis PlaNet ({THESIS_PLANET_BOXING.source}) | {THESIS_PLANET_BOXING.value} | |"])
 
 
 __all__ = ["bout_scores", "bout_result", "planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "study_table", "agent_table",

@@ -10,11 +10,13 @@ import dataclasses
 import time
 
 from wmthesis.config import profile_name
-from wmthesis.experiments.planet import PLANET_REFERENCE
-from wmthesis.experiments.planet_boxing import AGENT, GAME, _score_cell, planet_boxing_agent
+from wmthesis.experiments.planet_boxing import AGENT, GAME, planet_boxing_agent
+from wmthesis.metrics import score_cell
+from wmthesis.references import HUMAN, THESIS_PLANET_BOXING_SCORE, human
 from wmthesis.experiments.planet_value import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores,
                                               slug, start_from)
-from wmthesis.utils import check_choice, data_dir, hold, releasing_holds
+from wmthesis.utils import check_choice, data_dir
+from wmthesis.runs import hold, releasing_holds
 
 # The value's variants (issue 31's levers, each on the same frozen model): the default fits the
 # sum of the next rewards (notebook 09); ``td`` bootstraps through the model; ``validation-10``
@@ -82,7 +84,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
         start_from(work, value_folder(profile, seed, EXTENDS[variant]))
     discount = {"discount": config.discount} if config.target != "reward-sum" else {}
     planner = for_profile(ValuePlannerConfig, profile, **{**discount, **PLANNERS.get(variant, {})})
-    references = {"human": PLANET_REFERENCE["planet-boxing"]["human"], "thesis PlaNet (around 30)": 30.0}
+    references = {"human": human(GAME), "thesis PlaNet (around 30)": THESIS_PLANET_BOXING_SCORE}
     return fit_and_compare("planet-boxing-value", GAME, planet_run, work, out, config, planner,
                            {"random": agent["random"], "planet": agent["agent"]}, agent["bouts"], profile=profile,
                            seed=seed, progress=progress, references=references, variant=variant, started=started)
@@ -257,13 +259,13 @@ def value_table(metrics: dict) -> str:
              f"the mean of the values of rounds {rounds[0]}-{rounds[-1]}, up to {chosen['episodes']} bouts of its own")
     return "\n".join([
         "| player | full bout |", "|---|---|",
-        f"| latent value on the PlaNet model ({agent}) | {_score_cell(metrics['value'])} |",
-        f"| PlaNet (CEM planner), same model | {_score_cell(metrics['planet'])} |",
+        f"| latent value on the PlaNet model ({agent}) | {score_cell(metrics['value'])} |",
+        f"| PlaNet (CEM planner), same model | {score_cell(metrics['planet'])} |",
         *([f"| CEM with the value at the end of its {metrics['value_planner']['config']['horizon']} steps, same model "
-           f"| {_score_cell(metrics['value_planner']['full'])} |"] if "value_planner" in metrics else []),
-        f"| random play, same bouts | {_score_cell(metrics['random'])} |",
+           f"| {score_cell(metrics['value_planner']['full'])} |"] if "value_planner" in metrics else []),
+        f"| random play, same bouts | {score_cell(metrics['random'])} |",
         f"| value - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) |",
-        f"| human (standard reference) | {PLANET_REFERENCE['planet-boxing']['human']} |"])
+        f"| human ({HUMAN[GAME].source}) | {human(GAME)} |"])
 
 
 __all__ = ["planet_boxing_value", "results_folder", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",

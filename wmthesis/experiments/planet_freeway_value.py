@@ -23,12 +23,14 @@ import time
 from pathlib import Path
 
 from wmthesis.config import profile_name
-from wmthesis.experiments.planet import PLANET_REFERENCE, planet_experiment
+from wmthesis.experiments.planet import planet_experiment
 from wmthesis.experiments.planet_boxing import STUDY, bout_result, bout_scores, play_bout
 from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans,
                                                fit_and_compare, lever_scores, played_bouts, start_from)
-from wmthesis.experiments.results import _read_json
-from wmthesis.utils import atomic_path, check_choice, data_dir, hold, releasing_holds
+from wmthesis.runs import read_json
+from wmthesis.utils import check_choice, data_dir
+from wmthesis.runs import atomic_path, hold, releasing_holds
+from wmthesis.references import human
 from wmthesis.viz import save_figure
 
 GAME, VARIANT = "freeway", "freeway-tuned"
@@ -100,7 +102,7 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
     from wmthesis.planet.train import load_planet
 
     key = {"bouts": [list(b) for b in bouts], "planet_run": str(planet_run)}
-    cached = _read_json(work / "baselines.json")
+    cached = read_json(work / "baselines.json")
     if cached is not None and cached.get("key") == key and set(cached["scores"]) == set(BASELINES):
         return cached["scores"]
     _, config, _ = load_planet(planet_run)
@@ -161,7 +163,7 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     bouts = [evaluation_seeds(seed, k) for k in range(EPISODES[profile])]
     baselines = baseline_scores(planet_run, bouts, work, progress)
     planner = for_profile(ValuePlannerConfig, profile, discount=config.discount, **changes.get("planner", {}))
-    references = {"human": PLANET_REFERENCE["planet-freeway"]["human"]}
+    references = {"human": human(GAME)}
     return fit_and_compare("planet-freeway-value", GAME, planet_run, work, out, config, planner, baselines, bouts,
                            profile=profile, seed=seed, progress=progress, references=references, variant=variant,
                            started=started)
@@ -254,7 +256,7 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     _, out = value_folders(profile, seed, None if model == VARIANT else model)
     sizes, (_, config, meta) = STUDY[profile], load_planet(planet_run)
     key = {"updates": meta["updates"], "sizes": sizes, "version": CHECK_VERSION}
-    cached = _read_json(out / "open_loop_check.json")
+    cached = read_json(out / "open_loop_check.json")
     if cached is None or cached.get("key") != key:
         held = held_out_store(data_dir(profile, "planet-freeway-value") / f"held-out-seed{seed}.h5", GAME, config,
                               10_000 + seed, sizes["held_out"])
@@ -354,7 +356,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     key = {"horizon": horizon, "steps": steps, "planner": dataclasses.asdict(planner),
            "agent": metrics.get("agent_rounds", metrics["best_round"])}
     _, out = value_folders(profile, seed, variant)
-    cached = _read_json(out / "when_to_wait.json")
+    cached = read_json(out / "when_to_wait.json")
     if cached is None or cached.get("key") != key:
         model, planet, _ = load_planet(frozen_model(profile, seed, model_variant(variant), progress))
         env = TimeLimit(make_planet_env(GAME, planet), max_episode_steps=steps)  # the steps compared, no more

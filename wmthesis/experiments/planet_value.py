@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_result, bout_scores
-from wmthesis.experiments.results import _first_run_seconds, _read_json, _run_header, cached_for, played_bouts, played_groups
-from wmthesis.utils import atomic_path, check_choice
+from wmthesis.runs import first_run_seconds, read_json, run_header, cached_for, played_bouts, played_groups
+from wmthesis.utils import check_choice
+from wmthesis.runs import atomic_path
 from wmthesis.viz import save_figure
 
 
@@ -191,9 +192,9 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                                                title=f"{game.capitalize()}: the value agent after each round"),
                          out / "value_curve.png")
     seconds = time.time() - started
-    metrics = {**_run_header(experiment, profile, seed, seconds, env=game,
+    metrics = {**run_header(experiment, profile, seed, seconds, env=game,
                              **({} if variant is None else {"variant": variant})),
-               "first_run_wall_seconds": round(_first_run_seconds(out / "metrics.json", seconds), 1),
+               "first_run_wall_seconds": round(first_run_seconds(out / "metrics.json", seconds), 1),
                "headline": f"score {value['mean']:.1f} +- {value['std']:.1f} over {value['episodes']} {unit} "
                            f"({_agent_words(chosen, config, unit)}) (random play {baselines['random']['full']['mean']:.1f}, PlaNet's CEM "
                            f"{baselines['planet']['full']['mean']:.1f})",

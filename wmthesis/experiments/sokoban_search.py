@@ -10,8 +10,10 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
-from wmthesis.experiments.results import _first_run_seconds, _jsonable, _read_json, _run_header
+from wmthesis.runs import (atomic_path, cached, first_run_seconds, hold, jsonable, partial_path, read_json,
+                           releasing_holds, run_header, run_jobs)
 from wmthesis.metrics import score_summary
+from wmthesis.references import BOXOBAN, BOXOBAN_PUBLISHED, published
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table
@@ -21,15 +23,9 @@ from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solut
 from wmthesis.sokoban_search.iteration import (evaluation_search, load_run, policy_afterwards, schedule,
                                                train_search_agent)
 from wmthesis.sokoban_search.search import Simulator
-from wmthesis.utils import atomic_path, data_dir, hold, parallel_calls, releasing_holds
+from wmthesis.utils import data_dir
 from wmthesis.viz import save_figure
 
-# Published figures, recalled (issue 14), not re-checked here.
-SOKOBAN_SEARCH_REFERENCE = {
-    "thesis": "0 levels solved (5.3, 5.5)",
-    "I2A (Racaniere et al. 2017)": "about 85% of unseen 10x10 4-box levels, after about 1e9 environment steps",
-    "DRC (Guez et al. 2019)": "about 99% of unfiltered Boxoban, after about 1e9 environment steps",
-}
 # DeepMind's Boxoban levels (issue 30): which files serve which purpose. Development decisions
 # are measured on the validation files only; the reported figures come from the report files,
 # which no decision looked at; training uses our generator (the Boxoban train files are free to
@@ -45,22 +41,6 @@ BOXOBAN_LEVELS = {"smoke": 2, "quick": 500, "thesis": 1000}  # the first of the 
 # would take about 20 of the experiment's CPU-minutes on 500 levels).
 REFERENCE_LEVELS = {"smoke": 2, "quick": 100, "thesis": 1000}
 BOXOBAN_AGENTS = {"pixels": "agent, learned model (pixels)", "simulator": "agent, true simulator (pixels)"}
-BOXOBAN_REFERENCE = {  # the best published agent, DRC(3,3), 2e9 environment steps, 120-step episodes
-    "unfiltered": "DRC(3,3) 99.3% of the unfiltered test (AlignmentResearch/learned-planner)",
-    "medium": "DRC(3,3) 76.6-81.3% of medium valid (AlignmentResearch/learned-planner)",
-}
-# Published rows for the Boxoban table: (agent, unfiltered %, medium %, data, source). Not the
-# same levels as ours (their test sets; our report files are valid 005-009), given for scale.
-BOXOBAN_PUBLISHED = (
-    ("DRC(3,3), model-free", "99.3 (test)", "76.6-81.3 (valid)", "2e9 env steps",
-     "AlignmentResearch/learned-planner plot/data/drc33_*_success_across_thinking_steps.csv"),
-    ("Thinker, learned model + planning", "94.5 (train)", "", "5e7 frames", "Chung et al. 2023, Table 1"),
-    ("MuZero", "21 (train)", "", "5e7 frames", "Chung et al. 2023, Table 1"),
-    ("DreamerV3", "32 (train)", "", "5e7 frames", "Chung et al. 2023, Table 1"),
-    ("LevinTS, learned policy + true simulator", "100 (test)", "", "6.6e6 expansions", "Orseau et al. 2018, Table 1"),
-    ("A*, box-distance heuristic, true rules", "98.9 (test, 1M nodes)", "99.998 (valid, 5M nodes)", "",
-     "AlignmentResearch/boxoban-astar-solutions"),
-)
 GENERATED = ("sokoban-small", "sokoban")  # our generator's variants: each evaluated on unseen levels
 EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
 EVAL_PARTS = 2  # each evaluation in parts (every other level), so that two processes share them evenly
@@ -174,15 +154,15 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
                    for variant in reversed(generated) for name in agents
                    for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
     boxoban = _boxoban_jobs(work, agents, profile)
-    _run_saved({**evaluations, **boxoban}, progress)
+    run_jobs({**evaluations, **boxoban}, progress)
     for variant in generated:
-        played = {name: _merged([_read_json(evaluations[name, variant, part][0]) for part in range(EVAL_PARTS)], seeds)
+        played = {name: _merged([read_json(evaluations[name, variant, part][0]) for part in range(EVAL_PARTS)], seeds)
                   for name in agents}
-        tables[variant] = {"random play": _cached(work / f"random-{variant}.json", random_row, variant, seeds),
+        tables[variant] = {"random play": cached(work / f"random-{variant}.json", random_row, variant, seeds),
                            "thesis": {"solve_rate": THESIS_SOLVED},
                            "agent, learned model (pixels)": played["pixels"]["row"],
                            "agent, true simulator (pixels)": played["simulator"]["row"],
-                           "A* (reference)": _cached(work / f"astar-{variant}-{len(played_on['simulator'])}.json",
+                           "A* (reference)": cached(work / f"astar-{variant}-{len(played_on['simulator'])}.json",
                                                      astar_row, variant, played_on["simulator"])}
         model_accuracy[variant] = {name: _accuracy(run, variant, seed, cfg.eval_levels,
                                                    played["simulator"]["solutions"])
@@ -197,25 +177,26 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     replayed = check_solutions(last, solutions[last][:20])
     solved = len(solutions[last])
     metrics = {
-        **_run_header("sokoban-search", profile, seed, time.time() - started),
+        **run_header("sokoban-search", profile, seed, time.time() - started),
         "score": score_summary([1.0] * solved + [0.0] * (cfg.eval_levels - solved)),
         "summary": f"{last} from pixels: {solved} of {cfg.eval_levels} unseen levels solved "
                    f"({100 * solved / cfg.eval_levels:.1f}%)",
         "env_steps": {name: int(sum(h["env_steps"] for h in run.history)) for name, run in runs.items()},
         "history": {name: run.history for name, run in runs.items()}, "tables": tables,
-        "boxoban": {"tables": boxoban_tables, "splits": BOXOBAN_SPLITS, "reference": BOXOBAN_REFERENCE},
+        "boxoban": {"tables": boxoban_tables, "splits": BOXOBAN_SPLITS,
+                    "reference": {kind: f"{ref.name}: {ref.value}% ({ref.source})" for kind, ref in BOXOBAN.items()}},
         "accuracy": model_accuracy, "replayed_solutions": {"checked": len(replayed), "solved": int(sum(replayed))},
-        "reference": SOKOBAN_SEARCH_REFERENCE,
+        "reference": published("sokoban-search"),
         "files": {"figures": [str(f) for f in figures], "recording": str(recording),
                   "solutions": [str(out / f"solutions-{n}-{v}.json") for n in runs for v in generated]},
     }
-    metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
+    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     metrics["training_wall_seconds"] = _training_seconds(runs["pixels"].history)
     metrics["search"] = _evaluation_record(cfg)
-    metrics["evaluation_wall_seconds"] = _evaluation_seconds(_read_json(out / "metrics.json"), metrics["search"],
+    metrics["evaluation_wall_seconds"] = _evaluation_seconds(read_json(out / "metrics.json"), metrics["search"],
                                                              time.time() - trained_at)
     with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(_jsonable(metrics), indent=1))
+        tmp.write_text(json.dumps(jsonable(metrics), indent=1))
     return metrics
 
 
@@ -269,7 +250,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     jobs = {(kind, part): _boxoban_job(folder / f"{name}-{kind}-{levels}-{part}.json",
                                        folder, trained, source, levels, part, False, evaluation_search(cfg))
             for kind, source in BOXOBAN_SPLITS["validation"].items() for part in range(EVAL_PARTS)}
-    _run_saved(jobs, progress)
+    run_jobs(jobs, progress)
     rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
             for kind, source in BOXOBAN_SPLITS["validation"].items()}
     result = {"lever": lever, "changes": LEVERS[lever], "profile": profile, "seed": seed, "rows": rows,
@@ -277,7 +258,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
               "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
     out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
     with atomic_path(out / f"validation-{lever}.json") as tmp:
-        tmp.write_text(json.dumps(_jsonable(result), indent=1))
+        tmp.write_text(json.dumps(jsonable(result), indent=1))
     return result
 
 
@@ -299,14 +280,14 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
     jobs = {("pixels", kind, part): _boxoban_job(work / f"eval-boxoban-pixels-{kind}-{levels}-{part}.json",
                                                  work / "pixels", cfg, source, levels, part)
             for kind, source in BOXOBAN_SPLITS["report"].items() for part in range(EVAL_PARTS)}
-    _run_saved(jobs, progress)
+    run_jobs(jobs, progress)
     result = {"profile": profile, "seed": seed, "levels": levels, "search": _evaluation_record(cfg),
               "env_steps": int(sum(h["env_steps"] for h in run.history)),
               "rows": {kind: _boxoban_row(_level_plays(jobs, "pixels", kind), source, load_levels(source))
                        for kind, source in BOXOBAN_SPLITS["report"].items()}}
     out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
     with atomic_path(out / f"boxoban-report-{levels}.json") as tmp:
-        tmp.write_text(json.dumps(_jsonable(result), indent=1))
+        tmp.write_text(json.dumps(jsonable(result), indent=1))
     return result
 
 
@@ -316,7 +297,7 @@ def lever_rows(profile: str | None = None, seed: int = 0) -> list[list]:
     changes, unfiltered %, medium %, levels, nodes per level, seconds per level, environment
     steps), the baseline first."""
     folder = data_dir("results", "sokoban-search", f"{profile_name(profile)}-seed{seed}")
-    found = [result for result in map(_read_json, folder.glob("validation-*.json")) if result and "lever" in result]
+    found = [result for result in map(read_json, folder.glob("validation-*.json")) if result and "lever" in result]
     found.sort(key=lambda result: (result["lever"] != "baseline", result["lever"]))
     rows = []
     for result in found:
@@ -354,7 +335,7 @@ def _seed_rows(name: str, profile: str | None, accept) -> list[list]:
 
     root, found = data_dir("results", "sokoban-search"), []
     for path in sorted(root.glob(f"{profile_name(profile)}-seed*/{name}")):
-        result = _read_json(path)
+        result = read_json(path)
         if result and accept(result):
             found.append(result)
     found.sort(key=lambda result: result["seed"])
@@ -412,7 +393,7 @@ def _saved_plays(path: Path, record: dict) -> list[dict]:
     ``record`` says would play the same: all of them if it searched so (a level is played the same
     every time); if its search differed in the budget alone, each play that expanded fewer nodes
     than either budget (no search in it reached a budget, so each search ends as it did); else none."""
-    saved = _read_json(path) or {}
+    saved = read_json(path) or {}
     search, plays = saved.get("search"), saved.get("plays", [])
     if search == record:
         return plays
@@ -422,41 +403,21 @@ def _saved_plays(path: Path, record: dict) -> list[dict]:
 
 
 def _generated_job(work: Path, name: str, agent: tuple, variant: str, seeds, part: int) -> tuple:
-    """A :func:`_run_saved` job: agent ``name`` (``(folder, cfg, simulator)``) on part ``part``
+    """A :func:`run_jobs` job: agent ``name`` (``(folder, cfg, simulator)``) on part ``part``
     (every :data:`EVAL_PARTS`-th) of the levels ``seeds`` of our generator's ``variant``, with
-    :func:`_evaluate`, saved level by level in its file's :func:`_partial`."""
+    :func:`_evaluate`, saved level by level in its file's :func:`partial_path`."""
     folder, cfg, simulator = agent
     path = work / f"eval-{name}-{variant}-{len(seeds)}-{part}.json"
-    return path, (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator, _partial(path)), \
+    return path, (_evaluate, folder, cfg, variant, seeds[part::EVAL_PARTS], simulator, partial_path(path)), \
         _evaluation_record(cfg)
 
 
-def _run_saved(jobs: dict, progress: bool) -> None:
-    """Run each job ``key: (path, (fn, *args), search)`` whose JSON at ``path`` is missing, or
-    was saved by an evaluation with another ``search`` record (:func:`_search_record`; None: any),
-    two at a time, each saved as it finishes (a re-run computes only what is missing)."""
-    def saved(path: Path, search: dict | None) -> bool:
-        result = _read_json(path)
-        return result is not None and (search is None or result.get("search") == search)
-
-    missing = [key for key, (path, _, search) in jobs.items() if not saved(path, search)]
-
-    def keep(index: int, result: dict) -> None:
-        path = jobs[missing[index]][0]
-        with atomic_path(path) as tmp:
-            tmp.write_text(json.dumps(result))
-        _partial(path).unlink(missing_ok=True)  # the levels it saved one by one, now in the whole
-
-    parallel_calls([jobs[key][1] for key in missing], progress, keep)
 
 
-def _partial(path: Path) -> Path:
-    """Where a job saving to ``path`` keeps what it has done so far (a job cut off resumes there)."""
-    return path.with_name(path.stem + ".partial.json")
 
 
 def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
-    """The Boxoban evaluations as :func:`_run_saved` jobs, keyed (row, kind, part): each agent
+    """The Boxoban evaluations as :func:`run_jobs` jobs, keyed (row, kind, part): each agent
     of ``agents`` (name: (folder, cfg, simulator)) on the first levels of each report file set
     (:data:`BOXOBAN_LEVELS` for pixels, :data:`REFERENCE_LEVELS` for the true rules), in parts;
     random play on the pixel agent's levels and A* on the reference's, whole."""
@@ -477,10 +438,10 @@ def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
 
 def _boxoban_job(path: Path, folder: Path, cfg, source: str, count: int, part: int, simulator: bool = False,
                  search=None) -> tuple:
-    """A :func:`_run_saved` job saving to ``path``: :func:`_evaluate_boxoban` with these
-    arguments, level by level in ``path``'s :func:`_partial` file."""
+    """A :func:`run_jobs` job saving to ``path``: :func:`_evaluate_boxoban` with these
+    arguments, level by level in ``path``'s :func:`partial_path` file."""
     search = evaluation_search(cfg) if search is None else search
-    return path, (_evaluate_boxoban, folder, cfg, source, count, part, simulator, search, _partial(path)), \
+    return path, (_evaluate_boxoban, folder, cfg, source, count, part, simulator, search, partial_path(path)), \
         _search_record(search)
 
 
@@ -543,7 +504,7 @@ def _boxoban_reference(row, source: str, count: int) -> dict:
 
 def _level_plays(jobs: dict, *key) -> list[dict]:
     """The plays of an evaluation saved in :data:`EVAL_PARTS` parts (``jobs[(*key, part)]``), in level order."""
-    return sorted((r for part in range(EVAL_PARTS) for r in _read_json(jobs[(*key, part)][0])["plays"]),
+    return sorted((r for part in range(EVAL_PARTS) for r in read_json(jobs[(*key, part)][0])["plays"]),
                   key=lambda r: r["level"])
 
 
@@ -555,11 +516,11 @@ def _boxoban_table(kind: str, jobs: dict, profile: str) -> dict:
 
     source, rows = BOXOBAN_SPLITS["report"][kind], {}
     boards = load_levels(source)
-    rows["random play"] = _read_json(jobs["random", kind, 0][0])
+    rows["random play"] = read_json(jobs["random", kind, 0][0])
     rows["thesis"] = {"solve_rate": THESIS_SOLVED}
     for name, title in BOXOBAN_AGENTS.items():
         rows[title] = _boxoban_row(_level_plays(jobs, name, kind), source, boards)
-    rows["A* (reference)"] = _read_json(jobs["astar", kind, 0][0])
+    rows["A* (reference)"] = read_json(jobs["astar", kind, 0][0])
     return rows
 
 
@@ -640,15 +601,6 @@ def _accuracy(run, variant: str, seed: int, levels: int, plans: list[dict]) -> d
             "open_loop": accuracy.open_loop(run.model, sequences, to_types=to_types)}
 
 
-def _cached(path: Path, fn, *args) -> dict:
-    """``fn(*args)``, kept in ``path`` (a re-run reads it; a new training round is a new run
-    folder's business: delete the folder to start over)."""
-    row = _read_json(path)
-    if row is None:
-        row = fn(*args)
-        with atomic_path(path) as tmp:
-            tmp.write_text(json.dumps(row))
-    return row
 
 
 def _figures(out: Path, runs: dict, generated: list, solutions: dict):
@@ -673,5 +625,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "boxoban_target_rows", "validate", "evaluate_report", "lever_rows", "lever_seed_rows", "report_seed_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "SOKOBAN_SEARCH_REFERENCE", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", "BOXOBAN_PUBLISHED",
+__all__ = ["sokoban_search", "boxoban_target_rows", "validate", "evaluate_report", "lever_rows", "lever_seed_rows", "report_seed_rows", "LEVERS", "GENERATED", "VALIDATION_LEVELS", "BOXOBAN_SPLITS", "BOXOBAN_LEVELS", 
            "boxoban_rows", "SOKOBAN_SEARCH_TARGETS", "target_rows", "work_folder"]

@@ -10,8 +10,10 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
-from wmthesis.experiments.results import _first_run_seconds, _jsonable, _read_json, _run_header
-from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
+from wmthesis.references import THESIS_SOKOBAN_WM
+from wmthesis.runs import first_run_seconds, jsonable, read_json, run_header
+from wmthesis.utils import data_dir
+from wmthesis.runs import atomic_path, hold, releasing_holds
 from wmthesis.world_models.figures import sokoban_figures, sokoban_recording
 from wmthesis.world_models.sokoban import CONTROLLERS as SOKOBAN_WM_CONTROLLERS
 from wmthesis.world_models.sokoban import VARIANTS as SOKOBAN_WM_VARIANTS
@@ -44,15 +46,6 @@ SOKOBAN_WM_EVAL = {
 }
 
 SOKOBAN_FRAME_SIZE = 64
-# The thesis judged Sokoban's World Models by eye (5.3) and reported no score.
-SOKOBAN_WM_REFERENCE = {
-    "5.3.1 vision": "reconstructions resemble the frames (Fig. 54)",
-    "5.3.1 memory": "dynamics not learned: the agent disappears, blocks change type, pushes not modelled (Fig. 55); "
-                    "deterministic memory no better",
-    "5.3.1 controller": "solved no level, comparable to random play",
-    "5.3.2 grid states": "no improvement over 5.3.1",
-    "5.3.3 auxiliary heads": "reward and value not learned (sparse rewards); no improvement",
-}
 
 
 def sokoban_wm_configs(profile: str | None = None, seed: int = 0) -> dict:
@@ -131,7 +124,7 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, progress: bo
         store_returns = [float(store.episode(i)["rewards"].sum()) for i in range(len(store))]
 
     metrics = {
-        **_run_header("sokoban-wm", profile, seed, time.time() - started),
+        **run_header("sokoban-wm", profile, seed, time.time() - started),
         "score": score_summary(controllers[SOKOBAN_WM_CONTROLLERS[0]]["returns"]),
         "controllers": {variant: {"score": score_summary(c["returns"]), "solved": c["solved"],
                                   "generations": c["run"].generation, "curve": c["run"].curve}
@@ -151,14 +144,14 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, progress: bo
         "baselines": evaluated["baselines"],
         "open_loop": {key: evaluation[key] for key in ("context", "horizon", "cutoff")}
                      | {"episodes": evaluated["episodes"]},
-        "reference": SOKOBAN_WM_REFERENCE,
+        "reference": THESIS_SOKOBAN_WM,
         "settings": {key: dataclasses.asdict(config) for key, config in configs.items()}
                     | {"variants": SOKOBAN_WM_VARIANTS, "controllers": list(SOKOBAN_WM_CONTROLLERS),
                        "frame_size": SOKOBAN_FRAME_SIZE},
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
-    metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
-    metrics = _jsonable(metrics)
+    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
+    metrics = jsonable(metrics)
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1))
     return metrics
@@ -190,7 +183,7 @@ def _sokoban_controller(variant: str, vae, memory, cfg, work: Path, level_seeds:
     folder = work / f"controller-{variant}"
     run = train_controller("sokoban", vision, memory, cfg, out_dir=folder, env_options=options, progress=progress)
     path = folder / "evaluation.json"
-    cached = _read_json(path)
+    cached = read_json(path)
     if cached is None or cached["generation"] != run.generation or cached["seeds"] != level_seeds.tolist():
         game = make_game("sokoban", len(level_seeds), **options)
         try:

@@ -22,37 +22,14 @@ from typing import NamedTuple
 import numpy as np
 from scipy import stats
 
-from wmthesis.utils import atomic_path, data_dir
+from wmthesis.utils import data_dir
+
+from wmthesis.references import PUBLISHED
+from wmthesis.runs import atomic_path
 
 CONFIDENCE = 0.95
 INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
 
-_BOXING = [("random", 0.1, "iris results/data/RANDOM.json"), ("human", 12.1, "iris results/data/HUMAN.json")]
-_ATARI_100K_BOXING = [("SimPLe (Atari 100k)", 7.8, "iris results/data/SIMPLE.json"),
-                      ("IRIS (Atari 100k)", 70.1, "eloialonso/iris results/data/IRIS.json"),
-                      ("DreamerV3 (Atari 100k)", 78.0, "danijar/dreamerv3 scores")]
-_FREEWAY = [("random", 0.0, "iris results/data/RANDOM.json"), ("human", 29.6, "iris results/data/HUMAN.json"),
-            ("thesis PlaNet", 0.0, "thesis 5.6.5"), ("SimPLe (Atari 100k)", 16.7, "iris results/data/SIMPLE.json"),
-            ("IRIS (Atari 100k)", 31.1, "eloialonso/iris results/data/IRIS.json"),
-            ("DIAMOND (Atari 100k)", 33.3, "eloialonso/diamond results/data/DIAMOND.json"),
-            ("DreamerV3 (Atari 100k)", 0.0, "danijar/dreamerv3 scores")]
-# Experiment -> the published numbers shown beside its rows: (name, value or words, source).
-PUBLISHED = {
-    "boxing-wm": [*_BOXING, ("thesis World Models", "above 18 on average across 5 runs", "thesis 5.4.1")],
-    "boxing-wm-alphazero": [*_BOXING, ("thesis World Models + AlphaZero", "did not train to properly plan",
-                                       "thesis 5.4.2")],
-    "planet-boxing": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
-    "planet-boxing-agent": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
-    "planet-boxing-value": [*_BOXING, ("thesis PlaNet", "around 30", "thesis 5.6.4"), *_ATARI_100K_BOXING],
-    "planet-freeway": _FREEWAY,
-    "planet-freeway-value": _FREEWAY,
-    "sokoban-search": [("thesis", "0 levels solved", "thesis 5.3"),
-                       ("DRC(3,3), 2e9 steps, Boxoban unfiltered test", 99.3,
-                        "AlignmentResearch/learned-planner plot/data/drc33_*_success_across_thinking_steps.csv"),
-                       ("Thinker, 5e7 frames, Boxoban unfiltered train", 94.5, "Chung et al. 2023, Table 1")],
-    "sokoban-wm": [("thesis World Models", "0 levels solved", "thesis 5.3")],
-    "planet-sokoban": [],
-}
 # Experiment -> what its headline score is.
 MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels (generated; boxoban-*: Boxoban valid 005-009)",
            "planet-boxing-value": "full-bout score, the value's chosen round",

@@ -31,7 +31,8 @@ from tqdm import tqdm
 
 from wmthesis.config import profile_name
 from wmthesis.experiments.summary import run_scores
-from wmthesis.utils import atomic_path, check_choice, data_dir
+from wmthesis.utils import check_choice, data_dir
+from wmthesis.runs import atomic_path
 
 # Experiment -> the experiment whose artifacts it reuses for the same seed (run first).
 PREREQUISITE = {"boxing-wm-alphazero": "boxing-wm", "planet-boxing-value": "planet-boxing-agent",

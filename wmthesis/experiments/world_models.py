@@ -10,13 +10,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
-from wmthesis.experiments.results import _first_run_seconds, _run_header
-from wmthesis.utils import atomic_path, data_dir, hold, releasing_holds
+from wmthesis.runs import first_run_seconds, run_header
+from wmthesis.utils import data_dir
+from wmthesis.runs import atomic_path, hold, releasing_holds
+from wmthesis.references import published
 from wmthesis.viz import save_figure
 from wmthesis.world_models.prediction import open_loop_errors
 
-# Published numbers (DESIGN.md) shown beside ours.
-BOXING_REFERENCE = {"random": 0.1, "human": 12.1, "thesis World Models": "above 18"}
 
 
 @releasing_holds
@@ -53,15 +53,15 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     recording = record_frames(out / "open_loop.rrd", {"truth": rollout["truth"], "prediction": rollout["prediction"]},
                               {"pixel_error": rollout["pixel_error"]})
     metrics = {
-        **_run_header("boxing-wm", profile, seed, time.time() - started),
+        **run_header("boxing-wm", profile, seed, time.time() - started),
         "score": score_summary(returns),
         "random_play_in_store": score_summary(random_returns),
-        "reference": BOXING_REFERENCE,
+        "reference": published("boxing-wm"),
         "controller_curve": run.curve, "vision_history": wm.vision_history, "memory_history": wm.memory_history,
         **{f"open_loop_{k}": v.tolist() if isinstance(v, np.ndarray) else v for k, v in errors.items()},
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
-    metrics["first_run_wall_seconds"] = _first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
+    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))
     return metrics
@@ -150,7 +150,7 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
     run = train_controller("boxing", vision, memory, cfg, out_dir=wm.work / f"controller-dream-t{temperature:g}",
                            progress=progress)
     returns = _final_score(run, vision, memory, cfg, profile)
-    metrics = {**_run_header("boxing-wm-dream", profile, seed, time.time() - started, temperature=temperature),
+    metrics = {**run_header("boxing-wm-dream", profile, seed, time.time() - started, temperature=temperature),
                "score": score_summary(returns), "controller_curve": run.curve}
     with atomic_path(wm.out / f"dream-t{temperature:g}.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, default=float))

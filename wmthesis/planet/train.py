@@ -44,7 +44,8 @@ from wmthesis.planet.explore import build_disagreement, disagreement_loss, explo
 from wmthesis.planet.networks import vision_networks
 from wmthesis.planet.rssm import RSSM, planet_loss
 from wmthesis.training import gradient_step, with_added_defaults
-from wmthesis.utils import atomic_path, check_choice, derive_seeds, device, seed_everything
+from wmthesis.utils import check_choice, derive_seeds, device, seed_everything
+from wmthesis.runs import atomic_path
 
 FRAME_SIZE = 64
 CHECKPOINT, CURVE, STORE = "checkpoint.pt", "curve.json", "episodes.h5"
@@ -508,5 +509,13 @@ def _results(run_dir: Path, env_name, config, store: EpisodeStore, run: _RunStat
             "seconds": run.seconds, "curve": run.curve, "final_test": tests[-1] if tests else None}
 
 
-__all__ = ["train_planet", "train_updates", "batch_loss", "PlanetMind", "play_greedy", "VARIANTS", "with_variant", "make_planet_env",
+def same_training(cached: dict | None, run: dict) -> bool:
+    """Whether a cached ``metrics.json`` was written for this training (``run`` as
+    :func:`train_planet` returns it): the same updates and the same training curve, so a model
+    retrained to the same length is evaluated again."""
+    return (cached is not None and cached.get("updates") == run["updates"]
+            and cached.get("curve") == json.loads(json.dumps(run["curve"])))  # as a metrics file holds it
+
+
+__all__ = ["same_training", "train_planet", "train_updates", "batch_loss", "PlanetMind", "play_greedy", "VARIANTS", "with_variant", "make_planet_env",
            "planet_frame", "PlanetFrames", "build_model", "load_planet"]

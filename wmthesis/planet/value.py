@@ -42,7 +42,8 @@ from wmthesis.envs.preprocessing import to_float
 from wmthesis.planet.rssm import RSSM, one_hot_previous
 from wmthesis.planet.train import BeliefFilter
 from wmthesis.training import gradient_step, with_added_defaults
-from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint, parallel_calls, process_pool
+from wmthesis.utils import check_choice, derive_seeds, fingerprint, parallel_calls, process_pool
+from wmthesis.runs import atomic_path
 
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
 TARGETS = ("reward-sum", "discounted-sum", "log-discounted-sum", "td")

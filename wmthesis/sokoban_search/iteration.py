@@ -46,7 +46,8 @@ from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.policy import Policy, turned_actions
 from wmthesis.training import check_same_config, gradient_step, with_added_defaults
-from wmthesis.utils import atomic_path, check_choice, device, half_precision, parallel_calls, read_pickle
+from wmthesis.utils import check_choice, device, half_precision, parallel_calls, read_pickle
+from wmthesis.runs import atomic_path
 
 N_ACTIONS = 8
 STATE_VERSION = 3  # 2: the model keeps the count changes it has seen; 3: and the boards at ends

@@ -40,7 +40,8 @@ from tqdm import tqdm
 
 from wmthesis.envs.vector import make_game
 from wmthesis.training import check_resumable
-from wmthesis.utils import atomic_path, check_choice, derive_seeds, fingerprint, read_pickle, timed
+from wmthesis.utils import check_choice, derive_seeds, fingerprint, read_pickle, timed
+from wmthesis.runs import atomic_path
 from wmthesis.world_models.controller import Controller, features, num_parameters, population_scores, unflatten
 from wmthesis.world_models.memory import Mixture, sample_mixture
 

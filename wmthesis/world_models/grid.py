@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from wmthesis.data import EpisodeStore
-from wmthesis.utils import atomic_path
+from wmthesis.runs import atomic_path
 from wmthesis.world_models.train import LatentStore, store_identity
 
 GRID_NOISE_STD = 0.1

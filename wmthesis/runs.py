@@ -1,0 +1,277 @@
+"""The run store: where a run's files live, the lock on its folder, files written whole, keyed
+caches of played bouts and levels, resumable jobs, and the header of every ``metrics.json``.
+
+A run of experiment ``E`` (variant ``V``, seed ``S``, profile ``P``) keeps its artifacts (stores,
+checkpoints, caches) in :func:`work_folder` ``data/P/E/[V-]seedS`` and its results (figures,
+``metrics.json``, recordings) in :func:`results_folder` ``data/results/E/P-seedS[/V]``. Every
+step that writes goes through :func:`atomic_path` (a crash leaves the previous file), and every
+long step saves what it has done as it goes (:func:`played_groups`, :func:`run_jobs`), so a run
+cut off resumes where it stopped.
+"""
+from __future__ import annotations
+
+import atexit
+import functools
+import json
+import os
+import platform
+import sys
+from collections.abc import Callable
+from contextlib import contextmanager
+from datetime import date, datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wmthesis.utils import data_dir, parallel_calls
+
+
+# ----------------------------------------------------------------------------- folders
+def work_folder(profile: str, experiment: str, seed: int, variant: str | None = None) -> Path:
+    """A run's artifacts: ``data/<profile>/<experiment>/[<variant>-]seed<seed>`` (created)."""
+    return data_dir(profile, experiment, f"seed{seed}" if variant is None else f"{variant}-seed{seed}")
+
+
+def results_folder(experiment: str, profile: str, seed: int, variant: str | None = None) -> Path:
+    """A run's results: ``data/results/<experiment>/<profile>-seed<seed>[/<variant>]`` (created)."""
+    return data_dir("results", experiment, f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
+
+
+# ----------------------------------------------------------------------------- files written whole
+@contextmanager
+def atomic_path(path: str | os.PathLike):
+    """Yield a temporary path next to ``path``; move it into place only if the block succeeds.
+
+    A crash mid-write leaves the previous file (if any) untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_json(path: str | os.PathLike, value, indent: int | None = 1, default=None) -> Path:
+    """``value`` as JSON at ``path``, written whole (:func:`atomic_path`); returns the path."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(value, indent=indent, default=default))
+    return path
+
+
+def read_json(path: str | os.PathLike) -> dict | None:
+    """A cached JSON file, or None when it is missing or corrupt (the step runs again)."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text()) if path.is_file() else None
+    except ValueError:
+        return None
+
+
+def jsonable(value):
+    """``value`` with numpy arrays and scalars as lists and numbers, NaN as None (strict JSON)."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, (np.integer, np.bool_)):
+        return value.item()
+    if isinstance(value, (float, np.floating)):
+        return None if not np.isfinite(value) else float(value)
+    return value
+
+
+def cached(path: Path, fn: Callable, *args):
+    """``fn(*args)``, kept in ``path`` as JSON: a re-run reads it (delete it to compute again)."""
+    value = read_json(path)
+    if value is None:
+        value = fn(*args)
+        write_json(path, value, indent=None)
+    return value
+
+
+# ----------------------------------------------------------------------------- the header of a metrics.json
+def run_header(experiment: str, profile: str, seed: int, seconds: float, **run) -> dict:
+    """The first entries of a ``metrics.json``: the experiment, ``run``'s own (its variant, ...),
+    profile and seed, today's date, this machine, its torch threads (a seed repeats its curve on
+    a CPU only with the same number: reductions split differently) and the wall time of ``seconds``."""
+    return {"experiment": experiment, **run, "profile": profile, "seed": seed, "date": date.today().isoformat(),
+            "machine": f"{platform.node()} ({platform.machine()}, {os.cpu_count()} cores)",
+            "threads": torch.get_num_threads(), "wall_seconds": round(seconds, 1)}
+
+
+def first_run_seconds(path: Path, seconds: float) -> float:
+    """The wall time of the run that computed everything: kept from an earlier metrics file at
+    ``path`` (its ``first_run_wall_seconds``, or the ``wall_seconds`` of a file written before
+    that field; a resumed or cached run is faster), else this run's ``seconds``."""
+    try:
+        earlier = json.loads(Path(path).read_text())
+        return float(earlier.get("first_run_wall_seconds", earlier["wall_seconds"]))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return seconds
+
+
+# ----------------------------------------------------------------------------- keyed caches of played bouts
+def cached_for(path: Path, key: dict, read_key: Callable[[dict], dict] | None = None) -> dict | None:
+    """The JSON cache at ``path`` if it was written for ``key``, else None. ``read_key`` brings a
+    saved key up to date first (a config saved before a field was added reads as what it did)."""
+    saved = read_json(path)
+    if saved is None or not isinstance(saved.get("key"), dict):
+        return None
+    found = dict(saved["key"]) if read_key is None else read_key(dict(saved["key"]))
+    return saved if found == key else None
+
+
+def played_bouts(path: Path, key: dict, progress: bool, calls: list[tuple],
+                 read_key: Callable[[dict], dict] | None = None) -> list[dict]:
+    """``calls`` (one bout each), each bout saved in ``path`` as it ends: a run cut off plays
+    only the bouts it had not finished (those saved for the same ``key``, :func:`cached_for`)."""
+    return played_groups([(path, key, calls, read_key)], progress)[0]
+
+
+def played_groups(groups: list[tuple], progress: bool, executor=None) -> list[list[dict]]:
+    """:func:`played_bouts` for each ``(path, key, calls, read_key)`` of ``groups``, all in one
+    pool (``executor``, a :func:`~wmthesis.utils.process_pool`; two at a time by default),
+    submitted group by group: the first groups end first. Returns each group's plays."""
+    done, todo = [], []
+    for g, (path, key, calls, read_key) in enumerate(groups):
+        saved = cached_for(path, key, read_key)
+        done.append({int(i): play for i, play in (saved or {}).get("plays", {}).items()})
+        todo += [(g, i) for i in range(len(calls)) if i not in done[g]]
+
+    def save(index: int, play: dict) -> None:
+        g, i = todo[index]
+        done[g][i] = play
+        write_json(groups[g][0], {"key": groups[g][1], "plays": done[g]})
+
+    parallel_calls([groups[g][2][i] for g, i in todo], progress, on_done=save, executor=executor)
+    return [[done[g][i] for i in range(len(calls))] for g, (_, _, calls, _) in enumerate(groups)]
+
+
+# ----------------------------------------------------------------------------- resumable jobs
+def partial_path(path: Path) -> Path:
+    """Where a job saving to ``path`` keeps what it has done so far (a job cut off resumes there)."""
+    return path.with_name(path.stem + ".partial.json")
+
+
+def run_jobs(jobs: dict, progress: bool) -> None:
+    """Run each job ``key: (path, (fn, *args), record)`` whose JSON at ``path`` is missing, or was
+    saved with another ``record`` (its ``"search"`` entry; None: any), two at a time, each saved
+    as it finishes and its :func:`partial_path` then removed (a re-run computes only what is missing)."""
+    def saved(path: Path, record: dict | None) -> bool:
+        result = read_json(path)
+        return result is not None and (record is None or result.get("search") == record)
+
+    missing = [key for key, (path, _, record) in jobs.items() if not saved(path, record)]
+
+    def keep(index: int, result: dict) -> None:
+        path = jobs[missing[index]][0]
+        write_json(path, result, indent=None)
+        partial_path(path).unlink(missing_ok=True)
+
+    parallel_calls([jobs[key][1] for key in missing], progress, keep)
+
+
+# ----------------------------------------------------------------------------- held folders
+LOCK_NAME = ".wmthesis-lock"
+_held: dict[Path, int] = {}  # folders this process holds -> how many holders inside it
+
+
+class FolderHeld(RuntimeError):
+    """Another live process holds a run's data folder."""
+
+
+def hold(folder: str | os.PathLike) -> Path:
+    """Hold ``folder`` for this process (until :func:`release` or exit): a lock file in it names
+    the process id, the command line and the start time. A folder held by another live process
+    raises :class:`FolderHeld` naming the holder; a lock left by a dead process is taken over,
+    with a message. Holding again from the same process only counts. Returns the folder."""
+    folder = Path(folder).resolve()
+    if folder in _held:
+        _held[folder] += 1
+        return folder
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = folder / LOCK_NAME
+    mine = {"pid": os.getpid(), "command": " ".join(sys.argv) or sys.executable,
+            "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    while True:
+        try:
+            with open(lock, "x") as f:
+                json.dump(mine, f)
+            break
+        except FileExistsError:
+            holder = _read_lock(lock)
+            if holder is not None and _alive(holder.get("pid")):
+                raise FolderHeld(f"{folder} is held by another run: process {holder.get('pid')} "
+                                 f"({holder.get('command')!r}, since {holder.get('started')}); wait for it to end, "
+                                 f"or use another seed or data folder") from None
+            print(f"{folder}: taking over the lock of a run that is gone ({holder}); its finished steps resume",
+                  file=sys.stderr)
+            lock.unlink(missing_ok=True)
+    _held[folder] = 1
+    return folder
+
+
+def release(folder: str | os.PathLike) -> None:
+    """Let go of one hold of ``folder``; the lock file goes with the last."""
+    folder = Path(folder).resolve()
+    if folder not in _held:
+        return
+    _held[folder] -= 1
+    if _held[folder] == 0:
+        del _held[folder]
+        (folder / LOCK_NAME).unlink(missing_ok=True)
+
+
+def releasing_holds(fn):
+    """Decorator: folders :func:`hold` took during the call are let go when it returns or fails."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        before = dict(_held)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            for folder, count in list(_held.items()):
+                for _ in range(count - before.get(folder, 0)):
+                    release(folder)
+    return wrapper
+
+
+@atexit.register
+def _release_all() -> None:
+    for folder in list(_held):
+        _held[folder] = 1
+        release(folder)
+
+
+def _read_lock(lock: Path) -> dict | None:
+    try:
+        return json.loads(lock.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _alive(pid) -> bool:
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    if pid == os.getpid():
+        return False  # our own lock from before a fork/exec is stale for this holder count
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+__all__ = ["work_folder", "results_folder", "atomic_path", "write_json", "read_json", "jsonable", "cached",
+           "run_header", "first_run_seconds", "cached_for", "played_bouts", "played_groups", "partial_path",
+           "run_jobs", "LOCK_NAME", "FolderHeld", "hold", "release", "releasing_holds"]
