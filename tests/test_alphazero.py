@@ -256,7 +256,7 @@ def test_a_run_does_not_depend_on_the_global_random_state():
 @pytest.mark.parametrize("variant", ["monte-carlo", "n-step", "learned-reward", "imitation"])
 def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
     if variant in ("learned-reward", "imitation"):
-        config = tiny_config(**VARIANTS[variant], reward_pretrain_epochs=2, reward_epochs=1,
+        config = tiny_config(**VARIANTS.changes(variant), reward_pretrain_epochs=2, reward_epochs=1,
                              eval_max_steps=8)
     else:
         config = tiny_config(value_target=variant, normalize_q=variant == "n-step")
@@ -397,7 +397,7 @@ def test_expert_games_record_the_experts_actions_with_the_searchs_features():
 
 
 def test_imitation_pretrains_the_heads_to_play_like_the_expert(tmp_path):
-    config = tiny_config(**{**VARIANTS["imitation"], "expert_games": 3}, games=0, eval_max_steps=12)
+    config = tiny_config(**{**VARIANTS.changes("imitation"), "expert_games": 3}, games=0, eval_max_steps=12)
     with pytest.raises(ValueError, match="expert"):
         train_alphazero(Corridor, vision, small_memory(), config, progress=False)
     with pytest.raises(ValueError, match=">= 0"):
@@ -463,7 +463,7 @@ def test_reward_rows_credit_the_delayed_reward_and_the_mdp_uses_the_model():
 
 
 def test_value_targets_of_the_learned_reward_variant_use_the_delayed_rewards():
-    config = tiny_config(**{**VARIANTS["learned-reward"], "value_target": "monte-carlo"}, gamma=0.5)
+    config = tiny_config(**{**VARIANTS.changes("learned-reward"), "value_target": "monte-carlo"}, gamma=0.5)
     rewards = np.array([0, 0, 1, 0], np.float32)
     game = type("G", (), {"rewards": rewards})()
     assert np.allclose(game_targets(game, None, config), value_targets([1, 0, 0, 0], 0.5))
@@ -518,7 +518,7 @@ def test_profiles_keep_the_thesis_values():
                                                                                                        5, 256)
     assert (thesis.lr, thesis.momentum, thesis.l2, thesis.value_target) == (1e-2, 0.9, 1e-4, "monte-carlo")
     assert for_profile(AlphaZeroConfig, "quick").eval_episodes >= 5
-    assert not thesis.reward_model and for_profile(AlphaZeroConfig, "quick", **VARIANTS["learned-reward"]).reward_model
+    assert not thesis.reward_model and for_profile(AlphaZeroConfig, "quick", **VARIANTS.changes("learned-reward")).reward_model
 
 
 # ----------------------------------------------------------------------------- the experiment

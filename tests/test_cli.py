@@ -169,13 +169,15 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
 
     from wmthesis.experiments.summary import run_scores
 
-    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "td"]) == 0  # same model
-    td = json.loads((tmp_path / "data/results/planet-boxing-value/smoke-seed0/td/metrics.json").read_text())
-    assert td["variant"] == "td" and td["config"]["target"] == "td" and td["value_planner"]["config"]["discount"] == 0.95
-    assert td["bouts"] == value["bouts"] and td["planet"] == value["planet"]  # the same bouts and CEM on the same model
-    assert set(run_scores(td)) == {"td", "td, cem-with-value"} and set(run_scores(value)) == {None, "cem-with-value"}
-    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "nope"]) == 2
-    assert "valid: td, validation-10" in capsys.readouterr().err
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "rounds-10"]) == 0  # same model
+    ten = json.loads((tmp_path / "data/results/planet-boxing-value/smoke-seed0/rounds-10/metrics.json").read_text())
+    assert ten["variant"] == "rounds-10" and ten["config"]["rounds"] == 10
+    assert ten["bouts"] == value["bouts"] and ten["planet"] == value["planet"]  # the same bouts and CEM on the same model
+    assert set(run_scores(ten)) == {"rounds-10", "rounds-10, cem-with-value"} and set(run_scores(value)) == {None, "cem-with-value"}
+    for removed in ("nope", "td"):  # unknown, or gone to the findings
+        assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", removed]) == 2
+        err = capsys.readouterr().err
+        assert "valid: default, rounds-10" in err and "docs/findings/planet-boxing-value.md" in err
     # the mean of the last rounds' values: from a copy of rounds-10's run, its rounds not fitted again
     results = tmp_path / "data/results/planet-boxing-value/smoke-seed0"
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "rounds-10"]) == 0
@@ -191,16 +193,16 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert [e["loss"] for e in lean["curve"]] == [e["loss"] for e in ten["curve"]]
     assert lean["returns"] == mean["returns"] and lean["value_planner"]["returns"] == mean["value_planner"]["returns"]
     assert lean["best_round"] is None and "validation" not in lean["curve"][-1]
-    # lean-value-rewards: lean's value from a copy (no round fitted again) under the planner chosen
+    # lean-value-rewards-0.7: lean's value from a copy (no round fitted again) under the planner chosen
     # on validation bouts; its CEM bout is that planner's with lean's own value
     from wmthesis.config import ValuePlannerConfig
     from wmthesis.experiments.planet_value import value_planner_bout
 
-    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "lean-value-rewards"]) == 0
-    rewarded = json.loads((results / "lean-value-rewards" / "metrics.json").read_text())
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "lean-value-rewards-0.7"]) == 0
+    rewarded = json.loads((results / "lean-value-rewards-0.7" / "metrics.json").read_text())
     assert rewarded["curve"] == lean["curve"] and rewarded["returns"] == lean["returns"]
     planner = rewarded["value_planner"]["config"]
-    assert planner == {**lean["value_planner"]["config"], "rewards": "value", "discount": 0.5}
+    assert planner == {**lean["value_planner"]["config"], "rewards": "value", "discount": 0.7}
     bout = value_planner_bout(tmp_path / "data/smoke/planet-boxing-agent/seed0",
                               tmp_path / "data/smoke/planet-boxing-value/lean-seed0", ValuePlannerConfig(**planner),
                               *rewarded["bouts"][0])
@@ -209,14 +211,14 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     from wmthesis.experiments import planet_value
     from wmthesis.experiments.planet_boxing_value import validate_planners
 
-    levers = ("H3 from a zero mean", "the value's rewards")
+    levers = ("value seeds CEM", "the value's rewards")
     checked = validate_planners("smoke", 0, levers=levers, variant="lean", progress=False)
-    assert checked["the value's rewards"]["config"]["rewards"] == "value" and checked[levers[0]]["config"]["value_prior"] == 0
+    assert checked["the value's rewards"]["config"]["rewards"] == "value" and checked[levers[0]]["config"]["rewards"] != "value"
     assert all(len(scores["returns"]) == 1 for scores in checked.values())
     monkeypatch.setattr(planet_value, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
     assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
     # a variant that changes the planner alone plays its levers on the value it shares with lean
-    assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards", progress=False) == checked
+    assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards-0.7", progress=False) == checked
     # tools/validate_levers.py: from the finished run's metrics.json, in a pool of its own; a lever
     # not played yet is played there and saved where validate_planners finds it
     import os

@@ -75,7 +75,7 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     from wmthesis.experiments.summary import run_scores
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    with pytest.raises(ValueError, match="valid: td, horizon-12, freeway-adam, adam-td"):
+    with pytest.raises(ValueError, match="valid: default, td, horizon-12, freeway-adam, adam-td"):
         reproduce("planet-freeway-value", "smoke", 0, variant="nope", progress=False)
     default = reproduce("planet-freeway-value", "smoke", 0, progress=False)
     longer = reproduce("planet-freeway-value", "smoke", 0, variant="horizon-12", progress=False)
@@ -86,8 +86,8 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     saved = json.loads((work / "horizon-12-seed0" / "baseline-bouts.json").read_text())
     assert saved == json.loads((work / "seed0" / "baseline-bouts.json").read_text())  # copied, not played again
     td = reproduce("planet-freeway-value", "smoke", 0, variant="td", progress=False)
-    assert {k: td["config"][k] for k in VALUE_VARIANTS["td"]["value"]} == VALUE_VARIANTS["td"]["value"]
-    assert td["value_planner"]["config"]["discount"] == VALUE_VARIANTS["td"]["value"]["discount"]
+    assert {k: td["config"][k] for k in VALUE_VARIANTS["td"].changes["value"]} == VALUE_VARIANTS["td"].changes["value"]
+    assert td["value_planner"]["config"]["discount"] == VALUE_VARIANTS["td"].changes["value"]["discount"]
     assert set(run_scores(td)) == {"td", "td, cem-with-value"}
     saved = json.loads((tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "td" / "metrics.json").read_text())
     assert saved["variant"] == "td" and saved["value_planner"] == td["value_planner"]  # beside the default's, not over it
@@ -169,10 +169,18 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     other = tmp_path / "smoke" / "planet-freeway-value" / "adam-td-seed0"
     assert (other / "baseline-bouts.json").read_text() == (work / "baseline-bouts.json").read_text()
     assert td["baselines"] == adam["baselines"]
-    assert {k: td["config"][k] for k in VALUE_VARIANTS["adam-td"]["value"]} == VALUE_VARIANTS["adam-td"]["value"]
+    assert {k: td["config"][k] for k in VALUE_VARIANTS["adam-td"].changes["value"]} == VALUE_VARIANTS["adam-td"].changes["value"]
     assert td["config"]["target"] != adam["config"]["target"]
     assert not (tmp_path / "smoke" / "planet-freeway-value" / "seed0").exists()  # never the blind model's run
-    # a planner variant on that model: freeway-adam's value and baselines, its own horizon
+    # a planner variant on that model: freeway-adam's value and baselines, its own horizon (declared here)
+    import importlib
+
+    from wmthesis.variants import Variant, Variants
+
+    module = importlib.import_module("wmthesis.experiments.planet_freeway_value")
+    planner_only = Variant("adam-horizon-12", "freeway-adam's value, 12 steps", dict(planner=dict(horizon=12)),
+                           builds_on="freeway-adam")
+    monkeypatch.setattr(module, "VALUE_VARIANTS", Variants("planet-freeway-value", *VALUE_VARIANTS.values(), planner_only))
     longer = reproduce("planet-freeway-value", "smoke", 0, variant="adam-horizon-12", progress=False)
     assert longer["value_planner"]["config"]["horizon"] == 12 != adam["value_planner"]["config"]["horizon"]
     assert longer["curve"] == adam["curve"] and longer["best_round"] == adam["best_round"]  # the same value

@@ -236,11 +236,15 @@ def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_re
 
 
 def test_a_planner_variant_copies_a_run_fitted_with_its_own_value_config():
-    from wmthesis.experiments.planet_boxing_value import EXTENDS, PLANNERS, VALUE_VARIANTS
+    from wmthesis.experiments.planet_boxing_value import VALUE_VARIANTS, folder_variant, value_run
 
-    for variant in PLANNERS:  # its value is copied, not fitted: the copy must be the value it names
-        assert VALUE_VARIANTS[variant] == VALUE_VARIANTS[EXTENDS[variant]], variant
-        assert EXTENDS[variant] not in PLANNERS  # a planner-only run holds no value of its own to copy
+    planners = [name for name, v in VALUE_VARIANTS.items() if set(v.changes) == {"planner"}]
+    assert planners == ["lean-value-rewards-0.7"]
+    for variant in planners:  # its value is copied, not fitted: the copy must be the value it names
+        copied = value_run(variant)
+        assert copied != variant and VALUE_VARIANTS.changes(variant, "value") == VALUE_VARIANTS.changes(copied, "value")
+        assert "value" in VALUE_VARIANTS[copied].changes  # a planner-only run holds no value of its own to copy
+    assert folder_variant("default") is None and value_run("rounds-10-mean-3") == "rounds-10-mean-3"
 
 
 def test_groups_of_bouts_play_in_one_pool_each_saved_in_its_own_file(tmp_path):
@@ -268,13 +272,13 @@ def test_the_planner_levers_table_is_paired_against_the_first_lever():
         return {"returns": returns, "full": score_summary(returns), "first": score_summary(first)}
 
     rows = planner_lever_rows({"value seeds CEM": scores([2.0, 4.0, 0.0], [1.0, 1.0, 1.0]),
-                               "prior's mean": scores([5.0, 5.0, 5.0], [2.0, 3.0, 4.0])})
+                               "the value's rewards, discount 0.7": scores([5.0, 5.0, 5.0], [2.0, 3.0, 4.0])})
     assert rows[0] == ["value seeds CEM", "(the default)", "2.0 ± 1.6", "1.0", "+0.0 ± 0.0"]
     # differences 3, 1, 5: mean 3, standard error 2 / sqrt(3)
-    assert rows[1] == ["prior's mean", "imagine=mean, value_prior=0.0", "5.0 ± 0.0", "3.0", "+3.0 ± 1.2"]
+    assert rows[1] == ["the value's rewards, discount 0.7", "rewards=value, discount=0.7", "5.0 ± 0.0", "3.0", "+3.0 ± 1.2"]
     # the levers are stated against the default planner: the first is the thesis's CEM start
     default = ValuePlannerConfig()
-    assert default.value_prior > 0 and dataclasses.replace(default, **PLANNER_LEVERS["H3 from a zero mean"]).value_prior == 0
+    assert default.rewards != "value" and dataclasses.replace(default, **PLANNER_LEVERS["the value's rewards"]).rewards == "value"
 
 
 def test_the_agent_rules_table_names_each_rules_rounds_and_pairs_them():

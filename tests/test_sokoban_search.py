@@ -6,6 +6,8 @@ import zlib
 
 import numpy as np
 import pytest
+
+from wmthesis.variants import Variant, Variants
 import torch
 
 from wmthesis.config import SokobanSearchConfig, for_profile
@@ -699,7 +701,7 @@ def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own
 def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, monkeypatch):
     from wmthesis.experiments.sokoban_search import BOXOBAN_SPLITS, lever_rows, validate
 
-    with pytest.raises(ValueError, match="valid: baseline, three-rounds, no-backups"):
+    with pytest.raises(ValueError, match="valid: baseline, no-backups, generated"):
         validate("bigger-brain", "smoke")
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     result = validate("strong-expert", "smoke", seed=1, levels=3, progress=False)
@@ -812,12 +814,12 @@ def test_an_evaluation_saved_by_another_search_is_computed_again_and_one_by_the_
     path = tmp_path / "eval.json"
     path.write_text(json.dumps({"plays": [{"level": 0}], "search": {"budget": 1}}))
     fresh = '{"plays": [], "search": {"budget": 2}}'
-    experiment._run_saved({"same": (path, (json.loads, fresh), {"budget": 1})}, progress=False)
+    experiment.run_jobs({"same": (path, (json.loads, fresh), {"budget": 1})}, progress=False)
     assert json.loads(path.read_text())["plays"] == [{"level": 0}]  # the same search: kept
-    experiment._run_saved({"other": (path, (json.loads, fresh), {"budget": 2})}, progress=False)
+    experiment.run_jobs({"other": (path, (json.loads, fresh), {"budget": 2})}, progress=False)
     assert json.loads(path.read_text()) == json.loads(fresh)  # another: computed again
     path.write_text(json.dumps({"plays": [{"level": 0}]}))  # a file that records no search serves no search
-    experiment._run_saved({"other": (path, (json.loads, fresh), {"budget": 2})}, progress=False)
+    experiment.run_jobs({"other": (path, (json.loads, fresh), {"budget": 2})}, progress=False)
     assert json.loads(path.read_text()) == json.loads(fresh)
 
 
@@ -827,13 +829,14 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
 
     experiment = importlib.import_module("wmthesis.experiments.sokoban_search")  # the module, not its function
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    monkeypatch.setitem(experiment.LEVERS, "one-node", dict(budget=1))  # no search can solve in one node
+    one_node = Variant("one-node", "one node a search", dict(budget=1))  # no search can solve in one node
+    monkeypatch.setattr(experiment, "LEVERS", Variants("sokoban-search", *experiment.LEVERS.values(), one_node))
     baseline = experiment.validate("baseline", "smoke", seed=2, levels=2, progress=False)
     pixels = experiment.work_folder("smoke", 2) / "pixels"
     trained = (pixels / "state.pt").stat().st_mtime_ns
     searched = []
-    real = experiment._run_saved
-    monkeypatch.setattr(experiment, "_run_saved", lambda jobs, progress: searched.extend(jobs.values()) or real(jobs, progress))
+    real = experiment.run_jobs
+    monkeypatch.setattr(experiment, "run_jobs", lambda jobs, progress: searched.extend(jobs.values()) or real(jobs, progress))
     starved = experiment.validate("one-node", "smoke", seed=2, levels=2, progress=False)
     # every job loads the baseline's run as it was trained, and searches with one node
     cfg = experiment.for_profile(experiment.SokobanSearchConfig, "smoke", seed=2, inputs="pixels")

@@ -32,11 +32,11 @@ def test_seeds_and_runs_are_parsed_and_bad_ones_refused():
         parse_runs(["planet-freeway:nope"], [0])
     with pytest.raises(ValueError, match="has no variants"):
         parse_runs(["boxing-wm:x"], [0])
-    assert parse_runs(["planet-boxing-value:td"], [2]) == [SweepRun("planet-boxing-value", "td", 2)]
-    with pytest.raises(ValueError, match="valid: td, validation-10"):
+    assert parse_runs(["planet-boxing-value:lean"], [2]) == [SweepRun("planet-boxing-value", "lean", 2)]
+    with pytest.raises(ValueError, match="valid: default, rounds-10"):
         parse_runs(["planet-boxing-value:nope"], [0])
     assert parse_runs(["planet-freeway-value:horizon-12"], [0]) == [SweepRun("planet-freeway-value", "horizon-12", 0)]
-    with pytest.raises(ValueError, match="valid: td, horizon-12"):
+    with pytest.raises(ValueError, match="valid: default, td, horizon-12"):
         parse_runs(["planet-freeway-value:nope"], [0])
 
 

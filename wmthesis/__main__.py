@@ -160,9 +160,8 @@ def cmd_solve_sokoban(args) -> int:
 def cmd_validate_sokoban(args) -> int:
     from wmthesis.experiments.sokoban_search import LEVERS, validate
 
-    unknown = [lever for lever in args.levers if lever not in LEVERS]
-    if unknown:
-        raise ValueError(f"unknown lever {unknown[0]!r}; valid: {', '.join(LEVERS)}")
+    for lever in args.levers:
+        LEVERS.check(lever)
     for lever in args.levers:
         result = validate(lever, args.profile, args.seed, args.levels)
         print(_solved_line(f"{lever} (seed {args.seed})", result["rows"]))

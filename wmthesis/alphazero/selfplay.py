@@ -67,15 +67,18 @@ from wmthesis.core import Callback, Mind, Proportional, loop
 from wmthesis.training import check_resumable
 from wmthesis.utils import check_choice, derive_seeds, fingerprint, read_pickle
 from wmthesis.runs import atomic_path
+from wmthesis.variants import Variant, Variants
 
-VARIANTS = {
-    "unchanged": {},  # thesis 4.3 as written
-    "improved": dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False),  # ours
-    "learned-reward": dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False,
-                           reward_model=True),  # ours: improved + a reward model trained on self-play data
-    "imitation": dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False,
-                      expert_games=8),  # ours: improved + heads pretrained on the World Models controller's games
-}
+IMPROVED = dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False)
+VARIANTS = Variants(
+    "boxing-wm-alphazero",
+    Variant("unchanged", "thesis 4.3 as written", {}),
+    Variant("improved", "min-max normalised Q, ties broken by Q, n-step values, no tree reuse (ours)", IMPROVED),
+    Variant("learned-reward", "improved, with a reward model trained on self-play data (ours)", dict(reward_model=True),
+            builds_on="improved"),
+    Variant("imitation", "improved, with heads pretrained on the World Models controller's games (ours)",
+            dict(expert_games=8), builds_on="improved", default=True),
+)
 FORMAT, FORMAT_VERSION = "wmthesis-alphazero", 2  # 2: the replay in its own HDF5 file
 CHECKPOINT_NAME = "alphazero.pkl"
 RESUMABLE_FIELDS = ("games", "eval_episodes", "eval_max_steps")  # config fields that may change when resuming

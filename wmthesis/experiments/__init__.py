@@ -20,25 +20,30 @@ from __future__ import annotations
 
 import os
 
+from wmthesis.alphazero.selfplay import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.config import profile_name
 from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS,
                                             boxing_wm_alphazero)
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, 
                                          planet_experiment, planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
-from wmthesis.experiments.planet_boxing_value import planet_boxing_value
-from wmthesis.experiments.planet_freeway_value import planet_freeway_value
+from wmthesis.experiments.planet_boxing_value import VALUE_VARIANTS as BOXING_VALUE_VARIANTS, planet_boxing_value
+from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value
 from wmthesis.experiments.sokoban_search import sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS,
                                                        sokoban_wm_configs, sokoban_world_models)
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
+from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.utils import check_choice, worker_init
 
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
                "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value", "sokoban-search")
 NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent")
+# Experiment -> its registry of variants (:mod:`wmthesis.variants`), for those that have them.
+VARIANTS = {**PLANET_REGISTRIES, "boxing-wm-alphazero": ALPHAZERO_VARIANTS, "planet-boxing-value": BOXING_VALUE_VARIANTS,
+            "planet-freeway-value": FREEWAY_VALUE_VARIANTS}
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
@@ -97,7 +102,7 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
         return {run: future.result() for run, future in futures.items()}
 
 
-__all__ = ["EXPERIMENTS", "reproduce", "reproduce_all", "sokoban_search", 
+__all__ = ["EXPERIMENTS", "VARIANTS", "reproduce", "reproduce_all", "sokoban_search", 
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES",

@@ -11,7 +11,7 @@ import numpy as np
 from wmthesis.alphazero.evaluation import evaluation_seeds, greedy_returns
 from wmthesis.config import CollectConfig, MemoryConfig, VisionConfig, for_profile, profile_name
 from wmthesis.runs import first_run_seconds, read_json, run_header
-from wmthesis.utils import check_choice, data_dir, read_pickle
+from wmthesis.utils import data_dir, read_pickle
 from wmthesis.runs import atomic_path, hold, releasing_holds
 from wmthesis.references import human, published, random_play
 from wmthesis.viz import save_figure
@@ -58,8 +58,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     from wmthesis.metrics import score_difference, score_summary
     from wmthesis.viz import record_frames
 
-    variants = tuple(VARIANTS) if variant is None else (variant,)
-    check_choice("variant of boxing-wm-alphazero", variants[0], VARIANTS)
+    variants = tuple(VARIANTS) if variant is None else (VARIANTS.check(variant).name,)
     profile = profile_name(profile)
     started = time.time()
     wm = data_dir(profile, "boxing-wm", f"seed{seed}")
@@ -76,7 +75,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
 
     configs, runs, games, ablations = {}, {}, {}, {}
     for name in variants:
-        configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **VARIANTS[name])
+        configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **VARIANTS.changes(name))
         expert = _expert(profile, seed, wm, vision, progress) if cfg.expert_games else None
         run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
                                  seed=seed, progress=progress, rollouts=LatentStore(latents), expert=expert)

@@ -13,19 +13,14 @@ from wmthesis.config import profile_name
 from wmthesis.planet.profiles import planet_config
 from wmthesis.runs import read_json, run_header
 from wmthesis.planet.train import same_training
+from wmthesis.planet.variants import ENVIRONMENTS, REGISTRIES
 from wmthesis.utils import check_choice, data_dir, derive_seeds
 from wmthesis.runs import atomic_path, hold, releasing_holds
 from wmthesis.references import HUMAN, RANDOM, published
 from wmthesis.viz import save_figure
 
-# Experiment -> (environment, the thesis's variants for that game, the default variant).
-PLANET_GAMES = {
-    "planet-sokoban": ("sokoban-small", ("unchanged",), "unchanged"),                       # 5.5.1
-    "planet-boxing": ("boxing", ("unchanged", "action-repeat", "decoder-variance", "free-nats"),
-                      "unchanged"),                                                          # 5.6.1-5.6.4
-    "planet-freeway": ("freeway", ("freeway-tuned", "long-horizon", "freeway-adam", "freeway-explore"),
-                       "freeway-tuned"),                                                     # 5.6.5-5.6.6
-}
+# Experiment -> (environment, its variants' names, the default's name), from its registry.
+PLANET_GAMES = {name: (ENVIRONMENTS[name], tuple(registry), registry.default.name) for name, registry in REGISTRIES.items()}
 
 
 # Greedy evaluation episodes after training (not in the thesis, which reported 5 runs' tests).
@@ -41,7 +36,7 @@ PLANET_OPEN_LOOP = {
 
 
 def planet_variants(name: str) -> tuple[str, ...]:
-    """The :data:`~wmthesis.planet.train.VARIANTS` valid for PlaNet experiment ``name``."""
+    """The variants of PlaNet experiment ``name`` (:mod:`~wmthesis.planet.variants`)."""
     check_choice("PlaNet experiment", name, PLANET_GAMES)
     return PLANET_GAMES[name][1]
 
@@ -60,17 +55,15 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     as it is. Returns the metrics: ``score`` (greedy test episodes), ``open_loop`` (error per
     horizon and at the cut-off), the learning ``curve``, ``reference`` (published numbers).
     """
-    from wmthesis.planet.train import VARIANTS, load_planet, train_planet, with_variant
+    from wmthesis.planet.train import load_planet, train_planet, with_variant
     from wmthesis.planet.figures import horizon_error_figure, learning_curve_figure, open_loop_figure
     from wmthesis.data import EpisodeStore
     from wmthesis.envs import ATARI_GAMES
     from wmthesis.metrics import error_at, horizon_errors, score_summary
     from wmthesis.viz import record_frames
 
-    env_name, valid, default = PLANET_GAMES[name]
-    variant = default if variant is None else variant
-    check_choice(f"variant of {name}", variant, valid)
-    assert variant in VARIANTS, variant
+    env_name = ENVIRONMENTS[name]
+    variant = REGISTRIES[name].check(variant).name
     profile = profile_name(profile)
     work = hold(data_dir(profile, name, f"{variant}-seed{seed}"))
     out = data_dir("results", name, f"{profile}-seed{seed}", variant)

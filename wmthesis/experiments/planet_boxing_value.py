@@ -12,46 +12,56 @@ import time
 from wmthesis.config import profile_name
 from wmthesis.experiments.planet_boxing import AGENT, GAME, planet_boxing_agent
 from wmthesis.metrics import score_cell
+from wmthesis import runs
+from wmthesis.variants import Variant, Variants
 from wmthesis.references import HUMAN, THESIS_PLANET_BOXING_SCORE, human
 from wmthesis.experiments.planet_value import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores,
                                               slug, start_from)
-from wmthesis.utils import check_choice, data_dir
+from wmthesis.utils import data_dir
 from wmthesis.runs import hold, releasing_holds
 
-# The value's variants (issue 31's levers, each on the same frozen model): the default fits the
-# sum of the next rewards (notebook 09); ``td`` bootstraps through the model; ``validation-10``
-# chooses the round on twice the validation bouts; ``rounds-10`` goes on for twice the rounds;
-# ``rounds-10-mean-K``'s agent is the mean of its last K rounds' values (``agent_rounds``, the
-# rule chosen on validation bouts by :func:`validate_agents`); ``lean`` is that agent from scratch
-# with no greedy bouts after each round (``score_rounds``: the per-round curve is a diagnostic,
-# the mean of the last rounds chooses nothing on it), its bouts two at a time: issue 31's hour.
+# Each variant fits its value on the same frozen model and bouts, in a folder of its own; one that
+# builds on another starts from a copy of that run's bouts and values (the same seeds give the same
+# first rounds), and one that changes the planner alone plays on that run's value. The numbers of
+# the variants and levers that left the code: docs/findings/planet-boxing-value.md.
 LEAN = dict(rounds=10, agent_rounds=3, score_rounds=False)
-VALUE_VARIANTS = {"td": dict(target="td"), "validation-10": dict(validation_bouts=10), "rounds-10": dict(rounds=10),
-                  "rounds-10-mean-3": dict(rounds=10, agent_rounds=3), "lean": LEAN}
-# A variant's planner where it is not the default CEM with the value: ``lean-value-rewards`` is
-# ``lean``'s value with the lever chosen on its validation bouts (seed 0, 10 bouts; notebook 10):
-# every imagined step scored by the value's Q, at a discount of 0.5 a step, 28.9 against the
-# default planner's 14.7 and the value agent's 25.9. ``lean-value-rewards-0.7`` weighs the later
-# steps more, the discount chosen on the validation bouts of two seeds (10 each): 37.0 and 30.6,
-# against 28.9 and 22.2 at 0.5 and the value agent's 25.9 and 22.8.
-PLANNERS = {"lean-value-rewards": dict(rewards="value", discount=0.5),
-            "lean-value-rewards-0.7": dict(rewards="value", discount=0.7)}
-# A variant that only adds rounds, changes which of them make the agent, or changes the planner
-# alone starts from a copy of the bouts and values of the run it extends (None: the default's):
-# the same seeds give the same first rounds, so they are not fitted again.
-EXTENDS = {"rounds-10": None, "rounds-10-mean-3": "rounds-10", "lean-value-rewards": "lean",
-           "lean-value-rewards-0.7": "lean"}
-VALUE_VARIANTS |= {variant: VALUE_VARIANTS[EXTENDS[variant]] for variant in PLANNERS}  # its value is the run's it copies
+VALUE_VARIANTS = Variants(
+    "planet-boxing-value",
+    Variant("default", "the value of the round chosen on validation bouts, every round scored (notebook 09)",
+            default=True),
+    Variant("rounds-10", "ten rounds, each scored", dict(value=dict(rounds=10)), builds_on="default"),
+    Variant("rounds-10-mean-3", "rounds-10's agent as the mean of its last 3 rounds' values (chosen by validate_agents)",
+            dict(value=dict(agent_rounds=3)), builds_on="rounds-10"),
+    Variant("lean", "that agent from scratch, no greedy bouts after each round: issue 31's hour", dict(value=LEAN)),
+    Variant("lean-value-rewards-0.7", "lean's value; CEM scores every imagined step by the value's Q, discount 0.7 "
+            "(chosen on two seeds' validation bouts)", dict(planner=dict(rewards="value", discount=0.7)),
+            builds_on="lean"),
+)
+
+
+def folder_variant(variant: str | None) -> str | None:
+    """A variant's name in its folders: None for the one named ``default`` (checked first)."""
+    name = VALUE_VARIANTS.check(variant).name
+    return None if name == "default" else name
+
+
+def value_run(variant: str | None) -> str | None:
+    """The variant whose run fitted ``variant``'s value: itself, or for one that changes the planner
+    alone, the run it builds on (as :func:`folder_variant` names it)."""
+    chain = VALUE_VARIANTS.lineage(variant)
+    while "value" not in chain[-1].changes and chain[-1].builds_on is not None and len(chain) > 1:
+        chain.pop()
+    return folder_variant(chain[-1].name)
 
 
 def value_folder(profile: str, seed: int, variant: str | None = None):
     """The work folder of the value run of ``variant`` (None: the default) and ``seed``."""
-    return data_dir(profile, "planet-boxing-value", f"seed{seed}" if variant is None else f"{variant}-seed{seed}")
+    return runs.work_folder(profile, "planet-boxing-value", seed, folder_variant(variant))
 
 
 def results_folder(profile: str, seed: int, variant: str | None = None):
     """Where the value run of ``variant`` (None: the default) and ``seed`` writes its ``metrics.json`` and figures."""
-    return data_dir("results", "planet-boxing-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
+    return runs.results_folder("planet-boxing-value", profile, seed, folder_variant(variant))
 
 
 @releasing_holds
@@ -68,22 +78,22 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     (CEM with the value: full bouts and their first 500 steps), the ``curve`` (one entry per
     round) and ``files``. A ``variant`` of :data:`VALUE_VARIANTS` fits its value in a folder of
     its own, on the same model and bouts (a ``td`` value is discounted in the planner as in its
-    targets; a variant of :data:`PLANNERS` changes the planner)."""
+    targets; one may change the planner alone)."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
 
-    if variant is not None:
-        check_choice("planet-boxing-value variant", variant, tuple(VALUE_VARIANTS))
+    chosen, variant = VALUE_VARIANTS.check(variant), folder_variant(variant)
     profile = profile_name(profile)
     started = time.time()
     agent = planet_boxing_agent(profile, seed, progress)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = hold(value_folder(profile, seed, variant))
     out = results_folder(profile, seed, variant)
-    config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"], **VALUE_VARIANTS.get(variant, {}))
-    if variant in EXTENDS:
-        start_from(work, value_folder(profile, seed, EXTENDS[variant]))
+    config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"],
+                         **VALUE_VARIANTS.changes(chosen.name, "value"))
+    if chosen.builds_on is not None:
+        start_from(work, value_folder(profile, seed, folder_variant(chosen.builds_on)))
     discount = {"discount": config.discount} if config.target != "reward-sum" else {}
-    planner = for_profile(ValuePlannerConfig, profile, **{**discount, **PLANNERS.get(variant, {})})
+    planner = for_profile(ValuePlannerConfig, profile, **{**discount, **VALUE_VARIANTS.changes(chosen.name, "planner")})
     references = {"human": human(GAME), "thesis PlaNet (around 30)": THESIS_PLANET_BOXING_SCORE}
     return fit_and_compare("planet-boxing-value", GAME, planet_run, work, out, config, planner,
                            {"random": agent["random"], "planet": agent["agent"]}, agent["bouts"], profile=profile,
@@ -101,22 +111,13 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
                          metrics, PLAN_STEPS[profile], seed)
 
 
-# Issue 31's levers on CEM with the value, each measured on the value's validation bouts (never
-# on the evaluation bouts): its horizon, its imagined states, the value seeding its search, and
-# where the imagined rewards come from (``rewards="value"``: every step scored by the value's Q)
-# and how much the later steps weigh (``discount``). Each is stated against the default planner
-# (``{}``: the value seeding CEM); the first lever played is the row the others are paired against
-# (by default CEM from the thesis's zero mean; notebook 10 pairs against the default planner).
-# H1 is the value agent's own choice, for reference. The levers chosen on the validation bouts
-# are the planners of ``lean-value-rewards`` and ``lean-value-rewards-0.7`` (:data:`PLANNERS`).
-PLANNER_LEVERS = {"H3 from a zero mean": dict(value_prior=0.0), "H2 from a zero mean": dict(horizon=2, value_prior=0.0),
-                  "prior's mean": dict(imagine="mean", value_prior=0.0), "value seeds CEM": {},
-                  "prior's mean, value seeds CEM": dict(imagine="mean"), "H2": dict(horizon=2),
-                  "value seeds CEM at 3 z-scores": dict(value_prior=3.0), "the value's rewards": dict(rewards="value"),
-                  "the value's rewards, prior's mean": dict(rewards="value", imagine="mean"),
-                  "H2, the value's rewards": dict(horizon=2, rewards="value"),
+# Levers on CEM with the value, each measured on the value's validation bouts (never on the
+# evaluation bouts), stated against the default planner (``{}``: the value seeding CEM); the first
+# lever played is the row the others are paired against. H1 is the value agent's own choice. The
+# lever chosen became ``lean-value-rewards-0.7``'s planner; the levers that lost, with their
+# numbers: docs/findings/planet-boxing-value.md.
+PLANNER_LEVERS = {"value seeds CEM": {}, "the value's rewards": dict(rewards="value"),
                   "the value's rewards, discount 0.5": dict(rewards="value", discount=0.5),
-                  "the value's rewards, discount 0.3": dict(rewards="value", discount=0.3),
                   "the value's rewards, discount 0.7": dict(rewards="value", discount=0.7),
                   "the value's rewards, discount 0.5, prior's mean": dict(rewards="value", discount=0.5, imagine="mean"),
                   "H1: the value agent": dict(horizon=1)}
@@ -144,7 +145,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, progress, variant) if metrics is None else metrics
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = value_folder(profile, seed, EXTENDS[variant] if variant in PLANNERS else variant)  # its value's run
+    work = value_folder(profile, seed, value_run(variant))  # the run that fitted its value
     planners = {lever: for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]) for lever in levers}
     return lever_scores(planet_run, work, metrics, planners, [validation_seeds(seed, k) for k in range(bouts)],
                         progress, executor=executor)
@@ -175,7 +176,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, progress, variant)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
-    work = value_folder(profile, seed, variant)
+    work = value_folder(profile, seed, folder_variant(variant))
     model, planet, _ = load_planet(planet_run)
     round_values(model, planet.bits, work, seed=seed, progress=progress)
     config = LatentValueConfig(**metrics["config"])
@@ -269,4 +270,4 @@ def value_table(metrics: dict) -> str:
 
 
 __all__ = ["planet_boxing_value", "results_folder", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",
-           "VALUE_VARIANTS", "PLANNERS", "AGENT_RULES", "validate_agents", "agent_rows"]
+           "VALUE_VARIANTS", "folder_variant", "value_run", "AGENT_RULES", "validate_agents", "agent_rows"]

@@ -28,9 +28,10 @@ from wmthesis.experiments.planet_boxing import STUDY, bout_result, bout_scores, 
 from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans,
                                                fit_and_compare, lever_scores, played_bouts, start_from)
 from wmthesis.runs import read_json
-from wmthesis.utils import check_choice, data_dir
+from wmthesis.utils import data_dir
 from wmthesis.runs import atomic_path, hold, releasing_holds
 from wmthesis.references import human
+from wmthesis.variants import Variant, Variants
 from wmthesis.viz import save_figure
 
 GAME, VARIANT = "freeway", "freeway-tuned"
@@ -39,52 +40,47 @@ EPISODES = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation episodes
 UP = 1  # Freeway's actions: NOOP, UP, DOWN
 BASELINES = ("planet", "random", "always-up")  # in the order their episodes are saved
 # What would make the planner dodge cars? Each variant is measured against UP at every step, in a
-# folder of its own, on the same model and episodes. ``base``: the value run on the same model whose
-# baselines it copies (None: the default's on freeway-tuned's model; itself: it plays them).
-VALUE_VARIANTS = {
-    # the time to the next crossing, bootstrapped through the model: a collision's delay of 10-20
-    # steps costs 10-20% of the value at 0.99, against a 150-step window's few hundredths at 0.97
-    "td": dict(value=dict(target="td", reward_steps=30, discount=0.99)),
-    "horizon-12": dict(planner=dict(horizon=12)),  # the thesis's horizon, the default's value at its end
-    # the default's value and planner on the model that sees the cars (``planet-freeway``'s
-    # ``freeway-adam``: Adam's epsilon 1e-8); its baselines are played again on that model. That
-    # agent's own episodes hold almost no crossing (its reward head learns that none comes, and
-    # its planner wanders), so the value's first data are the freeway-tuned agent's episodes.
-    "freeway-adam": dict(model="freeway-adam", data=VARIANT, base="freeway-adam"),
-    # the td value on the model that sees the cars: a collision's delay shows in the value only if
-    # the model imagines the cars, and a car-blind model's td value learned UP at every step (21.0)
-    "adam-td": dict(model="freeway-adam", data=VARIANT, base="freeway-adam",
-                    value=dict(target="td", reward_steps=30, discount=0.99)),
-    # freeway-adam's value at the end of the thesis's 12 steps: a car-seeing model imagines a
-    # collision only within its horizon, and one step's progress (0.7 of a pixel) is below what a
-    # value can rank, while twelve steps up against a collision's push back are not
-    "adam-horizon-12": dict(model="freeway-adam", data=VARIANT, base="freeway-adam", planner=dict(horizon=12)),
-    # ... and a value that ranks those end states: the discounted sum's logarithm, on which a step
-    # nearer the far side weighs the same (a factor of 1/0.97) at the foot of the road as at its top,
-    # where the sum itself differs by 0.002 a step at the foot, under what its fit can tell apart
-    "adam-log": dict(model="freeway-adam", data=VARIANT, base="freeway-adam", planner=dict(horizon=12),
-                     value=dict(target="log-discounted-sum")),
-}
+# folder of its own, on the same model and episodes. A variant with a ``model`` of its own plays its
+# baselines on it; one that builds on another copies that run's baselines, and its value unless it
+# fits one of its own. The numbers of those that left the code: docs/findings/planet-freeway-value.md.
+TD = dict(target="td", reward_steps=30, discount=0.99)
+VALUE_VARIANTS = Variants(
+    "planet-freeway-value",
+    Variant("default", "the discounted sum of the next 150 rewards on freeway-tuned's model, CEM 3 steps before it",
+            default=True),
+    # a collision's delay of 10-20 steps costs 10-20% of the value at 0.99
+    Variant("td", "the time to the next crossing, bootstrapped through the model", dict(value=TD), builds_on="default"),
+    Variant("horizon-12", "the default's value at the end of the thesis's 12 steps", dict(planner=dict(horizon=12)),
+            builds_on="default"),
+    # that agent's own episodes hold almost no crossing: the first data are freeway-tuned's
+    Variant("freeway-adam", "the default on the model that sees the cars (planet-freeway's freeway-adam)",
+            dict(model="freeway-adam", data=VARIANT)),
+    Variant("adam-td", "the td value on the model that sees the cars", dict(value=TD), builds_on="freeway-adam"),
+    # a step nearer the far side weighs the same at the foot of the road as at its top
+    Variant("adam-log", "the discounted sum's logarithm on the model that sees the cars, CEM 12 steps before it",
+            dict(planner=dict(horizon=12), value=dict(target="log-discounted-sum")), builds_on="freeway-adam"),
+)
 
 
 def model_variant(variant: str | None = None) -> str:
     """The ``planet-freeway`` variant whose model a value ``variant`` is fitted on (its first
     data: that agent's episodes, or those of the variant's ``data``)."""
-    return VALUE_VARIANTS.get(variant, {}).get("model", VARIANT)
+    return VALUE_VARIANTS.changes(variant).get("model", VARIANT)
 
 
 def base_variant(variant: str | None = None) -> str | None:
-    """The value run whose model a ``variant`` shares and whose baselines it copies (its ``base``
-    in :data:`VALUE_VARIANTS`): None for the default on ``freeway-tuned``'s model; the variant
-    itself where it plays them."""
-    return VALUE_VARIANTS.get(variant, {}).get("base")
+    """The value run whose model a ``variant`` shares and whose baselines it copies: the first of
+    its lineage (None for the default's, on ``freeway-tuned``'s model)."""
+    root = VALUE_VARIANTS.lineage(variant)[0].name
+    return None if root == "default" else root
 
 
 def value_variant(variant: str | None = None) -> str | None:
     """The run whose value a ``variant`` plays with: itself where it fits one (a ``value`` of its
     own, or a base), else the base it copies the value from."""
-    changes = VALUE_VARIANTS.get(variant, {})
-    return variant if "value" in changes or variant == base_variant(variant) else base_variant(variant)
+    name = None if VALUE_VARIANTS.check(variant).name == "default" else variant
+    return name if "value" in VALUE_VARIANTS[variant or "default"].changes or name == base_variant(name) \
+        else base_variant(name)
 
 
 def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
@@ -140,9 +136,9 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     from wmthesis.data import EpisodeStore
     from wmthesis.planet.value import STORE, evaluation_seeds
 
-    if variant is not None:
-        check_choice("planet-freeway-value variant", variant, tuple(VALUE_VARIANTS))
-    changes = VALUE_VARIANTS.get(variant, {})
+    own = VALUE_VARIANTS.check(variant).changes
+    variant = None if VALUE_VARIANTS.check(variant).name == "default" else variant
+    changes = VALUE_VARIANTS.changes(variant)
     profile = profile_name(profile)
     started = time.time()
     planet_run = frozen_model(profile, seed, model_variant(variant), progress)
@@ -152,7 +148,7 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     if variant != base:  # the base run's model: its baselines, and its value unless this one changes it
         default, _ = value_folders(profile, seed, base)
         start_from(work, default, ("baseline-bouts.json", "baselines.json"))  # the same episodes, played once
-        if "value" not in changes:
+        if "value" not in own:
             start_from(work, default)  # the base's value, its rounds and bouts
     data = frozen_model(profile, seed, changes["data"], progress) if "data" in changes else planet_run
     start_from(work, data, (STORE,))  # a PlaNet agent's episodes are the value's first data
@@ -189,7 +185,7 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
                 b.get("returns")) for name, b in first["baselines"].items()]
     for variant, m in by_variant.items():
         label = "default" if variant is None else variant
-        if variant is None or {"value", "model"} & set(VALUE_VARIANTS[variant]):
+        if variant is None or {"value", "model"} & set(VALUE_VARIANTS[variant].changes):
             rows.append(row(f"value alone ({label})", m["value"], m.get("value_first", {}).get("mean", float("nan")),
                             m["returns"]))
         planner = m["value_planner"]

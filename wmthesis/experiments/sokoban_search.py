@@ -14,6 +14,7 @@ from wmthesis.runs import (atomic_path, cached, first_run_seconds, hold, jsonabl
                            releasing_holds, run_header, run_jobs)
 from wmthesis.metrics import score_summary
 from wmthesis.references import BOXOBAN, BOXOBAN_PUBLISHED, published
+from wmthesis.variants import Variant, Variants
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table
@@ -200,29 +201,26 @@ def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = T
     return metrics
 
 
-# Issue 30's levers: each a change to the pixel agent's config, trained in a folder of its own and
-# measured on the validation files only (``validate``), never on the report files.
+# Levers of the pixel agent, each a change to its config, trained in a folder of its own (one that
+# changes the search alone searches the baseline's run) and measured on the validation files only
+# (``validate``), never on the report files. The levers that left the code, with their numbers:
+# docs/findings/sokoban-search.md.
 THREE_ROUNDS = dict(rounds=3, model_updates=3000, round_updates=500)  # quick's default until 2026-11-25
-LEVERS = {
-    "baseline": {},  # the pixel run of ``sokoban_search`` itself: the curriculum, two rounds a variant in quick
-    "three-rounds": THREE_ROUNDS,  # three rounds a variant, twice the model's fits: the default until 2026-11-25
-    "no-backups": dict(backups=0),  # its value from solved levels alone: the baseline before backed-up values
-    # measured with three rounds a variant (the default then), so stated with them
-    "generated": dict(variants=GENERATED, **THREE_ROUNDS),  # our 5x5 and 10x10 levels, not Boxoban's
-    "generated-no-backups": dict(backups=0, variants=GENERATED, **THREE_ROUNDS),  # the same, before backed-up values
-    "small-model": dict(channels=32, **THREE_ROUNDS),  # a quarter of the model's arithmetic: faster searches
-    "strong-expert": dict(round_budget=60_000),  # in the rounds three times their default budget, 1.5 times the evaluation's
-    "more-rounds": dict(rounds=5),
-    "medium-only": dict(variants=("sokoban-small", "boxoban-medium-train")),  # no unfiltered rounds
-    "policy-prior": dict(prior_weight=1.0),  # a policy from its own solutions orders the expansions
-    # the search alone, on the baseline's model and value (no training): where do its failures come from?
-    # ``bigger-budget`` (budget=40,000 at evaluation) became quick's ``eval_budget`` on 2026-11-25:
-    "budget-20k": dict(eval_budget=20_000),  # the evaluation's budget before, half the nodes a search
-    "third-weight": dict(weights=(3.0, 1.5, 0.75)),  # one more search, nearer breadth first, after two fail
-    "prior-afterwards": dict(prior_weight=1.0),  # a policy fitted once on the baseline's own solutions
-    "prior-afterwards-3": dict(prior_weight=3.0),  # the same policy, three times the weight
-}
-AFTERWARDS = ("prior-afterwards", "prior-afterwards-3")  # on the baseline's run with a policy prior fitted after it
+LEVERS = Variants(
+    "sokoban-search",
+    Variant("baseline", "the pixel run of sokoban_search itself: the curriculum, two rounds a variant in quick",
+            default=True),
+    Variant("no-backups", "its value from solved levels alone: the baseline before backed-up values", dict(backups=0)),
+    Variant("generated", "our 5x5 and 10x10 levels, not Boxoban's (three rounds a variant, as measured)",
+            dict(variants=GENERATED, **THREE_ROUNDS)),
+    Variant("small-model", "a quarter of the model's arithmetic: faster searches (three rounds a variant, as measured)",
+            dict(channels=32, **THREE_ROUNDS)),
+    Variant("strong-expert", "three times the rounds' search budget, 1.5 times the evaluation's",
+            dict(round_budget=60_000)),
+    Variant("prior-afterwards", "a policy prior fitted once on the baseline's own solutions orders the expansions",
+            dict(prior_weight=1.0)),
+)
+AFTERWARDS = ("prior-afterwards",)  # on the baseline's run with a policy prior fitted after it
 SEARCH_FIELDS = ("budget", "eval_budget", "batch", "weights", "doubt", "replans")  # a lever of these alone needs no training
 RECORDED_SEARCH = ("budget", "batch", "weights", "doubt", "replans", "prior_weight")  # what a play depends on, beyond the run
 VALIDATION_LEVELS = {"smoke": 2, "quick": 200, "thesis": 1000}  # the first of each validation set
@@ -235,12 +233,11 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     ``levels`` levels of each validation set (:data:`BOXOBAN_SPLITS`); the rows (solve rate,
     nodes and seconds per level), also written to the run's results folder as
     ``validation-LEVER.json``."""
-    if lever not in LEVERS:
-        raise ValueError(f"unknown lever {lever!r}; valid: {', '.join(LEVERS)}")
+    changes = LEVERS.changes(LEVERS.check(lever).name)
     profile = profile_name(profile)
     levels = VALIDATION_LEVELS[profile] if levels is None else int(levels)
-    cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels", **LEVERS[lever])
-    search_only = set(LEVERS[lever]) <= set(SEARCH_FIELDS) or lever in AFTERWARDS  # the baseline's run
+    cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels", **changes)
+    search_only = set(changes) <= set(SEARCH_FIELDS) or lever in AFTERWARDS  # the baseline's run
     trained = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels") if search_only else cfg
     folder = hold(work_folder(profile, seed) / ("pixels" if search_only else f"lever-{lever}"))
     run = _trained_run(folder, trained, progress)
@@ -253,7 +250,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     run_jobs(jobs, progress)
     rows = {kind: {**agent_row(_level_plays(jobs, kind)), "source": f"{source}, its first {levels} levels"}
             for kind, source in BOXOBAN_SPLITS["validation"].items()}
-    result = {"lever": lever, "changes": LEVERS[lever], "profile": profile, "seed": seed, "rows": rows,
+    result = {"lever": lever, "changes": changes, "profile": profile, "seed": seed, "rows": rows,
               "search": _evaluation_record(cfg),
               "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
     out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")

@@ -81,7 +81,7 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
     ``metrics.json``, and per kind of a Sokoban report evaluation (:func:`report_runs`). A file
     that is not JSON or not a run's metrics is skipped with a warning naming it; when two files
     hold the same run, the newer one counts."""
-    from wmthesis.experiments import EXPERIMENTS
+    from wmthesis.experiments import EXPERIMENTS, VARIANTS
 
     folder = Path(folder) if folder is not None else data_dir("results")
     runs: dict[tuple, Run] = {}
@@ -95,6 +95,13 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             scores = run_scores(metrics)
         except (ValueError, KeyError, TypeError) as error:
             warnings.warn(f"{path}: skipped, not a run's metrics ({type(error).__name__}: {error})", stacklevel=2)
+            continue
+        registry = VARIANTS.get(metrics["experiment"])
+        gone = [v for v in metrics.get("variants", [metrics.get("variant")]) if v is not None and registry is not None
+                and v not in registry]
+        if gone:
+            warnings.warn(f"{path.parent}: skipped, written by variant {gone[0]!r}, no longer in the code (its numbers: "
+                          f"{registry.findings})", stacklevel=2)
             continue
         for variant, score in scores.items():
             run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path))

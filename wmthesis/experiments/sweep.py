@@ -17,7 +17,6 @@ sweep (``boxing-wm`` for ``boxing-wm-alphazero``, ``planet-boxing-agent`` for
 """
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import re
@@ -51,15 +50,10 @@ class SweepRun(NamedTuple):
 
 def variants_of(experiment: str) -> tuple[str, ...]:
     """The variants ``experiment`` accepts (empty: it has none)."""
-    from wmthesis.alphazero.selfplay import VARIANTS
-    from wmthesis.experiments import EXPERIMENTS, NO_VARIANTS, planet_variants
+    from wmthesis.experiments import EXPERIMENTS, VARIANTS
 
     check_choice("experiment", experiment, EXPERIMENTS)
-    if experiment in NO_VARIANTS:
-        return ()
-    if experiment in ("planet-boxing-value", "planet-freeway-value"):  # the value's: VALUE_VARIANTS of its module
-        return tuple(importlib.import_module(f"wmthesis.experiments.{experiment.replace('-', '_')}").VALUE_VARIANTS)
-    return tuple(VARIANTS) if experiment == "boxing-wm-alphazero" else planet_variants(experiment)
+    return tuple(VARIANTS.get(experiment, ()))
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -79,14 +73,16 @@ def parse_seeds(text: str) -> list[int]:
 def parse_runs(specs: list[str], seeds: list[int]) -> list[SweepRun]:
     """``EXPERIMENT[:VARIANT]`` specs x seeds -> the sweep's runs; an unknown experiment or
     variant raises ValueError listing the valid ones."""
+    from wmthesis.experiments import EXPERIMENTS, VARIANTS
+
     runs = []
     for spec in specs:
         experiment, _, variant = spec.partition(":")
-        valid = variants_of(experiment)
         if variant:
-            if not valid:
+            if not variants_of(experiment):
                 raise ValueError(f"experiment {experiment!r} has no variants, got {variant!r}")
-            check_choice(f"variant of {experiment}", variant, valid)
+            VARIANTS[experiment].check(variant)
+        check_choice("experiment", experiment, EXPERIMENTS)
         runs.extend(SweepRun(experiment, variant or None, seed) for seed in seeds)
     return list(dict.fromkeys(runs))
 

@@ -16,7 +16,7 @@ Run folder: ``episodes.h5`` (:class:`~wmthesis.data.EpisodeStore` of 5-bit 64x64
 :func:`~wmthesis.planet.figures.open_loop_figure` give the thesis's open-loop figures (Fig. 58, 59, 510, 511) and the
 prediction error per horizon.
 
-Variants (:data:`VARIANTS`) are the thesis's experiments as config changes.
+The thesis's experiments are config changes: :mod:`~wmthesis.planet.variants`.
 """
 from __future__ import annotations
 
@@ -43,8 +43,9 @@ from wmthesis.planet.cem import cem_belief
 from wmthesis.planet.explore import build_disagreement, disagreement_loss, explored_returns, one_step_batch
 from wmthesis.planet.networks import vision_networks
 from wmthesis.planet.rssm import RSSM, planet_loss
+from wmthesis.planet.variants import variant_changes
 from wmthesis.training import gradient_step, with_added_defaults
-from wmthesis.utils import check_choice, derive_seeds, device, seed_everything
+from wmthesis.utils import derive_seeds, device, seed_everything
 from wmthesis.runs import atomic_path
 
 FRAME_SIZE = 64
@@ -52,42 +53,12 @@ CHECKPOINT, CURVE, STORE = "checkpoint.pt", "curve.json", "episodes.h5"
 # Config fields that may change when a run resumes (a larger budget); any other must match.
 RESUMABLE_CHANGES = ("env_steps",)
 
-# Freeway's KL setting (5.6.5: the thesis gives no values; ours), shared by its variants.
-_FREEWAY = dict(kl_scale=8e-3, free_nats=3.0)
-
-# The thesis's experiments (section: config changes on top of the defaults).
-VARIANTS: dict[str, dict] = {
-    "unchanged": {},                                     # 5.5.1, 5.6.1: PlaNet as published
-    "action-repeat": dict(action_repeat=8),              # 5.6.2 (the thesis gives no value)
-    "decoder-variance": dict(decoder_variance=0.03),     # 5.6.3: = KL scale 3e-2 (rssm docstring)
-    "kl-scale": dict(kl_scale=0.03),                     # 5.6.3 as the KL scale itself
-    "free-nats": dict(kl_scale=0.03, free_nats=12.0,     # 5.6.4: Boxing's best, no overshooting
-                      overshooting_distance=0),
-    "freeway-tuned": dict(_FREEWAY),                     # 5.6.5
-    "long-horizon": dict(_FREEWAY, horizon=25),          # 5.6.6: no horizon in the thesis; ours
-    # Beyond the thesis: freeway-tuned with Adam's epsilon at 1e-8. Freeway's frames are a grey
-    # road with a few car pixels (frame std 0.015 against Boxing's 0.048), so the encoder's
-    # gradients sit at 1e-6 down to 1e-11, far under PlaNet's epsilon 1e-4: Adam's steps shrink
-    # by that ratio, the encoder never leaves its start, and the model sees no car (its
-    # embedding's spread over frames stays 2e-4 after 5,000 updates; issue 31's notes).
-    "freeway-adam": dict(_FREEWAY, adam_eps=1e-8),
-    # freeway-adam collecting with Plan2Explore's bonus (:mod:`~wmthesis.planet.explore`): its
-    # random seed episodes never cross, so its reward head learns that no reward comes; the bonus
-    # (about 1e-3 a step on data it has seen) leads the collecting planner where the ensemble
-    # parts, up the road. Scale 10: 12 steps of it weigh about 0.1, a tenth of a crossing.
-    "freeway-explore": dict(_FREEWAY, adam_eps=1e-8, explore_scale=10.0),
-}
-
-
 # ---------------------------------------------------------------------------- setup
 def with_variant(config: PlaNetConfig, variant: str | dict | None) -> PlaNetConfig:
-    """``config`` with a :data:`VARIANTS` entry (by name) or a dict of changes applied."""
+    """``config`` with a variant of :mod:`~wmthesis.planet.variants` (by name) or a dict of changes applied."""
     if variant is None:
         return config
-    if isinstance(variant, str):
-        check_choice("PlaNet variant", variant, VARIANTS)
-        variant = VARIANTS[variant]
-    return dataclasses.replace(config, **variant)
+    return dataclasses.replace(config, **(variant_changes(variant) if isinstance(variant, str) else variant))
 
 
 def make_planet_env(env_name: str, config: PlaNetConfig) -> gym.Env:
@@ -517,5 +488,5 @@ def same_training(cached: dict | None, run: dict) -> bool:
             and cached.get("curve") == json.loads(json.dumps(run["curve"])))  # as a metrics file holds it
 
 
-__all__ = ["same_training", "train_planet", "train_updates", "batch_loss", "PlanetMind", "play_greedy", "VARIANTS", "with_variant", "make_planet_env",
+__all__ = ["same_training", "train_planet", "train_updates", "batch_loss", "PlanetMind", "play_greedy", "with_variant", "make_planet_env",
            "planet_frame", "PlanetFrames", "build_model", "load_planet"]
