@@ -38,7 +38,9 @@ def test_validate_sokoban_refuses_an_unknown_lever_before_any_runs_and_reports_e
     row = {"solved": 92, "levels": 100, "solve_rate": 0.92, "nodes_per_level": 7229.4, "seconds_per_level": 6.04}
     monkeypatch.setattr(experiment, "validate", lambda *args: called.append(args) or {"rows": {"unfiltered": row}})
     assert main(["validate-sokoban", "baseline", "bigger-brain", "--profile", "smoke"]) == 2
-    assert "unknown lever 'bigger-brain'; valid: baseline," in capsys.readouterr().err and not called
+    err = capsys.readouterr().err
+    assert "unknown variant 'bigger-brain' of sokoban-search; valid: baseline," in err and not called
+    assert "docs/findings/sokoban-search.md" in err  # where a removed lever's numbers went
     assert main(["validate-sokoban", "baseline", "prior-afterwards", "--profile", "smoke", "--levels", "3"]) == 0
     assert called == [("baseline", "smoke", 0, 3), ("prior-afterwards", "smoke", 0, 3)]
     assert "baseline (seed 0): unfiltered 92/100 (92.0%), 7,229 nodes and 6.0 s a level" in capsys.readouterr().out
