@@ -121,7 +121,7 @@ def coding_rows(seed: int) -> list[dict]:
 def agent_rows(folder: str, profile: str, levels: int) -> list[dict]:
     from wmthesis.config import SokobanSearchConfig, for_profile
     from wmthesis.envs.boxoban import load_levels
-    from wmthesis.experiments.sokoban_search import BOXOBAN_SPLITS
+    from wmthesis.envs.boxoban import BOXOBAN_SPLITS
     from wmthesis.sokoban_search.evaluation import solve_boards
     from wmthesis.sokoban_search.iteration import evaluation_search, load_run
 

@@ -1,7 +1,7 @@
 """The command line: collect and view a store; bad input gives a message and exit status 2."""
 import pytest
 from wmthesis.__main__ import main
-from wmthesis.experiments.sokoban_search import boxoban_rows
+from wmthesis.sokoban_search.tables import boxoban_rows
 from wmthesis.data import EpisodeStore
 from wmthesis.viz import recording_rows
 
@@ -157,7 +157,8 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
 
     from wmthesis.experiments.planet_boxing_value import validate_agents
     from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import load_value, play_value, validation_seeds
+    from wmthesis.planet.value_rounds import load_value
+    from wmthesis.planet.value_play import play_value, validation_seeds
 
     agents = validate_agents("smoke", 0, None, ("round chosen on validation", "mean of the last 3"), 1, progress=False)
     assert agents["round chosen on validation"]["rounds"] == [value["best_round"]]
@@ -169,7 +170,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     env.close()
     assert agents["round chosen on validation"]["returns"] == [float(bout.sum())]
 
-    from wmthesis.experiments.summary import run_scores
+    from wmthesis.summary import run_scores
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "rounds-10"]) == 0  # same model
     ten = json.loads((tmp_path / "data/results/planet-boxing-value/smoke-seed0/rounds-10/metrics.json").read_text())
@@ -198,7 +199,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     # lean-value-rewards-0.7: lean's value from a copy (no round fitted again) under the planner chosen
     # on validation bouts; its CEM bout is that planner's with lean's own value
     from wmthesis.config import ValuePlannerConfig
-    from wmthesis.experiments.planet_value import value_planner_bout
+    from wmthesis.planet.value_bouts import value_planner_bout
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "lean-value-rewards-0.7"]) == 0
     rewarded = json.loads((results / "lean-value-rewards-0.7" / "metrics.json").read_text())
@@ -210,14 +211,14 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
                               *rewarded["bouts"][0])
     assert rewarded["value_planner"]["returns"][0] == bout["return"]
     # the planner's levers on the lean value's validation bouts, cached in its folder
-    from wmthesis.experiments import planet_value
+    from wmthesis.planet import value_bouts
     from wmthesis.experiments.planet_boxing_value import validate_planners
 
     levers = ("value seeds CEM", "the value's rewards")
     checked = validate_planners("smoke", 0, levers=levers, variant="lean", progress=False)
     assert checked["the value's rewards"]["config"]["rewards"] == "value" and checked[levers[0]]["config"]["rewards"] != "value"
     assert all(len(scores["returns"]) == 1 for scores in checked.values())
-    monkeypatch.setattr(planet_value, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
+    monkeypatch.setattr(value_bouts, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
     assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
     # a variant that changes the planner alone plays its levers on the value it shares with lean
     assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards-0.7", progress=False) == checked
@@ -228,7 +229,8 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     import sys
     from pathlib import Path
 
-    from wmthesis.experiments.planet_boxing_value import planner_lever_rows
+    from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
+    from wmthesis.planet.value_tables import planner_lever_rows
 
     tool = Path(__file__).resolve().parents[1] / "tools" / "validate_levers.py"
     spread = subprocess.run([sys.executable, str(tool), "--profile", "smoke", "--variant", "lean", "--seeds", "0",
@@ -236,7 +238,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
                             env=os.environ, capture_output=True, text=True, check=True).stdout
     played = validate_planners("smoke", 0, levers=(*levers, "H1: the value agent"), variant="lean", progress=False)
     assert played["H1: the value agent"]["config"]["horizon"] == 1
-    assert spread.split("seed 0\n")[1].splitlines() == [" | ".join(row) for row in planner_lever_rows(played)]
+    assert spread.split("seed 0\n")[1].splitlines() == [" | ".join(row) for row in planner_lever_rows(played, PLANNER_LEVERS)]
     # where the lean value changes the plan: from one belief per step, cached for its rounds
     from wmthesis.experiments.planet_boxing_value import value_plan_choices
 

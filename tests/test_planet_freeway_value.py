@@ -12,8 +12,8 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_episodes(tmp_path, monkeypatch):
     from wmthesis.experiments import reproduce
     from wmthesis.experiments.planet_freeway_value import EPISODES, FREEWAY_VALUE
-    from wmthesis.experiments.summary import run_scores
-    from wmthesis.planet.value import evaluation_seeds
+    from wmthesis.summary import run_scores
+    from wmthesis.planet.value_play import evaluation_seeds
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     metrics = reproduce("planet-freeway-value", "smoke", 0, progress=False)
@@ -72,7 +72,7 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
 
     from wmthesis.experiments import reproduce
     from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS
-    from wmthesis.experiments.summary import run_scores
+    from wmthesis.summary import run_scores
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     with pytest.raises(ValueError, match="valid: default, td, horizon-12, freeway-adam, adam-td"):
@@ -115,7 +115,7 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
 def test_open_loop_check_scores_the_frozen_model_on_moving_pixels_against_both_baselines(tmp_path, monkeypatch):
     import json
 
-    from wmthesis.experiments.planet_boxing import STUDY
+    from wmthesis.planet.study import STUDY
     from wmthesis.experiments.planet_freeway_value import open_loop_check
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
@@ -187,7 +187,7 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     assert longer["baselines"] == adam["baselines"]
     # the planner levers on validation episodes, played once, in the folder of the run that fitted the value
     from wmthesis.experiments.planet_freeway_value import validate_planners
-    from wmthesis.planet.value import validation_seeds
+    from wmthesis.planet.value_play import validation_seeds
 
     with pytest.raises(ValueError, match="unknown Freeway planner lever 'H99'; valid: H3, H12"):
         validate_planners("smoke", 0, "freeway-adam", levers=("H99",), progress=False)
@@ -203,7 +203,7 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
 
 def test_levers_and_their_validation_bouts_are_checked_before_anything_plays(tmp_path, monkeypatch):
     from wmthesis.experiments.planet_freeway_value import validate_planners
-    from wmthesis.experiments.planet_value import checked_levers
+    from wmthesis.planet.value_runs import checked_levers
 
     choices = {"a": {}, "b": {}}
     assert checked_levers("lever", None, choices, None, 5) == (("a", "b"), 5)
@@ -217,10 +217,10 @@ def test_levers_and_their_validation_bouts_are_checked_before_anything_plays(tmp
 
 
 def test_lookahead_ceiling_plays_each_horizon_once_on_the_evaluation_episodes(tmp_path, monkeypatch):
-    from wmthesis.experiments.planet_boxing import play_bout
+    from wmthesis.planet.bouts import play_bout
     from wmthesis.experiments.planet_freeway_value import GAME, LOOKAHEAD_EPISODES, UP, lookahead_ceiling
     from wmthesis.planet.profiles import planet_config
-    from wmthesis.planet.value import evaluation_seeds
+    from wmthesis.planet.value_play import evaluation_seeds
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     with pytest.raises(ValueError, match=r"lookahead horizons must be positive integers, got \(3, 0\)"):
@@ -238,10 +238,10 @@ def test_lookahead_ceiling_plays_each_horizon_once_on_the_evaluation_episodes(tm
 def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_own_episode(tmp_path, monkeypatch):
     from wmthesis.envs.freeway import play_lookahead
     from wmthesis.experiments.planet_freeway_value import GAME, UP, when_to_wait
-    from wmthesis.experiments.planet_value import PLAN_STEPS
+    from wmthesis.planet.value_runs import PLAN_STEPS
     from wmthesis.planet.profiles import planet_config
     from wmthesis.planet.train import make_planet_env
-    from wmthesis.planet.value import evaluation_seeds
+    from wmthesis.planet.value_play import evaluation_seeds
     from wmthesis.planet.value_planner import PLANNERS
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))

@@ -11,10 +11,9 @@ import torch
 from wmthesis.config import LatentValueConfig, for_profile
 from wmthesis.data import EpisodeStore, play_random_episode
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.value import (LatentValue, ValueMind, after_action, best_round, episode_features,
-                                   best_values, evaluation_seeds, fit_value, load_value, play_value, reward_sums,
-                                   bout_pool, play_values, round_ensemble, round_values, td_targets, train_value,
-                                   validation_seeds)
+from wmthesis.planet.value import LatentValue, ValueMind, after_action, episode_features, best_values, fit_value, reward_sums, round_ensemble, td_targets
+from wmthesis.planet.value_rounds import best_round, load_value, round_values, train_value
+from wmthesis.planet.value_play import evaluation_seeds, play_value, bout_pool, play_values, validation_seeds
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
@@ -222,7 +221,7 @@ def test_a_td_value_looks_past_its_rewards_where_the_sum_of_three_cannot(tmp_pat
 
 
 def test_a_variant_that_adds_rounds_starts_from_a_copy_and_matches_a_run_from_scratch(tmp_path):
-    from wmthesis.experiments.planet_value import start_from
+    from wmthesis.planet.value_runs import start_from
 
     model, env = frozen_rssm(), DelayedPunch()
     config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=2, batch_size=8, lr=0.03, rounds=1,
@@ -242,7 +241,7 @@ def test_a_variant_that_adds_rounds_starts_from_a_copy_and_matches_a_run_from_sc
 
 
 def test_the_discounted_sum_target_discounts_each_reward_and_the_plain_sum_does_not(tmp_path):
-    from wmthesis.planet.value import _dataset
+    from wmthesis.planet.value_rounds import _dataset
 
     model, env = frozen_rssm(), DelayedPunch()
     with EpisodeStore(tmp_path / "episodes.h5", "a", preprocessing="planet", seed=0,
@@ -323,7 +322,7 @@ def test_a_round_ensemble_is_the_mean_of_the_rounds_values():
 
 
 def test_the_agent_can_be_the_mean_of_the_last_rounds_values_played_once(tmp_path, monkeypatch):
-    import wmthesis.planet.value as value_module
+    import wmthesis.planet.value_rounds as value_module
 
     model, env = frozen_rssm(), DelayedPunch()
     config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=3, batch_size=8, lr=0.03, rounds=3,
@@ -374,15 +373,15 @@ def test_bouts_in_a_pool_of_processes_are_the_bouts_played_here_stored_in_order(
 
 
 def test_a_lean_run_fits_the_same_rounds_without_their_bouts_and_scores_only_its_agent(tmp_path, monkeypatch):
-    import wmthesis.planet.value as value_module
+    import wmthesis.planet.value_rounds as value_module
 
     model, env = frozen_rssm(), DelayedPunch()
     config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=3, batch_size=8, lr=0.03, rounds=3,
                                bouts_per_round=2, validation_bouts=2, test_bouts=2, agent_rounds=2)
     scored = train_value(model, 5, env, config, tmp_path / "scored", seed=0, progress=False)
     played = []
-    greedy = value_module._greedy_returns
-    monkeypatch.setattr(value_module, "_greedy_returns", lambda *a, **k: played.append(len(a[4])) or greedy(*a, **k))
+    greedy = value_module.greedy_returns
+    monkeypatch.setattr(value_module, "greedy_returns", lambda *a, **k: played.append(len(a[4])) or greedy(*a, **k))
     lean = train_value(model, 5, env, dataclasses.replace(config, score_rounds=False), tmp_path / "lean", seed=0,
                        progress=False, make_env=(DelayedPunch,))
     assert played == [2]  # the agent's test bouts only: no validation, no bouts after each round

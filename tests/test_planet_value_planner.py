@@ -95,7 +95,7 @@ def test_plan_choices_follow_one_belief_and_one_step_with_the_value_is_the_value
 
 
 def test_the_planners_over_seeds_each_seed_then_the_mean_and_its_t_interval():
-    from wmthesis.experiments.planet_boxing_value import planner_rows
+    from wmthesis.planet.value_tables import planner_rows
 
     def metrics(x):
         return {"random": {"mean": 0.0}, "planet": {"mean": x - 5}, "value": {"mean": x + 1},
@@ -204,7 +204,7 @@ def test_a_planner_cache_from_before_a_field_was_added_reads_as_what_it_did(tmp_
     import json
 
     from wmthesis.config import ValuePlannerConfig
-    from wmthesis.experiments.planet_value import cached_plan
+    from wmthesis.planet.value_bouts import cached_plan
 
     path = tmp_path / "value_planner.json"
     path.write_text(json.dumps({"key": {"round": 2, "planner": {"horizon": 3, "discount": 1.0}}, "scores": {"x": 1}}))
@@ -222,7 +222,7 @@ def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_re
     import json
 
     from wmthesis.config import ValuePlannerConfig
-    from wmthesis.experiments.planet_value import played_bouts
+    from wmthesis.runs import played_bouts
 
     path = tmp_path / "scores-bouts.json"
     key = {"round": 1, "planner": dataclasses.asdict(ValuePlannerConfig())}
@@ -265,14 +265,16 @@ def test_groups_of_bouts_play_in_one_pool_each_saved_in_its_own_file(tmp_path):
 
 def test_the_planner_levers_table_is_paired_against_the_first_lever():
     from wmthesis.config import ValuePlannerConfig
-    from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS, planner_lever_rows
+    from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
+    from wmthesis.planet.value_tables import planner_lever_rows
     from wmthesis.metrics import score_summary
 
     def scores(returns, first):
         return {"returns": returns, "full": score_summary(returns), "first": score_summary(first)}
 
     rows = planner_lever_rows({"value seeds CEM": scores([2.0, 4.0, 0.0], [1.0, 1.0, 1.0]),
-                               "the value's rewards, discount 0.7": scores([5.0, 5.0, 5.0], [2.0, 3.0, 4.0])})
+                               "the value's rewards, discount 0.7": scores([5.0, 5.0, 5.0], [2.0, 3.0, 4.0])},
+                              PLANNER_LEVERS)
     assert rows[0] == ["value seeds CEM", "(the default)", "2.0 ± 1.6", "1.0", "+0.0 ± 0.0"]
     # differences 3, 1, 5: mean 3, standard error 2 / sqrt(3)
     assert rows[1] == ["the value's rewards, discount 0.7", "rewards=value, discount=0.7", "5.0 ± 0.0", "3.0", "+3.0 ± 1.2"]
@@ -282,7 +284,7 @@ def test_the_planner_levers_table_is_paired_against_the_first_lever():
 
 
 def test_the_agent_rules_table_names_each_rules_rounds_and_pairs_them():
-    from wmthesis.experiments.planet_boxing_value import agent_rows
+    from wmthesis.planet.value_tables import agent_rows
     from wmthesis.metrics import score_summary
 
     def scores(rounds, returns):

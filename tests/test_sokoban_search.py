@@ -13,8 +13,8 @@ import torch
 from wmthesis.config import SokobanSearchConfig, for_profile
 from wmthesis.envs.levels import LevelError, board_to_text, fit_board, parse_level, parse_levels, read_levels
 from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, WALL, SokobanEnv, solve
-from wmthesis.experiments.sokoban_search import target_rows
-from wmthesis.sokoban_search import accuracy
+from wmthesis.sokoban_search import accuracy, report
+from wmthesis.sokoban_search.tables import target_rows
 from wmthesis.sokoban_search.agent import SearchAgent, grid_env, grid_state, level_seeds, random_play
 from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
 from wmthesis.sokoban_search.experience import Experience
@@ -682,9 +682,9 @@ def test_a_curriculum_trains_on_boxoban_train_levels_and_never_on_the_valid_file
     assert [h["variant"] for h in run.history] == ["random play", "boxoban-unfiltered-train:001"]
     assert run.history[1]["levels"] == cfg.levels_per_round
     assert all(h["wall_seconds"] > 0 for h in run.history)  # each stage timed, random play and the round
-    from wmthesis.experiments.sokoban_search import _training_seconds
-    assert _training_seconds(run.history) == sum(h["wall_seconds"] for h in run.history)
-    assert _training_seconds([{"round": 0}, *run.history[1:]]) is None  # a stage saved before stages were timed
+    from wmthesis.experiments.sokoban_search import training_seconds
+    assert training_seconds(run.history) == sum(h["wall_seconds"] for h in run.history)
+    assert training_seconds([{"round": 0}, *run.history[1:]]) is None  # a stage saved before stages were timed
 
 
 def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own(tmp_path, monkeypatch):
@@ -699,7 +699,9 @@ def test_the_rounds_search_with_their_own_budget_and_the_evaluation_with_its_own
 
 
 def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, monkeypatch):
-    from wmthesis.experiments.sokoban_search import BOXOBAN_SPLITS, lever_rows, validate
+    from wmthesis.envs.boxoban import BOXOBAN_SPLITS
+    from wmthesis.experiments.sokoban_search import validate
+    from wmthesis.sokoban_search.tables import lever_rows
 
     with pytest.raises(ValueError, match="valid: baseline, no-backups, generated"):
         validate("bigger-brain", "smoke")
@@ -717,11 +719,12 @@ def test_a_lever_is_measured_on_the_validation_files_only_and_tabled(tmp_path, m
 def test_validation_and_report_figures_over_seeds_give_each_seed_then_the_mean_std_and_t_interval(tmp_path, monkeypatch):
     import dataclasses
 
-    from wmthesis.experiments.sokoban_search import _search_record, lever_seed_rows, report_seed_rows
+    from wmthesis.sokoban_search.report import search_record
+    from wmthesis.sokoban_search.tables import lever_seed_rows, report_seed_rows
     from wmthesis.sokoban_search.iteration import evaluation_search
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    search = _search_record(evaluation_search(for_profile(SokobanSearchConfig, "quick", inputs="pixels")))  # quick's today
+    search = search_record(evaluation_search(for_profile(SokobanSearchConfig, "quick", inputs="pixels")))  # quick's today
     for seed, (unfiltered, medium) in {2: (0.98, 0.90), 0: (1.0, 0.94), 1: (0.99, 0.80)}.items():
         folder = tmp_path / "results" / "sokoban-search" / f"quick-seed{seed}"
         folder.mkdir(parents=True)
@@ -734,7 +737,7 @@ def test_validation_and_report_figures_over_seeds_give_each_seed_then_the_mean_s
             (folder / "boxoban-report-1000.json").write_text(json.dumps(
                 {"levels": 1000, "seed": seed, "rows": rows, "env_steps": 420_000, "search": search}))
         else:  # and one searched with another budget, which is not today's agent
-            other = _search_record(dataclasses.replace(for_profile(SokobanSearchConfig, "quick"), budget=1))
+            other = search_record(dataclasses.replace(for_profile(SokobanSearchConfig, "quick"), budget=1))
             (folder / "boxoban-report-1000.json").write_text(json.dumps(
                 {"levels": 1000, "seed": seed, "rows": rows, "env_steps": 420_000, "search": other}))
     (tmp_path / "results" / "sokoban-search" / "smoke-seed0").mkdir()  # another profile: not read
@@ -798,13 +801,13 @@ def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smalle
 
 
 def test_the_evaluations_time_is_the_first_complete_one_of_its_search_and_unknown_after_another_search():
-    from wmthesis.experiments.sokoban_search import _evaluation_seconds
+    from wmthesis.experiments.sokoban_search import evaluation_seconds
 
     search, other = {"budget": 40_000}, {"budget": 20_000}
-    assert _evaluation_seconds(None, search, 12.0) == 12.0  # the first: timed now
-    assert _evaluation_seconds({"search": search, "evaluation_wall_seconds": 900.0}, search, 12.0) == 900.0
-    assert _evaluation_seconds({"search": other, "evaluation_wall_seconds": 900.0}, search, 12.0) is None
-    assert _evaluation_seconds({"evaluation_wall_seconds": 900.0}, search, 12.0) is None  # written before records
+    assert evaluation_seconds(None, search, 12.0) == 12.0  # the first: timed now
+    assert evaluation_seconds({"search": search, "evaluation_wall_seconds": 900.0}, search, 12.0) == 900.0
+    assert evaluation_seconds({"search": other, "evaluation_wall_seconds": 900.0}, search, 12.0) is None
+    assert evaluation_seconds({"evaluation_wall_seconds": 900.0}, search, 12.0) is None  # written before records
 
 
 def test_an_evaluation_saved_by_another_search_is_computed_again_and_one_by_the_same_is_kept(tmp_path):
@@ -875,28 +878,28 @@ def test_a_search_only_lever_searches_the_baselines_run_without_training_another
     assert all(torch.equal(a, b) for a, b in zip(policy.state_dict().values(), refitted.state_dict().values()))
     assert not list(pixels.glob("*.partial.json"))  # each part's levels, saved one by one, now in its file
     # a part cut off after its first level plays only the others
-    record = experiment._search_record(cfg)
+    record = report.search_record(cfg)
     partial = tmp_path / "cut.partial.json"
     partial.write_text(json.dumps({"plays": [{"level": 0, "solved": True, "expanded": -1}], "search": record}))
     source = experiment.BOXOBAN_SPLITS["validation"]["unfiltered"]
-    plays = experiment._evaluate_boxoban(pixels, cfg, source, 4, 0, False, None, partial)["plays"]
+    plays = report.evaluate_boxoban(pixels, cfg, source, 4, 0, False, None, partial)["plays"]
     assert [p["level"] for p in plays] == [0, 2] and plays[0]["expanded"] == -1 and plays[1]["expanded"] >= 0
     assert [p["level"] for p in json.loads(partial.read_text())["plays"]] == [0, 2]
     # a part saved by another search is played again: with the evaluation's budget of one node, nothing is solved
     bigger = dataclasses.replace(cfg, eval_budget=1)
     assert experiment.load_run(pixels, bigger) is not None  # the evaluation's fields do not tell trained runs apart
     partial.write_text(json.dumps({"plays": [{"level": 0, "solved": True, "expanded": cfg.budget}], "search": record}))
-    again = experiment._evaluate_boxoban(pixels, bigger, source, 4, 0, False, None, partial)
+    again = report.evaluate_boxoban(pixels, bigger, source, 4, 0, False, None, partial)
     assert again["search"]["budget"] == 1 and not any(p["solved"] for p in again["plays"])
     assert all(p["expanded"] <= len(cfg.weights) * (1 + cfg.replans) for p in again["plays"])
     # so does a job on our generator's levels, and a level played again is played the same
     cut = tmp_path / "cut-generated.partial.json"
     cut.write_text(json.dumps({"plays": [{"seed": 5, "solved": True, "expanded": -1}], "search": record}))
-    plays = experiment._evaluate(pixels, cfg, "sokoban-small", [5, 6, 7], False, cut)["plays"]
+    plays = report.evaluate_levels(pixels, cfg, "sokoban-small", [5, 6, 7], False, cut)["plays"]
     assert [p["seed"] for p in plays] == [5, 6, 7] and plays[0]["expanded"] == -1 and plays[1]["expanded"] >= 0
     assert [p["seed"] for p in json.loads(cut.read_text())["plays"]] == [5, 6, 7]
     timeless = lambda plays: [{k: v for k, v in p.items() if k != "seconds"} for p in plays]  # noqa: E731
-    assert timeless(experiment._evaluate(pixels, cfg, "sokoban-small", [7, 6], False)["plays"]) == timeless(plays[:0:-1])
+    assert timeless(report.evaluate_levels(pixels, cfg, "sokoban-small", [7, 6], False)["plays"]) == timeless(plays[:0:-1])
     assert run.agent(dataclasses.replace(cfg, prior_weight=1.0)).prior is None  # the run itself has none...
     run.policy = policy
     assert run.agent(dataclasses.replace(cfg, prior_weight=1.0)).prior is not None  # ...the fitted one is used
@@ -984,7 +987,7 @@ def test_the_target_table_says_by_how_much_a_target_is_missed():
 
 
 def test_the_boxoban_target_table_says_by_how_much_each_of_issue_30s_targets_is_missed():
-    from wmthesis.experiments.sokoban_search import boxoban_target_rows
+    from wmthesis.sokoban_search.tables import boxoban_target_rows
 
     agent = "agent, learned model (pixels)"
     tables = {"unfiltered": {agent: {"levels": 500, "solve_rate": 0.986, "seconds_per_level": 1.5}},

@@ -14,8 +14,8 @@ import pytest
 from wmthesis.__main__ import main
 from wmthesis.experiments import reproduce
 from wmthesis.runs import first_run_seconds
-from wmthesis.experiments.summary import aggregate, read_runs, write_summary
-from wmthesis.experiments.sweep import SweepRun, finished, parse_runs, parse_seeds, start_ray, sweep
+from wmthesis.summary import aggregate, read_runs, write_summary
+from wmthesis.sweep import SweepRun, finished, parse_runs, parse_seeds, start_ray, sweep
 
 
 # ---------------------------------------------------------------------------- without Ray
@@ -59,7 +59,7 @@ def test_bad_sweeps_stop_with_one_line_before_anything_starts(argv, message, cap
 def test_a_local_ray_that_misses_its_startup_deadline_is_tried_again_then_refused_in_one_line(tmp_path, monkeypatch, capsys):
     import ray
 
-    from wmthesis.experiments.sweep import RayStartFailed, start_ray
+    from wmthesis.sweep import RayStartFailed, start_ray
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     calls, shutdowns = [], []
@@ -79,7 +79,7 @@ def test_a_local_ray_that_misses_its_startup_deadline_is_tried_again_then_refuse
     with pytest.raises(RayStartFailed, match="did not start in 2 attempts"):
         start_ray(None, attempts=2, wait_s=0)
     assert len(calls) == 2
-    monkeypatch.setattr("wmthesis.experiments.sweep.start_ray",
+    monkeypatch.setattr("wmthesis.sweep.start_ray",
                         lambda *a, **k: (_ for _ in ()).throw(RayStartFailed("a local Ray did not start")))
     assert main(["sweep", "boxing-wm", "--seeds", "0", "--profile", "smoke"]) == 1
     assert capsys.readouterr().err.strip().splitlines()[-1] == "error: a local Ray did not start"

@@ -19,8 +19,8 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from wmthesis.experiments.planet_boxing_value import (PLANNER_LEVERS, planner_lever_rows, results_folder,
-                                                       validate_planners)
+from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS, results_folder, validate_planners
+from wmthesis.planet.value_tables import planner_lever_rows
 from wmthesis.utils import process_pool
 
 
@@ -48,7 +48,7 @@ def main() -> None:
         results = {seed: future.result() for seed, future in futures.items()}  # a seed's error raised here
     for seed in args.seeds:
         print(f"\nseed {seed}")
-        for row in planner_lever_rows(results[seed]):
+        for row in planner_lever_rows(results[seed], PLANNER_LEVERS):
             print(" | ".join(row))
 
 

@@ -37,10 +37,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from wmthesis.config import PROFILES, CollectConfig, for_profile
+from wmthesis.config import CollectConfig, PROFILES, for_profile
 from wmthesis.envs import ATARI_GAMES, ENV_NAMES
-from wmthesis.utils import data_dir
 from wmthesis.runs import FolderHeld
+from wmthesis.utils import data_dir
 
 
 def at_least(minimum: int):
@@ -209,8 +209,8 @@ def cmd_sweep(args) -> int:
 
     matplotlib.use("Agg")
     from wmthesis.config import profile_name
-    from wmthesis.experiments.summary import markdown_table, write_summary
-    from wmthesis.experiments.sweep import RayStartFailed, check_address, parse_runs, parse_seeds, sweep
+    from wmthesis.summary import markdown_table, write_summary
+    from wmthesis.sweep import RayStartFailed, check_address, parse_runs, parse_seeds, sweep
 
     runs = parse_runs(args.runs, parse_seeds(args.seeds))
     if args.address is not None:
@@ -240,7 +240,7 @@ def cmd_summary(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from wmthesis.experiments.summary import markdown_table, write_summary
+    from wmthesis.summary import markdown_table, write_summary
 
     folder = Path(args.results) if args.results else None
     if folder is not None and not folder.is_dir():

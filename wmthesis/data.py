@@ -52,8 +52,8 @@ import torch
 from tqdm import tqdm
 
 from wmthesis.core import Callback, RandomMind, loop
-from wmthesis.utils import check_choice, derive_seeds
 from wmthesis.runs import atomic_path
+from wmthesis.utils import check_choice, derive_seeds
 
 FORMAT = "wmthesis-episodes"
 FORMAT_VERSION = 1

@@ -3,11 +3,8 @@ timing, weight fingerprints, pickles read back, pools of processes (files and ru
 :mod:`wmthesis.runs`)."""
 from __future__ import annotations
 
-import atexit
 import concurrent.futures
-import functools
 import hashlib
-import json
 import multiprocessing
 import os
 import pickle
@@ -15,7 +12,6 @@ import random
 import sys
 import time
 from contextlib import contextmanager, nullcontext
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np

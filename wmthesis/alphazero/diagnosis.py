@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from wmthesis.alphazero.heads import value_targets
-from wmthesis.alphazero.latent_mdp import LatentMDP, split_episodes, stack_rows, rollout_episodes
+from wmthesis.alphazero.latent_mdp import LatentMDP, rollout_episodes, split_episodes, stack_rows
 from wmthesis.alphazero.replay import Game
 from wmthesis.metrics import correlation
 from wmthesis.training import gradient_step

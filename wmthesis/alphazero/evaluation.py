@@ -1,13 +1,29 @@
 """Evaluation games shared by every agent compared on Boxing (thesis 5.4.2): the same seeded
-no-op starts for each, greedy play, returns."""
+no-op starts for each, greedy play, returns; the trained heads with and without search, random
+play and the World Models controller on them, each cached; the scores as a figure."""
 from __future__ import annotations
 
+import json
+import pickle
+from pathlib import Path
 from typing import Callable
 
+import matplotlib.pyplot as plt
+
+from wmthesis.alphazero.heads import Evaluator
+from wmthesis.alphazero.imitation import PolicyHeadMind
 from wmthesis.alphazero.replay import game_seeds
-from wmthesis.core import Mind, loop
-from wmthesis.envs.atari import noop_count
-from wmthesis.utils import derive_seeds
+from wmthesis.alphazero.selfplay import AlphaZeroMind, play
+from wmthesis.config import MemoryConfig, for_profile
+from wmthesis.core import Mind, RandomMind, loop
+from wmthesis.envs.atari import boxing_env, noop_count
+from wmthesis.references import human, random_play
+from wmthesis.runs import atomic_path, read_json
+from wmthesis.training import load_weights
+from wmthesis.utils import derive_seeds, fingerprint, read_pickle
+from wmthesis.world_models.controller import ControllerMind
+from wmthesis.world_models.evolution import load_run
+from wmthesis.world_models.train import make_memory
 
 
 def evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]:
@@ -39,3 +55,116 @@ def greedy_returns(env, make_mind: Callable[[int], Mind], seeds, *, max_steps: i
                        max_steps=max_steps, seed=env_seed, train_mode=False)
         returns.append(float(history[0]["return"]))
     return returns
+
+
+RECORDING_STEPS = 400  # the rerun recording shows the first steps of one evaluation game
+
+
+def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False) -> list:
+    """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
+    cached in ``evaluation.pkl`` for the run's number of games. ``pretrained``: the heads
+    after imitation, before self-play (``evaluation-pretrained.pkl``)."""
+    path = work / ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl")
+    key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
+    try:  # a missing or corrupt cache is played again
+        cached = read_pickle(path)
+        if cached["key"] == key:
+            return cached["games"]
+    except (OSError, ValueError):
+        pass
+    heads = run.pretrained_heads() if pretrained else run.heads
+    mind = AlphaZeroMind(vision, run.mdp(memory), Evaluator(heads), cfg)
+    env = boxing_env(cfg.noop_max)
+    games = []
+    try:
+        for k, game_seed in enumerate(key["seeds"]):
+            mind.keep_frames = k == 0
+            game = play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
+            if game.frames is not None:
+                game.frames = game.frames[:RECORDING_STEPS]
+            games.append(game)
+    finally:
+        env.close()
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        pickle.dump({"key": key, "games": games}, f)
+    return games
+
+
+def policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list[float]:
+    """The evaluation games' returns of the trained policy head played greedily without search
+    (how much the search adds to what the heads learned); cached in ``policy_head.json``."""
+    key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
+    cached = read_json(work / "policy_head.json")
+    if cached is not None and cached["key"] == key:
+        return cached["returns"]
+    mind, env = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max)
+    try:
+        returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=cfg.eval_max_steps)
+    finally:
+        env.close()
+    with atomic_path(work / "policy_head.json") as tmp:
+        tmp.write_text(json.dumps({"key": key, "returns": returns}, indent=1))
+    return returns
+
+
+def controller_minds(profile: str, wm: Path, vision) -> tuple:
+    """``(agent_seed -> ControllerMind, name)`` for the boxing-wm controller under `wm`, or
+    ``(None, why not)`` when it is missing or was trained on another memory."""
+    controller_path, memory_path = wm / "controller" / "controller.pkl", wm / "memory-mdn.best.pt"
+    if not (controller_path.is_file() and memory_path.is_file()):
+        return None, (f"no boxing-wm controller under {wm} (run notebook 02 / `reproduce boxing-wm` first): "
+                      "the comparison with it is skipped")
+    run = load_run(controller_path)
+    mdn = load_weights(memory_path, make_memory(16, 18, for_profile(MemoryConfig, profile))).eval()
+    if fingerprint(mdn) != run.task["memory"]:
+        return None, f"the controller in {controller_path.parent} was trained on another memory: skipped"
+    controller = run.controller("mean")
+    return (lambda agent_seed: ControllerMind(vision, mdn, controller)), \
+        f"World Models controller (notebook 02, generation {run.generation})"
+
+
+def boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int) -> dict:
+    """Random play and the boxing-wm controller (when its run exists) on the evaluation games;
+    cached in ``baselines.json``. Returns ``returns`` by agent and ``notes``."""
+    controller_path = wm / "controller" / "controller.pkl"
+    key = {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
+           "controller_mtime": controller_path.stat().st_mtime_ns if controller_path.is_file() else None}
+    cached = read_json(work / "baselines.json")
+    if cached is not None and cached["key"] == key:
+        return cached
+    minds, notes = {"random": lambda agent_seed: RandomMind(18, agent_seed)}, []
+    make_controller, name = controller_minds(profile, wm, vision)
+    if make_controller is None:
+        notes.append(name)
+    else:
+        minds[name] = make_controller
+    returns = {}
+    env = boxing_env(cfg.noop_max)
+    try:
+        for name, make_mind in minds.items():
+            returns[name] = greedy_returns(env, make_mind, key["seeds"], max_steps=cfg.eval_max_steps,
+                                           as_callback=name != "random")
+    finally:
+        env.close()
+    result = {"key": key, "returns": returns, "notes": notes}
+    with atomic_path(work / "baselines.json") as tmp:
+        tmp.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def score_figure(scores: dict):
+    """Evaluation scores (mean +- std) of every agent, beside random and human play (published)."""
+    fig, ax = plt.subplots(figsize=(6, 0.5 + 0.45 * len(scores)))
+    names = list(scores)
+    ax.barh(names, [scores[n]["mean"] for n in names], xerr=[scores[n]["std"] for n in names], capsize=3,
+            color=[f"C{i}" for i in range(len(names))])
+    for value, style, label in ((random_play("boxing"), "--", "random (published)"), (human("boxing"), ":", "human (published)")):
+        ax.axvline(value, color="0.4", ls=style, lw=1, label=label)
+    ax.invert_yaxis()
+    ax.set_xlabel("Boxing score (mean ± std)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

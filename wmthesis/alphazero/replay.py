@@ -20,9 +20,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from wmthesis.utils import derive_seeds
-
 from wmthesis.runs import atomic_path
+from wmthesis.utils import derive_seeds
 
 REPLAY_NAME = "replay.h5"
 FORMAT = "wmthesis-replay"

@@ -56,17 +56,17 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from wmthesis.alphazero.heads import (VALUE_TARGETS, AlphaZeroHeads, Evaluator, make_optimiser, train_round)
+from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator, VALUE_TARGETS, make_optimiser, train_round
 from wmthesis.alphazero.imitation import agreement, expert_games
-from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, State, stack_rows, reward_fit, reward_rows,
-                                           rollout_rows, train_reward_model)
+from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, State, reward_fit, reward_rows, rollout_rows,
+                                           stack_rows, train_reward_model)
 from wmthesis.alphazero.mcts import MCTS
-from wmthesis.alphazero.replay import REPLAY_NAME, Game, Replay, game_seeds
+from wmthesis.alphazero.replay import Game, REPLAY_NAME, Replay, game_seeds
 from wmthesis.config import AlphaZeroConfig
 from wmthesis.core import Callback, Mind, Proportional, loop
+from wmthesis.runs import atomic_path
 from wmthesis.training import check_resumable
 from wmthesis.utils import check_choice, derive_seeds, fingerprint, read_pickle
-from wmthesis.runs import atomic_path
 from wmthesis.variants import Variant, Variants
 
 IMPROVED = dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False)

@@ -36,6 +36,14 @@ from wmthesis.envs.levels import LevelError, check_board, parse_level, parse_lev
 SETS = {"unfiltered-train": 20, "unfiltered-valid": 10, "medium-train": 20, "medium-valid": 10}
 HELD_OUT = ("unfiltered-test", "hard")  # kept for an external check: never read here
 LEVELS_PER_FILE = 1000
+# Which files serve which purpose (issue 30). Development decisions
+# are measured on the validation files only; the reported figures come from the report files,
+# which no decision looked at; training uses our generator (the Boxoban train files are free to
+# use). The upstream unfiltered test and hard sets are not in the package.
+BOXOBAN_SPLITS = {
+    "validation": {"unfiltered": "boxoban-unfiltered-valid:000-001", "medium": "boxoban-medium-valid:000-001"},
+    "report": {"unfiltered": "boxoban-unfiltered-valid:005-009", "medium": "boxoban-medium-valid:005-009"},
+}
 
 
 def level_folder() -> Path:
@@ -112,4 +120,4 @@ def load_levels(source) -> list[np.ndarray]:
     return boards
 
 
-__all__ = ["load_levels", "SETS", "HELD_OUT", "LEVELS_PER_FILE", "level_folder", "parse_source", "boxoban_file", "boxoban_levels"]
+__all__ = ["BOXOBAN_SPLITS", "load_levels", "SETS", "HELD_OUT", "LEVELS_PER_FILE", "level_folder", "parse_source", "boxoban_file", "boxoban_levels"]

@@ -5,7 +5,7 @@ One module per experiment: :mod:`~wmthesis.experiments.sokoban_world_models` (5.
 (5.4.2), :mod:`~wmthesis.experiments.planet` (5.5, 5.6), :mod:`~wmthesis.experiments.planet_boxing`
 (5.6.1-5.6.4 measured: the model study and the agent), :mod:`~wmthesis.experiments.planet_boxing_value`
 (beyond the thesis: a learned value on that model, alone and at the end of CEM's horizon; the
-same recipe, :mod:`~wmthesis.experiments.planet_value`, on Freeway in
+same recipe, :mod:`~wmthesis.planet.value_runs`, on Freeway in
 :mod:`~wmthesis.experiments.planet_freeway_value`) and
 :mod:`~wmthesis.experiments.sokoban_search` (beyond the thesis: Sokoban solved by search in a
 learned model); :mod:`~wmthesis.experiments.results`
@@ -22,17 +22,18 @@ import os
 
 from wmthesis.alphazero.selfplay import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.config import profile_name
-from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS,
-                                            boxing_wm_alphazero)
-from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, 
-                                         planet_experiment, planet_variants)
+from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS, boxing_wm_alphazero,
+                                            prerequisites as alphazero_prerequisites)
+from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,
+                                         planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
 from wmthesis.experiments.planet_boxing_value import VALUE_VARIANTS as BOXING_VALUE_VARIANTS, planet_boxing_value
-from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value
+from wmthesis.experiments.planet_freeway_value import (VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value,
+                                                       prerequisites as freeway_value_prerequisites)
 from wmthesis.experiments.sokoban_search import sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
-                                                       SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS,
-                                                       sokoban_wm_configs, sokoban_world_models)
+                                                       SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
+                                                       sokoban_world_models)
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
@@ -46,9 +47,21 @@ VARIANTS = {**PLANET_REGISTRIES, "boxing-wm-alphazero": ALPHAZERO_VARIANTS, "pla
             "planet-freeway-value": FREEWAY_VALUE_VARIANTS}
 
 
+# Experiment -> the runs (experiment, variant) a variant of it builds on, for the same profile and seed.
+PREREQUISITES = {"boxing-wm-alphazero": alphazero_prerequisites,
+                 "planet-boxing-value": lambda variant: [("planet-boxing-agent", None)],
+                 "planet-freeway-value": freeway_value_prerequisites}
+
+
+def prerequisites(name: str, variant: str | None = None) -> list[tuple[str, str | None]]:
+    """The runs ``(experiment, variant)`` that experiment ``name``'s ``variant`` builds on."""
+    return PREREQUISITES.get(name, lambda variant: [])(variant)
+
+
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
               progress: bool = True) -> dict:
-    """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics.
+    """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics; the runs it
+    builds on (:func:`prerequisites`, same profile and seed) first.
 
     ``variant`` selects a variant of experiments that have them (PlaNet's, AlphaZero's, the
     PlaNet value's); others refuse one.
@@ -56,6 +69,11 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     check_choice("experiment", name, EXPERIMENTS)
     if name in NO_VARIANTS and variant is not None:
         raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
+    if name in VARIANTS and variant is not None:
+        VARIANTS[name].check(variant)
+    profile = profile_name(profile)
+    for before, before_variant in prerequisites(name, variant):  # each resumes, or returns its cached metrics
+        reproduce(before, profile, seed, before_variant, progress)
     if name == "sokoban-wm":
         return sokoban_world_models(profile, seed, progress)
     if name == "sokoban-search":
@@ -102,7 +120,7 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
         return {run: future.result() for run, future in futures.items()}
 
 
-__all__ = ["EXPERIMENTS", "VARIANTS", "reproduce", "reproduce_all", "sokoban_search", 
+__all__ = ["EXPERIMENTS", "VARIANTS", "PREREQUISITES", "prerequisites", "reproduce", "reproduce_all", "sokoban_search", 
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES",

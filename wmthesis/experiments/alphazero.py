@@ -5,19 +5,18 @@ import json
 import time
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 
-from wmthesis.alphazero.evaluation import evaluation_seeds, greedy_returns
+from wmthesis.alphazero.evaluation import (RECORDING_STEPS, boxing_baselines, controller_minds, evaluation_games,
+                                          policy_head_returns, score_figure)
+from wmthesis.alphazero.selfplay import VARIANTS, train_alphazero
 from wmthesis.config import CollectConfig, MemoryConfig, VisionConfig, for_profile, profile_name
-from wmthesis.runs import first_run_seconds, read_json, run_header
-from wmthesis.utils import data_dir, read_pickle
-from wmthesis.runs import atomic_path, hold, releasing_holds
-from wmthesis.references import human, published, random_play
+from wmthesis.references import published
+from wmthesis.runs import atomic_path, first_run_seconds, hold, releasing_holds, run_header
+from wmthesis.utils import data_dir
 from wmthesis.viz import save_figure
 
 ALPHAZERO_DIAGNOSIS_DEPTH = {"smoke": 5, "quick": 10, "thesis": 10}
-RECORDING_STEPS = 400  # the rerun recording shows the first steps of one evaluation game
 
 
 @releasing_holds
@@ -48,7 +47,6 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     ``against_random``: each agent's mean minus random play's, with its standard error.
     """
     from wmthesis.alphazero.latent_mdp import LatentMDP
-    from wmthesis.alphazero.selfplay import VARIANTS, train_alphazero
     from wmthesis.envs.atari import boxing_env
     from wmthesis.alphazero import diagnosis
     from wmthesis.world_models.vision import VAEVision
@@ -80,15 +78,15 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
                                  seed=seed, progress=progress, rollouts=LatentStore(latents), expert=expert)
         runs[name] = run.summary()
-        games[name] = _alphazero_evaluate(run, vision, memory, cfg, work / name, seed)
+        games[name] = evaluation_games(run, vision, memory, cfg, work / name, seed)
         if cfg.expert_games:
             ablations[f"AlphaZero {name}: policy head alone, no search"] = \
-                _policy_head_returns(run, vision, memory, cfg, work / name, seed)
+                policy_head_returns(run, vision, memory, cfg, work / name, seed)
             if run.pretrained is not None:  # (checkpoints written before it was kept have none)
-                pretrained = _alphazero_evaluate(run, vision, memory, cfg, work / name, seed, pretrained=True)
+                pretrained = evaluation_games(run, vision, memory, cfg, work / name, seed, pretrained=True)
                 ablations[f"AlphaZero {name}: before self-play (search)"] = [g.score for g in pretrained]
     cfg = configs[variants[-1]]
-    baselines = _boxing_baselines(profile, wm, work, vision, cfg, seed)
+    baselines = boxing_baselines(profile, wm, work, vision, cfg, seed)
     with EpisodeStore(store) as episodes:  # random play over the self-play games' length, for the curve
         random_in_store = [float(episodes.episode(i)["rewards"][:cfg.max_steps].sum()) for i in range(len(episodes))]
 
@@ -111,7 +109,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
                **baselines["returns"]}
     scores = {name: score_summary(r) for name, r in returns.items()}
     against_random = {name: score_difference(r, returns["random"]) for name, r in returns.items() if name != "random"}
-    figures.append(save_figure(_score_figure(scores), out / "scores.png"))
+    figures.append(save_figure(score_figure(scores), out / "scores.png"))
     shown = games[variants[-1]][0]
     recording = record_frames(out / "evaluation_game.rrd", {"observation": shown.frames},
                               {name: values[:RECORDING_STEPS] for name, values in
@@ -142,143 +140,19 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     return metrics
 
 
-def _alphazero_evaluate(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False) -> list:
-    """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
-    cached in ``evaluation.pkl`` for the run's number of games. ``pretrained``: the heads
-    after imitation, before self-play (``evaluation-pretrained.pkl``)."""
-    import pickle
-
-    from wmthesis.alphazero.heads import Evaluator
-    from wmthesis.alphazero.selfplay import AlphaZeroMind, play
-    from wmthesis.envs.atari import boxing_env
-
-    path = work / ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl")
-    key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
-    try:  # a missing or corrupt cache is played again
-        cached = read_pickle(path)
-        if cached["key"] == key:
-            return cached["games"]
-    except (OSError, ValueError):
-        pass
-    heads = run.pretrained_heads() if pretrained else run.heads
-    mind = AlphaZeroMind(vision, run.mdp(memory), Evaluator(heads), cfg)
-    env = boxing_env(cfg.noop_max)
-    games = []
-    try:
-        for k, game_seed in enumerate(key["seeds"]):
-            mind.keep_frames = k == 0
-            game = play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
-            if game.frames is not None:
-                game.frames = game.frames[:RECORDING_STEPS]
-            games.append(game)
-    finally:
-        env.close()
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        pickle.dump({"key": key, "games": games}, f)
-    return games
-
-
-def _policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list[float]:
-    """The evaluation games' returns of the trained policy head played greedily without search
-    (how much the search adds to what the heads learned); cached in ``policy_head.json``."""
-    from wmthesis.envs.atari import boxing_env
-    from wmthesis.alphazero.imitation import PolicyHeadMind
-
-    key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
-    cached = read_json(work / "policy_head.json")
-    if cached is not None and cached["key"] == key:
-        return cached["returns"]
-    mind, env = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max)
-    try:
-        returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=cfg.eval_max_steps)
-    finally:
-        env.close()
-    with atomic_path(work / "policy_head.json") as tmp:
-        tmp.write_text(json.dumps({"key": key, "returns": returns}, indent=1))
-    return returns
-
-
 def _expert(profile: str, seed: int, wm: Path, vision, progress: bool):
     """``agent_seed -> ControllerMind``: notebook 02's controller (the CMA-ES mean) as the
-    imitation variant's expert; trains it first (the cached boxing-wm pipeline) if it is missing."""
-    from wmthesis.experiments.world_models import boxing_world_models
-
-    make_mind, note = _controller_minds(profile, wm, vision)
-    if make_mind is None:
-        boxing_world_models(profile, seed, progress=progress)
-        make_mind, note = _controller_minds(profile, wm, vision)
+    imitation variant's expert (``reproduce`` trains it first, :func:`prerequisites`)."""
+    make_mind, note = controller_minds(profile, wm, vision)
     if make_mind is None:
         raise RuntimeError(f"the imitation variant needs notebook 02's controller: {note}")
     return make_mind
 
 
-def _controller_minds(profile: str, wm: Path, vision) -> tuple:
-    """``(agent_seed -> ControllerMind, name)`` for the boxing-wm controller under `wm`, or
-    ``(None, why not)`` when it is missing or was trained on another memory."""
-    from wmthesis.world_models.controller import ControllerMind
-    from wmthesis.utils import fingerprint
-    from wmthesis.world_models.evolution import load_run
-    from wmthesis.world_models.train import make_memory
-    from wmthesis.training import load_weights
-
-    controller_path, memory_path = wm / "controller" / "controller.pkl", wm / "memory-mdn.best.pt"
-    if not (controller_path.is_file() and memory_path.is_file()):
-        return None, (f"no boxing-wm controller under {wm} (run notebook 02 / `reproduce boxing-wm` first): "
-                      "the comparison with it is skipped")
-    run = load_run(controller_path)
-    mdn = load_weights(memory_path, make_memory(16, 18, for_profile(MemoryConfig, profile))).eval()
-    if fingerprint(mdn) != run.task["memory"]:
-        return None, f"the controller in {controller_path.parent} was trained on another memory: skipped"
-    controller = run.controller("mean")
-    return (lambda agent_seed: ControllerMind(vision, mdn, controller)), \
-        f"World Models controller (notebook 02, generation {run.generation})"
+def prerequisites(variant: str | None = None) -> list[tuple[str, None]]:
+    """The runs ``variant`` (None: all side by side) builds on, run first by ``reproduce``: boxing-wm,
+    whose controller is the expert of the variants that imitate one."""
+    names = tuple(VARIANTS) if variant is None else (VARIANTS.check(variant).name,)
+    return [("boxing-wm", None)] if any(VARIANTS.changes(name).get("expert_games", 0) for name in names) else []
 
 
-def _boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int) -> dict:
-    """Random play and the boxing-wm controller (when its run exists) on the evaluation games;
-    cached in ``baselines.json``. Returns ``returns`` by agent and ``notes``."""
-    from wmthesis.envs.atari import boxing_env
-    from wmthesis.core import RandomMind
-
-    controller_path = wm / "controller" / "controller.pkl"
-    key = {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
-           "controller_mtime": controller_path.stat().st_mtime_ns if controller_path.is_file() else None}
-    cached = read_json(work / "baselines.json")
-    if cached is not None and cached["key"] == key:
-        return cached
-    minds, notes = {"random": lambda agent_seed: RandomMind(18, agent_seed)}, []
-    make_controller, name = _controller_minds(profile, wm, vision)
-    if make_controller is None:
-        notes.append(name)
-    else:
-        minds[name] = make_controller
-    returns = {}
-    env = boxing_env(cfg.noop_max)
-    try:
-        for name, make_mind in minds.items():
-            returns[name] = greedy_returns(env, make_mind, key["seeds"], max_steps=cfg.eval_max_steps,
-                                           as_callback=name != "random")
-    finally:
-        env.close()
-    result = {"key": key, "returns": returns, "notes": notes}
-    with atomic_path(work / "baselines.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=1))
-    return result
-
-
-def _score_figure(scores: dict):
-    """Evaluation scores (mean +- std) of every agent, beside random and human play (published)."""
-    fig, ax = plt.subplots(figsize=(6, 0.5 + 0.45 * len(scores)))
-    names = list(scores)
-    ax.barh(names, [scores[n]["mean"] for n in names], xerr=[scores[n]["std"] for n in names], capsize=3,
-            color=[f"C{i}" for i in range(len(names))])
-    for value, style, label in ((random_play("boxing"), "--", "random (published)"), (human("boxing"), ":", "human (published)")):
-        ax.axvline(value, color="0.4", ls=style, lw=1, label=label)
-    ax.invert_yaxis()
-    ax.set_xlabel("Boxing score (mean ± std)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    return fig

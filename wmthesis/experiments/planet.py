@@ -11,12 +11,11 @@ import numpy as np
 
 from wmthesis.config import profile_name
 from wmthesis.planet.profiles import planet_config
-from wmthesis.runs import read_json, run_header
 from wmthesis.planet.train import same_training
 from wmthesis.planet.variants import ENVIRONMENTS, REGISTRIES
-from wmthesis.utils import check_choice, data_dir, derive_seeds
-from wmthesis.runs import atomic_path, hold, releasing_holds
 from wmthesis.references import HUMAN, RANDOM, published
+from wmthesis.runs import atomic_path, hold, read_json, releasing_holds, run_header
+from wmthesis.utils import check_choice, data_dir, derive_seeds
 from wmthesis.viz import save_figure
 
 # Experiment -> (environment, its variants' names, the default's name), from its registry.

@@ -16,27 +16,20 @@ import time
 from pathlib import Path
 
 from wmthesis.config import PlaNetConfig, profile_name
-from wmthesis.data import EpisodeBuffer
-from wmthesis.planet.profiles import planet_config
-from wmthesis.runs import read_json, run_header, played_bouts
-from wmthesis.planet.train import same_training
-from wmthesis.utils import data_dir, derive_seeds, parallel_calls
-from wmthesis.runs import atomic_path, hold, releasing_holds
 from wmthesis.metrics import score_cell
+from wmthesis.planet.bouts import FIRST_STEPS, bout_scores, play_bout
+from wmthesis.planet.profiles import planet_config
+from wmthesis.planet.study import STUDY
+from wmthesis.planet.train import same_training
 from wmthesis.references import HUMAN, THESIS_PLANET_BOXING, THESIS_PLANET_BOXING_SCORE, human, published, random_play
+from wmthesis.runs import atomic_path, hold, played_bouts, read_json, releasing_holds, run_header
+from wmthesis.utils import data_dir, derive_seeds, parallel_calls
 from wmthesis.viz import record_frames, save_figure
 
 GAME = "boxing"
 TUNED = "free-nats"
-# Per profile: study seeds, held-out bouts, open-loop sequences, context and horizon; the
-# agent's evaluation bouts (its budget is the config's ``env_steps``, seed bouts included).
-STUDY = {
-    "smoke": dict(seeds=2, held_out=2, sequences=4, context=4, horizon=4),
-    "quick": dict(seeds=2, held_out=3, sequences=48, context=5, horizon=15),
-    "thesis": dict(seeds=2, held_out=5, sequences=64, context=5, horizon=15),
-}
+# The agent's evaluation bouts per profile (its budget is the config's ``env_steps``, seed bouts included).
 AGENT = {"smoke": dict(bouts=2), "quick": dict(bouts=10), "thesis": dict(bouts=10)}
-FIRST_STEPS = 500  # 2,000 frames at action repeat 4: the author's episode cap
 
 
 
@@ -112,42 +105,7 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
 
 
 # ---------------------------------------------------------------------------- the agent
-def play_bout(env_name: str, config: PlaNetConfig, run_dir: Path | None, env_seed: int, mind_seed: int,
-              action: int | None = None) -> dict:
-    """One full episode, greedy PlaNet from ``run_dir`` (when None: random play, or ``action``
-    at every step where given): its ``return``, the return of its first :data:`FIRST_STEPS`
-    steps, and its ``steps``."""
-    from wmthesis.core import ConstantMind, RandomMind, loop
-    from wmthesis.planet.train import load_planet, make_planet_env, play_greedy
 
-    env = make_planet_env(env_name, config)
-    try:
-        if run_dir is None:
-            record, n = EpisodeBuffer(), env.action_space.n
-            mind = RandomMind(n, seed=mind_seed) if action is None else ConstantMind(n, action)
-            loop(env, mind, policy="deterministic", callbacks=[record], seed=env_seed, train_mode=False)
-            rewards = [float(r) for r in record.episode["rewards"]]
-        else:
-            model, trained, _ = load_planet(run_dir)
-            rewards = play_greedy(env, model, trained, env_seed, mind_seed)
-    finally:
-        env.close()
-    return bout_result(rewards)
-
-
-def bout_result(rewards) -> dict:
-    """One bout's rewards (T,) summed: its ``return``, the return of its first
-    :data:`FIRST_STEPS` steps and its ``steps``."""
-    return {"return": float(sum(rewards)), "first": float(sum(rewards[:FIRST_STEPS])), "steps": len(rewards)}
-
-
-def bout_scores(plays: list[dict]) -> dict:
-    """:func:`play_bout`'s plays summed up: ``full`` and ``first``-500-step scores
-    (:func:`~wmthesis.metrics.score_summary`) with their ``returns`` and ``first_returns``."""
-    from wmthesis.metrics import score_summary
-
-    return {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
-            "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays]}
 
 
 @releasing_holds
@@ -240,5 +198,5 @@ def agent_table(metrics: dict) -> str:
         f"| thesis PlaNet ({THESIS_PLANET_BOXING.source}) | {THESIS_PLANET_BOXING.value} | |"])
 
 
-__all__ = ["bout_scores", "bout_result", "planet_boxing_study", "planet_boxing_agent", "boxing_config", "play_bout", "study_table", "agent_table",
-           "STUDY", "AGENT", "FIRST_STEPS", "GAME"]
+__all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", "study_table", "agent_table",
+           "AGENT", "GAME"]

@@ -1,5 +1,5 @@
 """Beyond the thesis on PlaNet's Boxing model (issue 31): the model of
-:func:`~wmthesis.experiments.planet_boxing.planet_boxing_agent` frozen, a latent action value
+``planet-boxing-agent`` (:mod:`~wmthesis.experiments.planet_boxing`) frozen, a latent action value
 fitted on it (:mod:`~wmthesis.planet.value`, notebook 09), and CEM with that value at the end of
 its horizon (:mod:`~wmthesis.planet.value_planner`, notebook 10), each beside the thesis's CEM on
 the same bouts.
@@ -9,21 +9,21 @@ from __future__ import annotations
 import dataclasses
 import time
 
+from wmthesis import runs as run_store
 from wmthesis.config import profile_name
-from wmthesis.experiments.planet_boxing import AGENT, GAME, planet_boxing_agent
-from wmthesis.metrics import score_cell
-from wmthesis import runs
-from wmthesis.variants import Variant, Variants
-from wmthesis.references import HUMAN, THESIS_PLANET_BOXING_SCORE, human
-from wmthesis.experiments.planet_value import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores,
-                                              slug, start_from)
-from wmthesis.utils import data_dir
+from wmthesis.planet.bouts import bout_scores
+from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores, slug,
+                                        start_from)
+from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
 from wmthesis.runs import hold, releasing_holds
+from wmthesis.utils import data_dir
+from wmthesis.variants import Variant, Variants
 
 # Each variant fits its value on the same frozen model and bouts, in a folder of its own; one that
 # builds on another starts from a copy of that run's bouts and values (the same seeds give the same
 # first rounds), and one that changes the planner alone plays on that run's value. The numbers of
 # the variants and levers that left the code: docs/findings/planet-boxing-value.md.
+GAME = "boxing"
 LEAN = dict(rounds=10, agent_rounds=3, score_rounds=False)
 VALUE_VARIANTS = Variants(
     "planet-boxing-value",
@@ -56,21 +56,21 @@ def value_run(variant: str | None) -> str | None:
 
 def value_folder(profile: str, seed: int, variant: str | None = None):
     """The work folder of the value run of ``variant`` (None: the default) and ``seed``."""
-    return runs.work_folder(profile, "planet-boxing-value", seed, folder_variant(variant))
+    return run_store.work_folder(profile, "planet-boxing-value", seed, folder_variant(variant))
 
 
 def results_folder(profile: str, seed: int, variant: str | None = None):
     """Where the value run of ``variant`` (None: the default) and ``seed`` writes its ``metrics.json`` and figures."""
-    return runs.results_folder("planet-boxing-value", profile, seed, folder_variant(variant))
+    return run_store.results_folder("planet-boxing-value", profile, seed, folder_variant(variant))
 
 
 @releasing_holds
 def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: bool = True,
                         variant: str | None = None) -> dict:
-    """The PlaNet agent's model (:func:`planet_boxing_agent`, trained first if need be) frozen,
+    """The PlaNet agent's model (``planet-boxing-agent``'s run, which ``reproduce`` runs first) frozen,
     and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
     its own; after each round, greedy bouts on the agent's evaluation bouts. The round chosen on
-    validation bouts of its own (:func:`~wmthesis.planet.value.best_round`) compares with random
+    validation bouts of its own (:func:`~wmthesis.planet.value_rounds.best_round`) compares with random
     play and with the CEM planner on the evaluation bouts, and so does CEM with that value at the
     end of its horizon (:mod:`~wmthesis.planet.value_planner`). Returns the metrics:
     ``value`` and ``random`` (scores over full bouts), ``difference``
@@ -84,11 +84,11 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     chosen, variant = VALUE_VARIANTS.check(variant), folder_variant(variant)
     profile = profile_name(profile)
     started = time.time()
-    agent = planet_boxing_agent(profile, seed, progress)
+    agent = run_store.finished_metrics("planet-boxing-agent", profile, seed)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = hold(value_folder(profile, seed, variant))
     out = results_folder(profile, seed, variant)
-    config = for_profile(LatentValueConfig, profile, test_bouts=AGENT[profile]["bouts"],
+    config = for_profile(LatentValueConfig, profile, test_bouts=len(agent["bouts"]),
                          **VALUE_VARIANTS.changes(chosen.name, "value"))
     if chosen.builds_on is not None:
         start_from(work, value_folder(profile, seed, folder_variant(chosen.builds_on)))
@@ -102,7 +102,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
 
 def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True,
                        variant: str | None = None) -> dict:
-    """Where the value changes the plan on Boxing (:func:`~wmthesis.experiments.planet_value.compare_plans`
+    """Where the value changes the plan on Boxing (:func:`~wmthesis.planet.value_runs.compare_plans`
     on the run of :func:`planet_boxing_value` with ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_boxing_value(profile, seed, progress, variant)
@@ -130,7 +130,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     """CEM with the value agent of ``variant``'s run (:func:`planet_boxing_value`, run first if
     need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on
     ``bouts`` (the profile's :data:`LEVER_BOUTS` by default) of the value's validation bouts
-    (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation bouts), each
+    (:func:`~wmthesis.planet.value_play.validation_seeds`: apart from the evaluation bouts), each
     lever cached in the value's folder (a variant that changes the planner alone plays on the
     value of the run it copies, in that run's folder). All levers' bouts are played in one pool,
     lever by lever: ``executor`` (:func:`~wmthesis.utils.process_pool`), two at a time by
@@ -139,7 +139,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     ``tools/validate_levers.py``). Returns lever -> the
     planner's ``config`` and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
     from wmthesis.config import ValuePlannerConfig, for_profile
-    from wmthesis.planet.value import validation_seeds
+    from wmthesis.planet.value_play import validation_seeds
 
     profile = profile_name(profile)
     levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
@@ -160,17 +160,18 @@ AGENT_RULES = {"round chosen on validation": 0, "last round": 1, "mean of the la
 def validate_agents(profile: str | None = None, seed: int = 0, variant: str | None = "rounds-10",
                     rules: tuple[str, ...] | None = None, bouts: int | None = None, progress: bool = True) -> dict[str, dict]:
     """The value agent of ``variant``'s run (:func:`planet_boxing_value`, run first if need be;
-    its rounds' values refitted once if they were not kept, :func:`~wmthesis.planet.value.round_values`)
+    its rounds' values refitted once if they were not kept, :func:`~wmthesis.planet.value_rounds.round_values`)
     under each of ``rules`` (names in :data:`AGENT_RULES`; all by default) on ``bouts`` (the
     profile's :data:`LEVER_BOUTS` by default) greedy validation bouts that follow those that chose
-    its round (:func:`~wmthesis.planet.value.validation_seeds` from ``validation_bouts`` on: apart
+    its round (:func:`~wmthesis.planet.value_play.validation_seeds` from ``validation_bouts`` on: apart
     from the choice among rounds and from the evaluation bouts). Each bout is saved as it ends.
     Returns rule -> its ``rounds`` and their ``full`` and ``first``-500-step scores."""
     from wmthesis.config import LatentValueConfig
-    from wmthesis.experiments.planet_boxing import bout_scores
-    from wmthesis.experiments.planet_value import played_bouts, value_bout
+    from wmthesis.runs import played_bouts
+    from wmthesis.planet.value_bouts import value_bout
     from wmthesis.planet.train import load_planet
-    from wmthesis.planet.value import agent_rounds, round_values, validation_seeds
+    from wmthesis.planet.value_rounds import agent_rounds, round_values
+    from wmthesis.planet.value_play import validation_seeds
 
     profile = profile_name(profile)
     rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, LEVER_BOUTS[profile])
@@ -190,84 +191,5 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     return results
 
 
-def agent_rows(results: dict[str, dict]) -> list[list[str]]:
-    """:func:`validate_agents`' results as :func:`planner_lever_rows`, each rule's rounds in place
-    of a planner's changes, paired against the first rule."""
-    def rounds(r: list[int]) -> str:
-        return f"round {r[0]}" if len(r) == 1 else f"rounds {r[0]}-{r[-1]}"
-
-    return planner_lever_rows(results, {rule: rounds(scores["rounds"]) for rule, scores in results.items()})
-
-
-def planner_lever_rows(results: dict[str, dict], changes: dict[str, str] | None = None) -> list[list[str]]:
-    """:func:`validate_planners`' (or :func:`validate_agents`') results as table rows: lever, its
-    changes to the planner (``changes``, by default those of :data:`PLANNER_LEVERS`),
-    full-bout mean ± std, first-500-step mean, and the difference from the first lever's
-    full-bout scores with its standard error (the same bouts: paired,
-    :func:`~wmthesis.metrics.paired_difference`)."""
-    from wmthesis.metrics import paired_difference
-
-    if changes is None:
-        changes = {lever: ", ".join(f"{k}={v}" for k, v in PLANNER_LEVERS.get(lever, {}).items()) or "(the default)"
-                   for lever in results}
-    first = next(iter(results.values()))
-    rows = []
-    for lever, scores in results.items():
-        diff = paired_difference(scores["returns"], first["returns"])
-        rows.append([lever, changes[lever], f"{scores['full']['mean']:.1f} ± {scores['full']['std']:.1f}",
-                     f"{scores['first']['mean']:.1f}", f"{diff['difference']:+.1f} ± {diff['standard_error']:.1f}"])
-    return rows
-
-
-def planner_rows(by_seed: dict[int, dict], beside: dict[str, dict[int, dict]] | None = None) -> list[list[str]]:
-    """The planners over seeds (``by_seed``: seed -> :func:`planet_boxing_value`'s metrics), one
-    row each: every seed's mean over its bouts, then the mean over seeds with its 95% t-interval
-    (:func:`~wmthesis.experiments.summary.aggregate`). ``beside``: label -> the same seeds' runs of
-    another variant, whose CEM with the value is added as rows named with the label."""
-    from wmthesis.experiments.summary import aggregate
-
-    def planner(part, runs):
-        return lambda seed: runs[seed]["value_planner"][part]["mean"]
-
-    players = {"random play": lambda seed: by_seed[seed]["random"]["mean"],
-               "PlaNet's CEM (thesis), full bouts": lambda seed: by_seed[seed]["planet"]["mean"],
-               "value alone, full bouts": lambda seed: by_seed[seed]["value"]["mean"],
-               "value alone, first 500 steps": lambda seed: by_seed[seed].get("value_first", {}).get("mean"),  # since 2026-11-24
-               "CEM with the value, full bouts": planner("full", by_seed),
-               "CEM with the value, first 500 steps": planner("first", by_seed)}
-    for label, runs in (beside or {}).items():
-        if set(runs) != set(by_seed):
-            raise ValueError(f"{label!r} has seeds {sorted(runs)}, not the seeds {sorted(by_seed)}")
-        players |= {f"CEM with the value ({label}), full bouts": planner("full", runs),
-                    f"CEM with the value ({label}), first 500 steps": planner("first", runs)}
-    rows = []
-    for name, score in players.items():
-        scores = [score(seed) for seed in by_seed]
-        if None in scores:  # not measured in an older run
-            continue
-        summary = aggregate(scores)
-        interval = "" if summary["ci_low"] is None else f" [{summary['ci_low']:.1f}, {summary['ci_high']:.1f}]"
-        rows.append([name, *(f"{x:.1f}" for x in scores), f"{summary['mean']:.1f}{interval}"])
-    return rows
-
-
-def value_table(metrics: dict) -> str:
-    """The value agent's chosen round beside random play and the CEM planner on the same bouts (markdown)."""
-    diff, rounds = metrics["difference"], metrics.get("agent_rounds", [metrics["best_round"]])
-    chosen = metrics["curve"][rounds[-1]]
-    agent = (f"round {chosen['round']}, {chosen['episodes']} bouts of its own; chosen on {len(chosen['validation'])} "
-             f"validation bouts" if len(rounds) == 1 else
-             f"the mean of the values of rounds {rounds[0]}-{rounds[-1]}, up to {chosen['episodes']} bouts of its own")
-    return "\n".join([
-        "| player | full bout |", "|---|---|",
-        f"| latent value on the PlaNet model ({agent}) | {score_cell(metrics['value'])} |",
-        f"| PlaNet (CEM planner), same model | {score_cell(metrics['planet'])} |",
-        *([f"| CEM with the value at the end of its {metrics['value_planner']['config']['horizon']} steps, same model "
-           f"| {score_cell(metrics['value_planner']['full'])} |"] if "value_planner" in metrics else []),
-        f"| random play, same bouts | {score_cell(metrics['random'])} |",
-        f"| value - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) |",
-        f"| human ({HUMAN[GAME].source}) | {human(GAME)} |"])
-
-
-__all__ = ["planet_boxing_value", "results_folder", "value_plan_choices", "validate_planners", "planner_lever_rows", "PLANNER_LEVERS", "LEVER_BOUTS", "planner_rows", "value_table",
-           "VALUE_VARIANTS", "folder_variant", "value_run", "AGENT_RULES", "validate_agents", "agent_rows"]
+__all__ = ["planet_boxing_value", "results_folder", "value_plan_choices", "validate_planners", "PLANNER_LEVERS", "LEVER_BOUTS", 
+           "VALUE_VARIANTS", "folder_variant", "value_run", "AGENT_RULES", "validate_agents"]

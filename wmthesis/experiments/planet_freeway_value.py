@@ -3,7 +3,7 @@ tuned variant (:func:`~wmthesis.experiments.planet.planet_experiment`, thesis 5.
 frozen, a latent action value fitted on it, and CEM with that value at the end of its horizon,
 beside the thesis's CEM, random play and pressing UP at every step (a reference that knows the
 game, as A* is for Sokoban: whatever a planner adds beyond it is dodging cars) on the same 10
-evaluation episodes (:func:`~wmthesis.experiments.planet_value.fit_and_compare`).
+evaluation episodes (:func:`~wmthesis.planet.value_runs.fit_and_compare`).
 
 Freeway pays one point per crossing, about 90 agent steps apart, and random play hardly ever
 crosses. So the value differs from Boxing's in two ways (:data:`FREEWAY_VALUE`): its target is
@@ -23,14 +23,13 @@ import time
 from pathlib import Path
 
 from wmthesis.config import profile_name
-from wmthesis.experiments.planet import planet_experiment
-from wmthesis.experiments.planet_boxing import STUDY, bout_result, bout_scores, play_bout
-from wmthesis.experiments.planet_value import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans,
-                                               fit_and_compare, lever_scores, played_bouts, start_from)
-from wmthesis.runs import read_json
-from wmthesis.utils import data_dir
-from wmthesis.runs import atomic_path, hold, releasing_holds
+from wmthesis.planet.bouts import bout_result, bout_scores, play_bout
+from wmthesis.planet.study import STUDY
+from wmthesis.planet.value_runs import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans, fit_and_compare,
+                                        lever_scores, start_from)
 from wmthesis.references import human
+from wmthesis.runs import atomic_path, finished_metrics, hold, played_bouts, read_json, releasing_holds, work_folder
+from wmthesis.utils import data_dir
 from wmthesis.variants import Variant, Variants
 from wmthesis.viz import save_figure
 
@@ -84,9 +83,17 @@ def value_variant(variant: str | None = None) -> str | None:
 
 
 def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
-    """The frozen run of ``planet-freeway``'s variant ``model``, trained first if need be."""
-    planet_experiment("planet-freeway", profile, seed, model, progress)
-    return data_dir(profile, "planet-freeway", f"{model}-seed{seed}")
+    """The frozen run of ``planet-freeway``'s variant ``model``: a finished run (``reproduce``
+    runs it first, :func:`prerequisites`; otherwise FileNotFoundError names the command)."""
+    finished_metrics("planet-freeway", profile, seed, model)
+    return work_folder(profile, "planet-freeway", seed, model)
+
+
+def prerequisites(variant: str | None = None) -> list[tuple[str, str]]:
+    """The runs a value ``variant`` builds on, run first by ``reproduce`` (same profile and seed):
+    ``planet-freeway``'s variant whose model it is fitted on, and the one whose episodes are its first data."""
+    changes = VALUE_VARIANTS.changes(variant)
+    return list(dict.fromkeys([("planet-freeway", model_variant(variant)), ("planet-freeway", changes.get("data", model_variant(variant)))]))
 
 
 def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -> dict:
@@ -131,10 +138,11 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     beside random play and UP at every step. A ``variant`` of :data:`VALUE_VARIANTS` changes the
     value or the planner in a folder of its own, beside the run on the same model
     (:func:`base_variant`): its baselines are copied from that run, not played again, and one that keeps the
-    value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.experiments.planet_value.fit_and_compare`."""
+    value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.planet.value_runs.fit_and_compare`."""
     from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
     from wmthesis.data import EpisodeStore
-    from wmthesis.planet.value import STORE, evaluation_seeds
+    from wmthesis.planet.value_rounds import STORE
+    from wmthesis.planet.value_play import evaluation_seeds
 
     own = VALUE_VARIANTS.check(variant).changes
     variant = None if VALUE_VARIANTS.check(variant).name == "default" else variant
@@ -206,12 +214,12 @@ def validate_planners(profile: str | None = None, seed: int = 0, variant: str | 
     """CEM with the value agent of ``variant``'s run (:func:`planet_freeway_value`, run first if
     need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default) on
     ``episodes`` (the profile's :data:`LEVER_EPISODES` by default) of the value's validation
-    episodes (:func:`~wmthesis.planet.value.validation_seeds`: apart from the evaluation
+    episodes (:func:`~wmthesis.planet.value_play.validation_seeds`: apart from the evaluation
     episodes), in one pool, each lever cached in the folder of the run that fitted the value
     (:func:`value_variant`: a variant that changes the planner alone shares its base's levers).
     Returns lever -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
     from wmthesis.config import ValuePlannerConfig, for_profile
-    from wmthesis.planet.value import validation_seeds
+    from wmthesis.planet.value_play import validation_seeds
 
     profile = profile_name(profile)
     levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, episodes, LEVER_EPISODES[profile])
@@ -299,10 +307,10 @@ def lookahead_ceiling(profile: str | None = None, seed: int = 0, horizons: tuple
     """The ceiling of planning on Freeway: a planner whose model is the emulator itself
     (:mod:`wmthesis.envs.freeway`: "wait, then UP" plans of ``horizon`` steps, scored by crossings
     and the chicken's height) on the first :data:`LOOKAHEAD_EPISODES` of the evaluation episodes
-    (:func:`~wmthesis.planet.value.evaluation_seeds`), for each of ``horizons``. Each episode is
+    (:func:`~wmthesis.planet.value_play.evaluation_seeds`), for each of ``horizons``. Each episode is
     saved as it ends in the default value's results folder (``lookahead-bouts.json``). Returns
     horizon -> ``full`` and ``first``-500-step scores with their returns."""
-    from wmthesis.planet.value import evaluation_seeds
+    from wmthesis.planet.value_play import evaluation_seeds
 
     profile = profile_name(profile)
     _check_horizons(horizons)
@@ -339,7 +347,8 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     from wmthesis.config import ValuePlannerConfig
     from wmthesis.envs.freeway import play_lookahead
     from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import evaluation_seeds, load_value
+    from wmthesis.planet.value_play import evaluation_seeds
+    from wmthesis.planet.value_rounds import load_value
     from wmthesis.planet.value_planner import plan_choices
     from wmthesis.training import with_added_defaults
 
@@ -390,7 +399,7 @@ def hold_back_shares(lookahead, picks) -> dict[str, float]:
 def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str | None = None,
                          progress: bool = True) -> dict:
     """Where the value changes the plan on Freeway
-    (:func:`~wmthesis.experiments.planet_value.compare_plans` on a :func:`planet_freeway_value`
+    (:func:`~wmthesis.planet.value_runs.compare_plans` on a :func:`planet_freeway_value`
     run of ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_freeway_value(profile, seed, progress, variant)

@@ -11,13 +11,11 @@ import numpy as np
 
 from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
 from wmthesis.references import THESIS_SOKOBAN_WM
-from wmthesis.runs import first_run_seconds, jsonable, read_json, run_header
+from wmthesis.runs import atomic_path, first_run_seconds, hold, jsonable, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir
-from wmthesis.runs import atomic_path, hold, releasing_holds
 from wmthesis.world_models.figures import sokoban_figures, sokoban_recording
-from wmthesis.world_models.sokoban import CONTROLLERS as SOKOBAN_WM_CONTROLLERS
-from wmthesis.world_models.sokoban import VARIANTS as SOKOBAN_WM_VARIANTS
-from wmthesis.world_models.sokoban import check_same_episodes, evaluate_memories, levels_solved
+from wmthesis.world_models.sokoban import (CONTROLLERS as SOKOBAN_WM_CONTROLLERS, VARIANTS as SOKOBAN_WM_VARIANTS,
+                                           check_same_episodes, evaluate_memories, levels_solved)
 
 
 # Changes on top of the profile (per config class), as SOKOBAN_CHANGES does for PlaNet.

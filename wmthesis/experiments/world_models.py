@@ -10,10 +10,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
-from wmthesis.runs import first_run_seconds, run_header
-from wmthesis.utils import data_dir
-from wmthesis.runs import atomic_path, hold, releasing_holds
 from wmthesis.references import published
+from wmthesis.runs import atomic_path, first_run_seconds, hold, read_json, releasing_holds, run_header
+from wmthesis.utils import data_dir
 from wmthesis.viz import save_figure
 from wmthesis.world_models.prediction import open_loop_errors
 
@@ -39,6 +38,10 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     work, out, store, vae, vision, memory = wm.work, wm.out, wm.store, wm.vae, wm.vision, wm.memory
     controller_cfg = for_profile(ControllerConfig, profile, seed=seed)
     run = train_controller("boxing", vision, memory, controller_cfg, out_dir=work / "controller", progress=progress)
+    cached = read_json(out / "metrics.json")
+    if (cached is not None and cached.get("controller_curve") == json.loads(json.dumps(run.curve, default=float))
+            and all(Path(f).is_file() for f in [*cached["files"]["figures"], cached["files"]["recording"]])):
+        return cached  # this controller's evaluation, figures and recording, made before
 
     returns = _final_score(run, vision, memory, controller_cfg, profile)
 

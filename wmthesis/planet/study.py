@@ -19,9 +19,16 @@ from wmthesis.data import EpisodeStore, play_random_episode
 from wmthesis.planet.prediction import background_frame, latent_diagnostics, moving_open_loop
 from wmthesis.planet.train import load_planet, make_planet_env
 
-# The three configurations (:data:`~wmthesis.planet.train.VARIANTS`), in the thesis's order.
+# The three configurations (:data:`~wmthesis.planet.variants.PLANET_BOXING`), in the thesis's order.
 STUDY_VARIANTS = ("unchanged", "kl-scale", "free-nats")
 BASELINES = ("repeat last", "mean frame")
+
+# Per profile: study seeds, held-out bouts, open-loop sequences, context and horizon.
+STUDY = {
+    "smoke": dict(seeds=2, held_out=2, sequences=4, context=4, horizon=4),
+    "quick": dict(seeds=2, held_out=3, sequences=48, context=5, horizon=15),
+    "thesis": dict(seeds=2, held_out=5, sequences=64, context=5, horizon=15),
+}
 
 
 def held_out_store(path, env_name: str, config, seed: int, episodes: int) -> Path:
@@ -86,4 +93,4 @@ def summarise(scores: dict[str, list[dict]], horizons=(1, 5, 10, 15)) -> dict:
     return out
 
 
-__all__ = ["STUDY_VARIANTS", "BASELINES", "held_out_store", "scene", "score_run", "summarise"]
+__all__ = ["STUDY", "STUDY_VARIANTS", "BASELINES", "held_out_store", "scene", "score_run", "summarise"]

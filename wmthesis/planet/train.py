@@ -44,9 +44,9 @@ from wmthesis.planet.explore import build_disagreement, disagreement_loss, explo
 from wmthesis.planet.networks import vision_networks
 from wmthesis.planet.rssm import RSSM, planet_loss
 from wmthesis.planet.variants import variant_changes
+from wmthesis.runs import atomic_path
 from wmthesis.training import gradient_step, with_added_defaults
 from wmthesis.utils import derive_seeds, device, seed_everything
-from wmthesis.runs import atomic_path
 
 FRAME_SIZE = 64
 CHECKPOINT, CURVE, STORE = "checkpoint.pt", "curve.json", "episodes.h5"

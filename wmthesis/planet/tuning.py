@@ -68,8 +68,8 @@ from wmthesis.planet.figures import open_loop_figure
 from wmthesis.planet.profiles import planet_config
 from wmthesis.planet.study import held_out_store, scene, score_run
 from wmthesis.planet.train import train_planet
-from wmthesis.utils import check_choice, data_dir, parallel_calls
 from wmthesis.runs import atomic_path
+from wmthesis.utils import check_choice, data_dir, parallel_calls
 
 
 @dataclass(frozen=True)

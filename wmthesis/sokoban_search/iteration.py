@@ -38,8 +38,9 @@ from tqdm import tqdm
 
 from wmthesis.config import SokobanSearchConfig
 from wmthesis.envs.sokoban import CELL_NAMES
+from wmthesis.runs import atomic_path
 from wmthesis.sokoban_search.agent import SearchAgent, level_seeds, random_play, variant_options
-from wmthesis.sokoban_search.cells import GRID, CellCoder, GridInputs, PixelInputs, fit_coder, render_cells
+from wmthesis.sokoban_search.cells import CellCoder, GRID, GridInputs, PixelInputs, fit_coder, render_cells
 from wmthesis.sokoban_search.evaluation import play_levels
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned
@@ -47,7 +48,6 @@ from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.policy import Policy, turned_actions
 from wmthesis.training import check_same_config, gradient_step, with_added_defaults
 from wmthesis.utils import check_choice, device, half_precision, parallel_calls, read_pickle
-from wmthesis.runs import atomic_path
 
 N_ACTIONS = 8
 STATE_VERSION = 3  # 2: the model keeps the count changes it has seen; 3: and the boards at ends

@@ -39,9 +39,9 @@ import torch
 from tqdm import tqdm
 
 from wmthesis.envs.vector import make_game
+from wmthesis.runs import atomic_path
 from wmthesis.training import check_resumable
 from wmthesis.utils import check_choice, derive_seeds, fingerprint, read_pickle, timed
-from wmthesis.runs import atomic_path
 from wmthesis.world_models.controller import Controller, features, num_parameters, population_scores, unflatten
 from wmthesis.world_models.memory import Mixture, sample_mixture
 

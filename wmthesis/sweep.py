@@ -29,9 +29,10 @@ from typing import Callable, NamedTuple
 from tqdm import tqdm
 
 from wmthesis.config import profile_name
-from wmthesis.experiments.summary import run_scores
-from wmthesis.utils import check_choice, data_dir
+from wmthesis.experiments import EXPERIMENTS, PLANET_GAMES, VARIANTS, reproduce
 from wmthesis.runs import atomic_path
+from wmthesis.summary import run_scores
+from wmthesis.utils import check_choice, data_dir
 
 # Experiment -> the experiment whose artifacts it reuses for the same seed (run first).
 PREREQUISITE = {"boxing-wm-alphazero": "boxing-wm", "planet-boxing-value": "planet-boxing-agent",
@@ -50,8 +51,6 @@ class SweepRun(NamedTuple):
 
 def variants_of(experiment: str) -> tuple[str, ...]:
     """The variants ``experiment`` accepts (empty: it has none)."""
-    from wmthesis.experiments import EXPERIMENTS, VARIANTS
-
     check_choice("experiment", experiment, EXPERIMENTS)
     return tuple(VARIANTS.get(experiment, ()))
 
@@ -73,8 +72,6 @@ def parse_seeds(text: str) -> list[int]:
 def parse_runs(specs: list[str], seeds: list[int]) -> list[SweepRun]:
     """``EXPERIMENT[:VARIANT]`` specs x seeds -> the sweep's runs; an unknown experiment or
     variant raises ValueError listing the valid ones."""
-    from wmthesis.experiments import EXPERIMENTS, VARIANTS
-
     runs = []
     for spec in specs:
         experiment, _, variant = spec.partition(":")
@@ -105,7 +102,6 @@ def finished(run: SweepRun, profile: str, folder: Path | None = None) -> Path | 
 
 def _wanted_variants(run: SweepRun) -> set:
     """The variants a finished run's metrics must hold: the named one, else the default run's."""
-    from wmthesis.experiments import PLANET_GAMES
 
     if run.variant is not None:
         return {run.variant}
@@ -194,8 +190,6 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
     runs under way (the finished ones are kept) and re-raises KeyboardInterrupt.
     """
     import ray
-
-    from wmthesis.experiments import reproduce
 
     profile = profile_name(profile)
     runner = runner or reproduce

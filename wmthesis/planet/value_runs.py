@@ -1,10 +1,8 @@
-"""Beyond the thesis (issue 31), for any PlaNet game: a learned value on a frozen PlaNet model
-(:mod:`~wmthesis.planet.value`), alone and at the end of CEM's horizon
-(:mod:`~wmthesis.planet.value_planner`), beside the thesis's CEM and random play on the same
-evaluation bouts. :mod:`~wmthesis.experiments.planet_boxing_value` (Boxing) and
-:mod:`~wmthesis.experiments.planet_freeway_value` (Freeway) are this recipe with their model,
-value and bouts.
-"""
+"""A value run on a frozen PlaNet model, as the Boxing and Freeway value experiments make one
+(beyond the thesis, issue 31): the value fitted (:mod:`~wmthesis.planet.value_rounds`), CEM with it
+at the end of its horizon played on the evaluation bouts beside the baselines, the metrics written
+(:func:`fit_and_compare`); the planner's levers on validation bouts (:func:`lever_scores`); and
+where the value changes the plan (:func:`compare_plans`)."""
 from __future__ import annotations
 
 import dataclasses
@@ -15,95 +13,19 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.experiments.planet_boxing import FIRST_STEPS, bout_result, bout_scores
-from wmthesis.runs import first_run_seconds, read_json, run_header, cached_for, played_bouts, played_groups
+from wmthesis.config import LatentValueConfig, ValuePlannerConfig
+from wmthesis.data import EpisodeStore
+from wmthesis.metrics import score_difference, score_summary
+from wmthesis.planet.bouts import FIRST_STEPS
+from wmthesis.planet.figures import learning_curve_figure, plan_choices_figure
+from wmthesis.planet.train import load_planet, make_planet_env
+from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value_planners_scores
+from wmthesis.planet.value_planner import PLANNERS, plan_choices
+from wmthesis.planet.value_rounds import CHECKPOINT, STORE, load_value, train_value
+from wmthesis.runs import atomic_path, first_run_seconds, run_header
+from wmthesis.training import with_added_defaults
 from wmthesis.utils import check_choice
-from wmthesis.runs import atomic_path
-from wmthesis.viz import save_figure
-
-
-def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int, mind_seed: int,
-                       game: str = "boxing") -> dict:
-    """One full episode of ``game``, CEM with the chosen value at its end
-    (:func:`~wmthesis.planet.value_planner.play_value_planner`) on the frozen model of
-    ``planet_run``: its ``return``, the return of its first :data:`FIRST_STEPS` steps and its
-    ``steps``."""
-    from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import load_value
-    from wmthesis.planet.value_planner import play_value_planner
-
-    model, planet, _ = load_planet(planet_run)
-    env = make_planet_env(game, planet)
-    try:
-        rewards = play_value_planner(env, model, load_value(value_run, model), planet, planner, env_seed, mind_seed)
-    finally:
-        env.close()
-    return bout_result(rewards)
-
-
-def _planner_defaults(key: dict) -> dict:
-    """A saved cache key whose ``planner`` (a :class:`~wmthesis.config.ValuePlannerConfig` saved
-    before a field was added) reads as what it did (:func:`~wmthesis.training.with_added_defaults`)."""
-    from wmthesis.config import ValuePlannerConfig
-    from wmthesis.training import with_added_defaults
-
-    if isinstance(key.get("planner"), dict):
-        key["planner"] = with_added_defaults(ValuePlannerConfig, key["planner"])
-    return key
-
-
-def cached_plan(path: Path, key: dict) -> dict | None:
-    """The JSON cache at ``path`` if it was written for ``key``, a key that holds a planner's config
-    (:func:`~wmthesis.experiments.results.cached_for`, a planner saved before a field was added
-    read as what it did)."""
-    return cached_for(path, key, _planner_defaults)
-
-
-def value_bout(planet_run: Path, value_run: Path, rounds: list[int], env_seed: int, mind_seed: int,
-               game: str = "boxing") -> dict:
-    """One full greedy episode of ``game`` of the mean of the values of ``rounds`` of the value
-    run (:func:`~wmthesis.planet.value.load_rounds`) on the frozen model of ``planet_run``: its
-    ``return``, the return of its first :data:`FIRST_STEPS` steps and its ``steps``."""
-    from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import load_rounds, play_value
-
-    model, planet, _ = load_planet(planet_run)
-    env = make_planet_env(game, planet)
-    try:
-        rewards = play_value(env, model, load_rounds(value_run, model, rounds), planet.bits, env_seed, mind_seed)["rewards"]
-    finally:
-        env.close()
-    return bout_result([float(r) for r in rewards])
-
-
-def value_planner_scores(planet_run: Path, value_run: Path, planner, bouts: list, best: int | list[int], progress: bool,
-                         cache: Path | None = None, game: str = "boxing") -> dict:
-    """The planner with value over ``bouts`` ((env, mind) seeds): full-episode and
-    first-500-step scores, cached in ``cache`` (``value_run/value_planner.json`` by default)
-    for the value agent ``best`` (its chosen round, or the rounds whose mean it is), the
-    planner's config and the bouts."""
-    cache = value_run / "value_planner.json" if cache is None else cache
-    return value_planners_scores(planet_run, value_run, [(planner, cache)], bouts, best, progress, game)[0]
-
-
-def value_planners_scores(planet_run: Path, value_run: Path, planners: list[tuple], bouts: list, best: int | list[int],
-                          progress: bool, game: str = "boxing", executor=None) -> list[dict]:
-    """:func:`value_planner_scores` for each ``(planner, cache)`` of ``planners``, their bouts
-    all in one pool (``executor``, :func:`~wmthesis.utils.process_pool`; two at a time by
-    default), each planner's saved as they end."""
-    keys = [{"round": best, "planner": dataclasses.asdict(planner), "bouts": [list(b) for b in bouts]}
-            for planner, _ in planners]
-    cached = [cached_plan(cache, key) for (_, cache), key in zip(planners, keys)]
-    todo = [j for j, c in enumerate(cached) if c is None]
-    plays = played_groups([(planners[j][1].with_name(planners[j][1].stem + "-bouts.json"), keys[j],
-                            [(value_planner_bout, planet_run, value_run, planners[j][0], *bout, game) for bout in bouts],
-                            _planner_defaults) for j in todo], progress, executor)
-    for j, played in zip(todo, plays):
-        scores = {**bout_scores(played), "config": dataclasses.asdict(planners[j][0])}
-        with atomic_path(planners[j][1]) as tmp:
-            tmp.write_text(json.dumps({"key": keys[j], "scores": scores}, indent=1))
-        cached[j] = {"scores": scores}
-    return [c["scores"] for c in cached]
+from wmthesis.viz import image_grid, save_figure
 
 
 def checked_levers(kind: str, names: tuple[str, ...] | None, choices: dict, count: int | None,
@@ -127,9 +49,6 @@ def lever_scores(planet_run: Path, work: Path, metrics: dict, planners: dict, bo
     (:func:`value_planners_scores`), each cached in
     ``work/planner-validation/<the lever's name, lower case, dashes>/scores.json``. Returns
     name -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
-    from wmthesis.config import LatentValueConfig
-    from wmthesis.training import with_added_defaults
-
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
     agent = agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config)
     caches = [(planner, work / "planner-validation" / slug(name) / "scores.json") for name, planner in planners.items()]
@@ -145,8 +64,6 @@ def start_from(work: Path, default: Path, names: tuple[str, ...] | None = None) 
     """Start a value run in ``work`` from a copy of files of ``default`` (by default a value
     run's bouts and values: a variant that only adds rounds; the rounds it shares are the same
     rounds), once: never over a checkpoint of its own. The last name marks the copy done."""
-    from wmthesis.planet.value import CHECKPOINT, STORE
-
     names = (STORE, CHECKPOINT) if names is None else names
     if (work / names[-1]).exists() or not (default / names[-1]).exists():
         return
@@ -161,18 +78,13 @@ BASELINE_LABELS = {"planet": "PlaNet (CEM)", "random": "random play", "always-up
 def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, out: Path, config, planner,
                     baselines: dict, bouts: list, *, profile: str, seed: int, progress: bool,
                     references: dict, variant: str | None = None, started: float | None = None) -> dict:
-    """Fit the value (``config``, :func:`~wmthesis.planet.value.train_value`) on the frozen
+    """Fit the value (``config``, :func:`~wmthesis.planet.value_rounds.train_value`) on the frozen
     model of ``planet_run`` in ``work``; play CEM with the chosen value at its end (``planner``)
     on the evaluation ``bouts``; write and return ``out/metrics.json``: ``value`` (the chosen
     round's evaluation bouts) and ``value_first`` (their first 500 steps), ``random`` and
     ``planet`` (``baselines``' full-episode scores on the same bouts), ``baselines`` (each of
     :data:`BASELINE_LABELS` played, full and first 500 steps), ``difference`` (value - random),
     ``value_planner``, the ``curve`` of rounds and its figure (with ``references``)."""
-    from wmthesis.metrics import score_difference, score_summary
-    from wmthesis.planet.figures import learning_curve_figure
-    from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import train_value
-
     started = time.time() if started is None else started
     model, planet, _ = load_planet(planet_run)
     env = make_planet_env(game, planet)
@@ -248,15 +160,6 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
     ``work/plan_choices.json``. Returns ``choices`` (planner -> actions), ``agreement`` (pair ->
     share of steps), ``action_names``, ``steps`` and ``files`` (the bars, and the frames where CEM
     and CEM with the value part, in ``out``)."""
-    from wmthesis.config import ValuePlannerConfig
-    from wmthesis.data import EpisodeStore
-    from wmthesis.planet.figures import plan_choices_figure
-    from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value import STORE, load_value
-    from wmthesis.planet.value_planner import PLANNERS, plan_choices
-    from wmthesis.training import with_added_defaults
-    from wmthesis.viz import image_grid
-
     model, planet, _ = load_planet(planet_run)
     planner = ValuePlannerConfig(**with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"]))
     with EpisodeStore(work / STORE, "r") as store:
@@ -291,4 +194,5 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "agent_key", "compare_plans", "BASELINE_LABELS", "value_planner_bout", "value_bout", "value_planner_scores", "value_planners_scores", "played_bouts", "cached_plan", "start_from", "fit_and_compare", "lever_scores", "slug", "checked_levers"]
+__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "agent_key", "checked_levers", "compare_plans", "fit_and_compare",
+           "lever_scores", "slug", "start_from"]

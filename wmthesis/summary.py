@@ -20,14 +20,13 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from scipy import stats
 
-from wmthesis.utils import data_dir
-
+from wmthesis.experiments import EXPERIMENTS, VARIANTS
+from wmthesis.metrics import aggregate
 from wmthesis.references import PUBLISHED
 from wmthesis.runs import atomic_path
+from wmthesis.utils import data_dir
 
-CONFIDENCE = 0.95
 INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
 
 # Experiment -> what its headline score is.
@@ -81,8 +80,6 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
     ``metrics.json``, and per kind of a Sokoban report evaluation (:func:`report_runs`). A file
     that is not JSON or not a run's metrics is skipped with a warning naming it; when two files
     hold the same run, the newer one counts."""
-    from wmthesis.experiments import EXPERIMENTS, VARIANTS
-
     folder = Path(folder) if folder is not None else data_dir("results")
     runs: dict[tuple, Run] = {}
     for path in sorted(folder.rglob("metrics.json"), key=lambda p: p.stat().st_mtime):
@@ -127,19 +124,6 @@ def report_runs(folder: Path) -> list[Run]:
             warnings.warn(f"{path}: skipped, not a Boxoban report ({type(error).__name__}: {error})", stacklevel=2)
     return runs
 
-
-def aggregate(scores, bounds: tuple[float, float] | None = None) -> dict:
-    """Seeds' scores (n,) -> n, mean, sample std and the 95% t interval of the mean (None for one
-    seed), clipped to ``bounds`` (low, high) where the score has them: a t interval over 3 seeds
-    near 100% of levels would otherwise pass 100."""
-    scores = np.asarray(scores, np.float64)
-    n, mean = len(scores), float(scores.mean())
-    if n < 2:
-        return {"n": n, "mean": mean, "std": None, "ci_low": None, "ci_high": None}
-    std = float(scores.std(ddof=1))
-    half = float(stats.t.ppf(0.5 + CONFIDENCE / 2, n - 1)) * std / np.sqrt(n)
-    low, high = bounds if bounds is not None else (-np.inf, np.inf)
-    return {"n": n, "mean": mean, "std": std, "ci_low": max(mean - half, low), "ci_high": min(mean + half, high)}
 
 
 def summarise(runs: list[Run]) -> list[dict]:
