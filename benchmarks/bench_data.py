@@ -7,7 +7,7 @@ Rows (Boxing, frame skip 4, sticky actions off, random actions):
 - ``ale-py env``: one ``ALE/Boxing-v5`` gymnasium env, raw frames: agent steps/s;
 - ``AtariVectorEnv``: ale-py's vector env, 16 envs, 2 threads, 64x64 RGB frames: agent
   steps/s, the reference rate for collection;
-- ``collect, K workers``: :func:`wmthesis.data.collect` of full-length episodes (random
+- ``collect, K workers``: :func:`wmthesis.rollouts.collect` of full-length episodes (random
   actions, every reset seeded) with ``world_models`` preprocessing into a fresh HDF5 store:
   steps/s and the ratio to the vector env's rate (target >= 70%). ``wall``: `--episodes` per
   worker, process start-up (~3 s for spawned workers importing torch) included; ``steady``:
@@ -38,7 +38,8 @@ import numpy as np
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.data import EpisodeStore, collect  # noqa: E402
+from wmthesis.data import EpisodeStore  # noqa: E402
+from wmthesis.rollouts import collect  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "data.json"

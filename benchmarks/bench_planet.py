@@ -9,7 +9,7 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
   the floor any CEM at these sizes must pay.
 - ``cem_plan``: one plan at the thesis sizes (H 12, J 1000, K 100, I 10); ``ratio`` is its time
   over the bare forward pass (target <= 1.2).
-- ``agent step``: :class:`~wmthesis.planet.train.PlanetMind` ``plan``: encode one frame,
+- ``agent step``: :class:`~wmthesis.planet.agent.PlanetMind` ``plan``: encode one frame,
   update the belief, then the CEM; and beside it the latent value agent's step
   (:class:`~wmthesis.planet.value.ValueMind`: encode, update, one transition per action and the
   value head; beyond the thesis), with its speed-up over the CEM step, and the same with the
@@ -50,12 +50,14 @@ import torch.nn.functional as F
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.config import LatentValueConfig, PlaNetConfig, ValuePlannerConfig, for_profile  # noqa: E402
+from wmthesis.planet.config import LatentValueConfig, PlaNetConfig, ValuePlannerConfig
+from wmthesis.config import for_profile  # noqa: E402
 from wmthesis.planet.profiles import planet_config  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
 from wmthesis.planet.explore import build_disagreement  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
-from wmthesis.planet.train import PlanetMind, batch_loss, build_model, make_optimizer  # noqa: E402
+from wmthesis.planet.agent import PlanetMind
+from wmthesis.planet.train import batch_loss, build_model, make_optimizer  # noqa: E402
 from wmthesis.planet.value import LatentValue, ValueMind, round_ensemble  # noqa: E402
 from wmthesis.planet.value_planner import ValuePlanetMind  # noqa: E402
 from wmthesis.training import gradient_step  # noqa: E402

@@ -26,9 +26,9 @@ import numpy as np
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.envs.sokoban import (SokobanEnv, box_displacement, count_box_swaps,  # noqa: E402
-                                   make_board, place_player_and_targets, reverse_play,
-                                   room_topology, solve)
+from wmthesis.envs.sokoban import SokobanEnv, solve  # noqa: E402
+from wmthesis.envs.sokoban_generator import (box_displacement, count_box_swaps, make_board,  # noqa: E402
+                                             place_player_and_targets, reverse_play, room_topology)
 from _results import machine_meta, print_table, write_results  # noqa: E402
 
 VARIANTS = {"sokoban": ((10, 10), 4), "sokoban-small": ((7, 7), 2)}

@@ -119,7 +119,8 @@ def coding_rows(seed: int) -> list[dict]:
 
 
 def agent_rows(folder: str, profile: str, levels: int) -> list[dict]:
-    from wmthesis.config import SokobanSearchConfig, for_profile
+    from wmthesis.sokoban_search.config import SokobanSearchConfig
+    from wmthesis.config import for_profile
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.envs.boxoban import BOXOBAN_SPLITS
     from wmthesis.sokoban_search.evaluation import solve_boards

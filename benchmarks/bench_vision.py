@@ -18,7 +18,8 @@ import torch
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.data import EpisodeStore, collect  # noqa: E402
+from wmthesis.data import EpisodeStore  # noqa: E402
+from wmthesis.rollouts import collect  # noqa: E402
 from wmthesis.world_models.vision import VAE, elbo_loss, frames_to_input  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 

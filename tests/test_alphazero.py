@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 import torch
 
+from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.diagnosis import action_predictability, reward_error_by_depth, search_statistics
 from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator, alphazero_loss, game_targets, value_targets
 from wmthesis.alphazero.imitation import PolicyHeadMind, agreement, expert_games
 from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, RewardView, State, reward_fit, reward_rows,
                                            train_reward_model)
 from wmthesis.alphazero.selfplay import AlphaZeroMind, VARIANTS, load_run, play, train_alphazero
-from wmthesis.config import AlphaZeroConfig, for_profile
+from wmthesis.config import for_profile
 from wmthesis.core import Mind, loop
 from wmthesis.envs.atari import NoopStart
 from wmthesis.training import ConfigMismatch

@@ -12,8 +12,8 @@ import torch
 from wmthesis.__main__ import main
 from wmthesis.envs import make_env
 from wmthesis.envs.sokoban import SokobanEnv
+from wmthesis.runs import FolderHeld, LOCK_NAME, hold, release, releasing_holds
 from wmthesis.training import NonFiniteLoss, gradient_step
-from wmthesis.runs import LOCK_NAME, FolderHeld, hold, release, releasing_holds
 
 
 # ----------------------------------------------------------------------------- actions
@@ -119,7 +119,7 @@ def test_the_alphazero_heads_and_the_reward_model_stop_on_nan():
     from wmthesis.alphazero.heads import AlphaZeroHeads, make_optimiser, train_round
     from wmthesis.alphazero.latent_mdp import RewardModel, train_reward_model
     from wmthesis.alphazero.replay import Game
-    from wmthesis.config import AlphaZeroConfig
+    from wmthesis.alphazero.config import AlphaZeroConfig
 
     config = AlphaZeroConfig(epochs=1, batch_size=4)
     heads = AlphaZeroHeads(2, 3, 2)

@@ -1,8 +1,8 @@
 """The command line: collect and view a store; bad input gives a message and exit status 2."""
 import pytest
 from wmthesis.__main__ import main
-from wmthesis.sokoban_search.tables import boxoban_rows
 from wmthesis.data import EpisodeStore
+from wmthesis.sokoban_search.tables import boxoban_rows
 from wmthesis.viz import recording_rows
 
 
@@ -198,7 +198,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert lean["best_round"] is None and "validation" not in lean["curve"][-1]
     # lean-value-rewards-0.7: lean's value from a copy (no round fitted again) under the planner chosen
     # on validation bouts; its CEM bout is that planner's with lean's own value
-    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.planet.config import ValuePlannerConfig
     from wmthesis.planet.value_bouts import value_planner_bout
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "lean-value-rewards-0.7"]) == 0

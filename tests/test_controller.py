@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.config import ControllerConfig, for_profile
+from wmthesis.config import for_profile
 from wmthesis.core import loop
 from wmthesis.envs import make_env
 from wmthesis.envs.vector import make_game
 from wmthesis.training import ConfigMismatch
-from wmthesis.world_models.controller import ControllerMind
-from wmthesis.world_models.controller import Controller, population_scores, unflatten
+from wmthesis.world_models.config import ControllerConfig
+from wmthesis.world_models.controller import Controller, ControllerMind, population_scores, unflatten
 from wmthesis.world_models.evolution import (dream_population, episode_seeds, evaluate_population, load_run,
                                              new_strategy, train_controller)
 from wmthesis.world_models.figures import plot_learning_curve

@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from wmthesis.core import Mind, RandomMind, loop
-from wmthesis.data import EpisodeRecorder, EpisodeStore, StoreError, chunk_starts, collect
+from wmthesis.rollouts import EpisodeRecorder, collect
+from wmthesis.data import EpisodeStore, StoreError, chunk_starts
 
 ROOT = Path(__file__).resolve().parents[1]
 SHAPE = (4, 4, 3)

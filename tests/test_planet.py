@@ -11,7 +11,8 @@ from torch import nn
 
 matplotlib.use("Agg")
 
-from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
+from wmthesis.planet.config import PlaNetConfig
+from wmthesis.config import for_profile  # noqa: E402
 from wmthesis.core import Transition  # noqa: E402
 from wmthesis.data import EpisodeStore  # noqa: E402
 from wmthesis.envs.preprocessing import quantize, to_float  # noqa: E402
@@ -20,7 +21,8 @@ from wmthesis.planet.cem import cem_belief, cem_plan  # noqa: E402
 from wmthesis.planet.figures import horizon_error_figure, learning_curve_figure, open_loop_figure
 from wmthesis.planet.prediction import evaluate_open_loop, open_loop
 from wmthesis.planet.rssm import RSSM, bottle, frames_out, one_hot_previous, planet_loss
-from wmthesis.planet.train import PlanetMind, load_planet, planet_frame, train_planet
+from wmthesis.planet.agent import PlanetMind
+from wmthesis.planet.train import load_planet, planet_frame, train_planet
 
 SMOKE = for_profile(PlaNetConfig, "smoke")
 

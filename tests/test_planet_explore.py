@@ -8,10 +8,12 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from wmthesis.config import PlaNetConfig, for_profile
+from wmthesis.config import for_profile
+from wmthesis.planet.config import PlaNetConfig
 from wmthesis.planet.explore import Disagreement, disagreement_loss, explored_returns, one_step_batch
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.train import PlanetMind, load_planet, train_planet
+from wmthesis.planet.agent import PlanetMind
+from wmthesis.planet.train import load_planet, train_planet
 
 SMOKE = for_profile(PlaNetConfig, "smoke")
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py

@@ -11,7 +11,8 @@ import torch.distributions as D
 
 matplotlib.use("Agg")
 
-from wmthesis.config import PlaNetConfig, for_profile  # noqa: E402
+from wmthesis.planet.config import PlaNetConfig
+from wmthesis.config import for_profile  # noqa: E402
 from wmthesis.data import EpisodeStore  # noqa: E402
 from wmthesis.envs.atari import make_atari  # noqa: E402
 from wmthesis.planet.networks import vision_networks  # noqa: E402

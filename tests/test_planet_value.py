@@ -8,12 +8,15 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.config import LatentValueConfig, for_profile
-from wmthesis.data import EpisodeStore, play_random_episode
+from wmthesis.config import for_profile
+from wmthesis.data import EpisodeStore
+from wmthesis.rollouts import play_random_episode
+from wmthesis.planet.config import LatentValueConfig
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.value import LatentValue, ValueMind, after_action, episode_features, best_values, fit_value, reward_sums, round_ensemble, td_targets
+from wmthesis.planet.value import (LatentValue, ValueMind, after_action, best_values, episode_features, fit_value,
+                                   reward_sums, round_ensemble, td_targets)
+from wmthesis.planet.value_play import bout_pool, evaluation_seeds, play_value, play_values, validation_seeds
 from wmthesis.planet.value_rounds import best_round, load_value, round_values, train_value
-from wmthesis.planet.value_play import evaluation_seeds, play_value, bout_pool, play_values, validation_seeds
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 

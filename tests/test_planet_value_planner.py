@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.train import PlanetMind
+from wmthesis.planet.agent import PlanetMind
 from wmthesis.planet.value import LatentValue, after_action
 from wmthesis.planet.value_planner import ValuePlanetMind, value_returns
 
@@ -74,7 +74,7 @@ def test_the_return_by_hand_imagined_rewards_then_the_discounted_value():
 
 
 def test_plan_choices_follow_one_belief_and_one_step_with_the_value_is_the_value_agent():
-    from wmthesis.config import PlaNetConfig, ValuePlannerConfig
+    from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
     from wmthesis.planet.value import ValueMind
     from wmthesis.planet.value_planner import PLANNERS, plan_choices
 
@@ -203,7 +203,7 @@ def test_a_seeded_planner_over_one_step_is_still_the_value_agent():
 def test_a_planner_cache_from_before_a_field_was_added_reads_as_what_it_did(tmp_path):
     import json
 
-    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.planet.config import ValuePlannerConfig
     from wmthesis.planet.value_bouts import cached_plan
 
     path = tmp_path / "value_planner.json"
@@ -221,7 +221,7 @@ def test_a_planner_cache_from_before_a_field_was_added_reads_as_what_it_did(tmp_
 def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_rest(tmp_path):
     import json
 
-    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.planet.config import ValuePlannerConfig
     from wmthesis.runs import played_bouts
 
     path = tmp_path / "scores-bouts.json"
@@ -264,7 +264,7 @@ def test_groups_of_bouts_play_in_one_pool_each_saved_in_its_own_file(tmp_path):
 
 
 def test_the_planner_levers_table_is_paired_against_the_first_lever():
-    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.planet.config import ValuePlannerConfig
     from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
     from wmthesis.planet.value_tables import planner_lever_rows
     from wmthesis.metrics import score_summary

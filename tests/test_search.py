@@ -18,7 +18,8 @@ import pytest
 matplotlib.use("Agg")
 
 from wmthesis.__main__ import main  # noqa: E402
-from wmthesis.config import SearchConfig, for_profile  # noqa: E402
+from wmthesis.planet.config import SearchConfig
+from wmthesis.config import for_profile  # noqa: E402
 from wmthesis.planet import tuning as tuning_module  # noqa: E402
 from wmthesis.planet.tuning import (TrialSeededSampler, default_storage, load_study, make_storage, open_study,
                                     planned_settings, ranked, run_search, search_figure, storage_fingerprint,

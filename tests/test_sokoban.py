@@ -13,10 +13,10 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from wmthesis.envs import make_env
-from wmthesis.envs.sokoban import (BOX, BOX_ON_TARGET, FLOOR, PLAYER, PLAYER_ON_TARGET, TARGET, WALL,
-                                   SokobanEnv, box_displacement, count_box_swaps, level_score,
-                                   make_tiles, place_player_and_targets, reverse_play,
-                                   room_topology, solve)
+from wmthesis.envs.sokoban import (BOX, BOX_ON_TARGET, FLOOR, PLAYER, PLAYER_ON_TARGET, SokobanEnv, TARGET, WALL,
+                                   make_tiles, solve)
+from wmthesis.envs.sokoban_generator import (box_displacement, count_box_swaps, level_score, place_player_and_targets,
+                                             reverse_play, room_topology)
 
 REPO = Path(__file__).resolve().parents[1]
 VARIANTS = {"sokoban": ((10, 10), 4), "sokoban-small": ((7, 7), 2)}

@@ -10,7 +10,8 @@ import pytest
 from wmthesis.variants import Variant, Variants
 import torch
 
-from wmthesis.config import SokobanSearchConfig, for_profile
+from wmthesis.sokoban_search.config import SokobanSearchConfig
+from wmthesis.config import for_profile
 from wmthesis.envs.levels import LevelError, board_to_text, fit_board, parse_level, parse_levels, read_levels
 from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, WALL, SokobanEnv, solve
 from wmthesis.sokoban_search import accuracy, report

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.data import EpisodeStore, collect
+from wmthesis.data import EpisodeStore
+from wmthesis.rollouts import collect
 from wmthesis.envs import make_env
 from wmthesis.envs.sokoban import BOX, FLOOR, PLAYER, TARGET, grid_frames, read_grid, solve
 from wmthesis.envs.vector import ListGame, make_game

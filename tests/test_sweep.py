@@ -231,7 +231,7 @@ def test_a_run_that_raises_is_reported_and_the_others_finish(local_ray):
 def _killed_once(name, profile, seed, variant=None, progress=True):
     """The first attempt kills its own worker (SIGKILL) once the vision has a checkpoint; a retry
     runs with random-rollout collection forbidden (its store must be kept, not collected again)."""
-    import wmthesis.data
+    import wmthesis.rollouts
     from wmthesis.utils import data_dir
 
     work = data_dir(profile, name, f"seed{seed}")
@@ -245,12 +245,12 @@ def _killed_once(name, profile, seed, variant=None, progress=True):
             os.kill(os.getpid(), signal.SIGKILL)
         threading.Thread(target=kill_when_vision_checkpointed, daemon=True).start()
     else:
-        rollouts = wmthesis.data._rollouts
+        rollouts = wmthesis.rollouts._rollouts
 
         def no_new_episodes(env_name, options, seed, todo, workers):
             assert len(todo) == 0, f"the retry collected {len(todo)} episodes again"
             return rollouts(env_name, options, seed, todo, workers)
-        wmthesis.data._rollouts = no_new_episodes
+        wmthesis.rollouts._rollouts = no_new_episodes
     return reproduce(name, profile, seed, variant=variant, progress=progress)
 
 

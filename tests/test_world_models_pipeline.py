@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.config import MemoryConfig, VisionConfig, for_profile
-from wmthesis.data import EpisodeStore, collect
+from wmthesis.config import for_profile
+from wmthesis.data import EpisodeStore
+from wmthesis.rollouts import collect
 from wmthesis.training import ConfigMismatch
+from wmthesis.world_models.config import MemoryConfig, VisionConfig
 from wmthesis.world_models.prediction import open_loop
 from wmthesis.world_models.train import (LatentStore, encode_store, reconstruct, split_episodes, train_memory,
                                          train_vision)

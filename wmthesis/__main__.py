@@ -63,7 +63,7 @@ def default_store_path(env: str, preprocessing: str | None) -> Path:
 
 
 def cmd_collect(args) -> int:
-    from wmthesis.data import collect
+    from wmthesis.rollouts import collect
 
     cfg = for_profile(CollectConfig, args.profile)
     episodes = cfg.episodes if args.episodes is None else args.episodes
@@ -132,7 +132,8 @@ def cmd_reproduce(args) -> int:
 def cmd_solve_sokoban(args) -> int:
     import json
 
-    from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
+    from wmthesis.sokoban_search.config import SokobanSearchConfig
+    from wmthesis.config import for_profile, profile_name
     from wmthesis.envs.boxoban import load_levels
     from wmthesis.experiments.sokoban_search import work_folder
     from wmthesis.sokoban_search.evaluation import solve_boards

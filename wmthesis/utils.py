@@ -47,10 +47,19 @@ def seed_everything(seed: int) -> np.random.Generator:
 
 
 # Classes that checkpoints pickled under the package's earlier layout (one folder per kind:
-# models/, agents/, planning/), and where they live now; read_pickle finds them there.
+# models/, agents/, planning/; configs in one module), and where they live now; read_pickle finds them there.
 MOVED_CLASSES = {
     ("wmthesis.agents.alphazero", "Game"): "wmthesis.alphazero.replay",
     ("wmthesis.agents.controller_training", "SeededNormal"): "wmthesis.world_models.evolution",
+    ("wmthesis.config", "VisionConfig"): "wmthesis.world_models.config",
+    ("wmthesis.config", "MemoryConfig"): "wmthesis.world_models.config",
+    ("wmthesis.config", "ControllerConfig"): "wmthesis.world_models.config",
+    ("wmthesis.config", "PlaNetConfig"): "wmthesis.planet.config",
+    ("wmthesis.config", "LatentValueConfig"): "wmthesis.planet.config",
+    ("wmthesis.config", "ValuePlannerConfig"): "wmthesis.planet.config",
+    ("wmthesis.config", "SearchConfig"): "wmthesis.planet.config",
+    ("wmthesis.config", "AlphaZeroConfig"): "wmthesis.alphazero.config",
+    ("wmthesis.config", "SokobanSearchConfig"): "wmthesis.sokoban_search.config",
 }
 
 

@@ -14,13 +14,14 @@ from wmthesis.alphazero.heads import Evaluator
 from wmthesis.alphazero.imitation import PolicyHeadMind
 from wmthesis.alphazero.replay import game_seeds
 from wmthesis.alphazero.selfplay import AlphaZeroMind, play
-from wmthesis.config import MemoryConfig, for_profile
+from wmthesis.config import for_profile
 from wmthesis.core import Mind, RandomMind, loop
 from wmthesis.envs.atari import boxing_env, noop_count
 from wmthesis.references import human, random_play
 from wmthesis.runs import atomic_path, read_json
 from wmthesis.training import load_weights
 from wmthesis.utils import derive_seeds, fingerprint, read_pickle
+from wmthesis.world_models.config import MemoryConfig
 from wmthesis.world_models.controller import ControllerMind
 from wmthesis.world_models.evolution import load_run
 from wmthesis.world_models.train import make_memory

@@ -56,13 +56,13 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator, VALUE_TARGETS, make_optimiser, train_round
 from wmthesis.alphazero.imitation import agreement, expert_games
 from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, State, reward_fit, reward_rows, rollout_rows,
                                            stack_rows, train_reward_model)
 from wmthesis.alphazero.mcts import MCTS
 from wmthesis.alphazero.replay import Game, REPLAY_NAME, Replay, game_seeds
-from wmthesis.config import AlphaZeroConfig
 from wmthesis.core import Callback, Mind, Proportional, loop
 from wmthesis.runs import atomic_path
 from wmthesis.training import check_resumable

@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.alphazero.evaluation import (RECORDING_STEPS, boxing_baselines, controller_minds, evaluation_games,
-                                          policy_head_returns, score_figure)
+                                           policy_head_returns, score_figure)
 from wmthesis.alphazero.selfplay import VARIANTS, train_alphazero
-from wmthesis.config import CollectConfig, MemoryConfig, VisionConfig, for_profile, profile_name
+from wmthesis.config import CollectConfig, for_profile, profile_name
 from wmthesis.references import published
 from wmthesis.runs import atomic_path, first_run_seconds, hold, releasing_holds, run_header
 from wmthesis.utils import data_dir
 from wmthesis.viz import save_figure
+from wmthesis.world_models.config import MemoryConfig, VisionConfig
 
 ALPHAZERO_DIAGNOSIS_DEPTH = {"smoke": 5, "quick": 10, "thesis": 10}
 
@@ -51,8 +52,9 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     from wmthesis.alphazero import diagnosis
     from wmthesis.world_models.vision import VAEVision
     from wmthesis.world_models.train import LatentStore, encode_store, train_memory, train_vision
-    from wmthesis.config import AlphaZeroConfig
-    from wmthesis.data import EpisodeStore, collect
+    from wmthesis.alphazero.config import AlphaZeroConfig
+    from wmthesis.data import EpisodeStore
+    from wmthesis.rollouts import collect
     from wmthesis.metrics import score_difference, score_summary
     from wmthesis.viz import record_frames
 

@@ -126,7 +126,8 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
 def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval: int, updates: int) -> list[float]:
     """``n_eval`` greedy planner episodes (seeds from (seed, 2, k), apart from training's
     tests); cached in ``evaluation.json`` for the checkpoint's number of updates."""
-    from wmthesis.planet.train import make_planet_env, play_greedy
+    from wmthesis.planet.train import make_planet_env
+    from wmthesis.planet.agent import play_greedy
 
     path = work / "evaluation.json"
     cached = read_json(path)

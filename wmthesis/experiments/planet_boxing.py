@@ -15,13 +15,13 @@ import json
 import time
 from pathlib import Path
 
-from wmthesis.config import PlaNetConfig, profile_name
-from wmthesis.metrics import score_cell
+from wmthesis.config import profile_name
 from wmthesis.planet.bouts import FIRST_STEPS, bout_scores, play_bout
+from wmthesis.planet.config import PlaNetConfig
 from wmthesis.planet.profiles import planet_config
 from wmthesis.planet.study import STUDY
 from wmthesis.planet.train import same_training
-from wmthesis.references import HUMAN, THESIS_PLANET_BOXING, THESIS_PLANET_BOXING_SCORE, human, published, random_play
+from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human, published, random_play
 from wmthesis.runs import atomic_path, hold, played_bouts, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir, derive_seeds, parallel_calls
 from wmthesis.viz import record_frames, save_figure
@@ -30,7 +30,6 @@ GAME = "boxing"
 TUNED = "free-nats"
 # The agent's evaluation bouts per profile (its budget is the config's ``env_steps``, seed bouts included).
 AGENT = {"smoke": dict(bouts=2), "quick": dict(bouts=10), "thesis": dict(bouts=10)}
-
 
 
 def boxing_config(profile: str, variant: str | None = None, study: bool = True) -> PlaNetConfig:
@@ -107,7 +106,6 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
 # ---------------------------------------------------------------------------- the agent
 
 
-
 @releasing_holds
 def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
     """The tuned study model (seed ``seed``) goes on as a PlaNet agent until the store holds the
@@ -160,43 +158,5 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
 
 
 
-# ---------------------------------------------------------------------------- tables
-
-def study_table(metrics: dict) -> str:
-    """The study's summary as a markdown table: per configuration, the model's error on the
-    moving pixels at each horizon (seed mean, [min, max]) beside the baselines, and the
-    latent diagnostics."""
-    summary = metrics["summary"]
-    first = next(iter(summary.values()))
-    horizons = list(first["model"])
-    rows = ["| configuration | " + " | ".join(f"+{h}" for h in horizons)
-            + " | beats both baselines at +1..+5 | KL (nats) | free nats | posterior / prior entropy |",
-            "|---" * (len(horizons) + 5) + "|"]
-    for variant, entry in summary.items():
-        run = metrics["runs"][f"{variant}-seed{metrics['seeds'][0]}"]
-        cells = [f"{v['mean']:.4f} [{v['min']:.4f}, {v['max']:.4f}]" for v in entry["model"].values()]
-        diag = entry["diagnostics"]
-        rows.append(f"| {variant}: KL scale {run['kl_scale']:g}, free nats {run['free_nats']:g} | " + " | ".join(cells)
-                    + f" | {'yes' if entry['beats_baselines'] else 'no'} | {diag['kl']:.2f} | {run['free_nats']:g} | "
-                    f"{diag['posterior_entropy']:.1f} / {diag['prior_entropy']:.1f} |")
-    for name in ("repeat last", "mean frame"):
-        rows.append(f"| baseline: {name} | " + " | ".join(f"{first[name][h]:.4f}" for h in horizons) + " | | | | |")
-    return "\n".join(rows)
-
-
-def agent_table(metrics: dict) -> str:
-    """The agent's bouts beside random play on the same bouts and the references (markdown)."""
-    diff, first = metrics["difference"], metrics["difference_first"]
-    return "\n".join([
-        "| player | full bout | first 500 agent steps |", "|---|---|---|",
-        f"| PlaNet (KL scale 0.03, free nats 12), {metrics['env_steps']:,} agent steps, {metrics['updates']:,} updates "
-        f"| {score_cell(metrics['agent']['full'])} | {score_cell(metrics['agent']['first'])} |",
-        f"| random play, same bouts | {score_cell(metrics['random']['full'])} | {score_cell(metrics['random']['first'])} |",
-        f"| agent - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) "
-        f"| {first['difference']:.1f} ± {first['standard_error']:.1f} (s.e.) |",
-        f"| human ({HUMAN[GAME].source}) | {human(GAME)} | |",
-        f"| thesis PlaNet ({THESIS_PLANET_BOXING.source}) | {THESIS_PLANET_BOXING.value} | |"])
-
-
-__all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", "study_table", "agent_table",
+__all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", 
            "AGENT", "GAME"]

@@ -79,7 +79,8 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     round) and ``files``. A ``variant`` of :data:`VALUE_VARIANTS` fits its value in a folder of
     its own, on the same model and bouts (a ``td`` value is discounted in the planner as in its
     targets; one may change the planner alone)."""
-    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
+    from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+    from wmthesis.config import for_profile
 
     chosen, variant = VALUE_VARIANTS.check(variant), folder_variant(variant)
     profile = profile_name(profile)
@@ -138,7 +139,8 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     run's, where it was read from its ``metrics.json`` (a machine that holds only the models,
     ``tools/validate_levers.py``). Returns lever -> the
     planner's ``config`` and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
-    from wmthesis.config import ValuePlannerConfig, for_profile
+    from wmthesis.planet.config import ValuePlannerConfig
+    from wmthesis.config import for_profile
     from wmthesis.planet.value_play import validation_seeds
 
     profile = profile_name(profile)
@@ -166,7 +168,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     its round (:func:`~wmthesis.planet.value_play.validation_seeds` from ``validation_bouts`` on: apart
     from the choice among rounds and from the evaluation bouts). Each bout is saved as it ends.
     Returns rule -> its ``rounds`` and their ``full`` and ``first``-500-step scores."""
-    from wmthesis.config import LatentValueConfig
+    from wmthesis.planet.config import LatentValueConfig
     from wmthesis.runs import played_bouts
     from wmthesis.planet.value_bouts import value_bout
     from wmthesis.planet.train import load_planet

@@ -139,7 +139,8 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     value or the planner in a folder of its own, beside the run on the same model
     (:func:`base_variant`): its baselines are copied from that run, not played again, and one that keeps the
     value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.planet.value_runs.fit_and_compare`."""
-    from wmthesis.config import LatentValueConfig, ValuePlannerConfig, for_profile
+    from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+    from wmthesis.config import for_profile
     from wmthesis.data import EpisodeStore
     from wmthesis.planet.value_rounds import STORE
     from wmthesis.planet.value_play import evaluation_seeds
@@ -218,7 +219,8 @@ def validate_planners(profile: str | None = None, seed: int = 0, variant: str | 
     episodes), in one pool, each lever cached in the folder of the run that fitted the value
     (:func:`value_variant`: a variant that changes the planner alone shares its base's levers).
     Returns lever -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
-    from wmthesis.config import ValuePlannerConfig, for_profile
+    from wmthesis.planet.config import ValuePlannerConfig
+    from wmthesis.config import for_profile
     from wmthesis.planet.value_play import validation_seeds
 
     profile = profile_name(profile)
@@ -344,7 +346,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     import numpy as np
     from gymnasium.wrappers import TimeLimit
 
-    from wmthesis.config import ValuePlannerConfig
+    from wmthesis.planet.config import ValuePlannerConfig
     from wmthesis.envs.freeway import play_lookahead
     from wmthesis.planet.train import load_planet, make_planet_env
     from wmthesis.planet.value_play import evaluation_seeds

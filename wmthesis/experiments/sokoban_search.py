@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
+from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS, load_levels
 from wmthesis.metrics import score_summary
 from wmthesis.references import BOXOBAN, published
@@ -17,6 +17,7 @@ from wmthesis.runs import (atomic_path, cached, first_run_seconds, hold, jsonabl
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table
+from wmthesis.sokoban_search.config import SokobanSearchConfig
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
                                                 random_board_row, random_row, replay_states)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution

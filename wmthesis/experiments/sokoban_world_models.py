@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
+from wmthesis.config import CollectConfig, for_profile, profile_name
 from wmthesis.references import THESIS_SOKOBAN_WM
 from wmthesis.runs import atomic_path, first_run_seconds, hold, jsonable, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir
+from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.figures import sokoban_figures, sokoban_recording
 from wmthesis.world_models.sokoban import (CONTROLLERS as SOKOBAN_WM_CONTROLLERS, VARIANTS as SOKOBAN_WM_VARIANTS,
                                            check_same_episodes, evaluate_memories, levels_solved)
@@ -85,7 +86,8 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, progress: bo
 
     from wmthesis.world_models.grid import encode_grid_store
     from wmthesis.world_models.train import encode_store, train_memory, train_vision
-    from wmthesis.data import EpisodeStore, collect
+    from wmthesis.data import EpisodeStore
+    from wmthesis.rollouts import collect
     from wmthesis.envs.sokoban import ACTIONS
     from wmthesis.metrics import score_summary
 

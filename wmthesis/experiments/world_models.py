@@ -9,11 +9,12 @@ from typing import NamedTuple
 import matplotlib.pyplot as plt
 import numpy as np
 
-from wmthesis.config import CollectConfig, ControllerConfig, MemoryConfig, VisionConfig, for_profile, profile_name
+from wmthesis.config import CollectConfig, for_profile, profile_name
 from wmthesis.references import published
 from wmthesis.runs import atomic_path, first_run_seconds, hold, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir
 from wmthesis.viz import save_figure
+from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.prediction import open_loop_errors
 
 
@@ -108,7 +109,7 @@ def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     each step cached."""
     from wmthesis.world_models.vision import VAEVision
     from wmthesis.world_models.train import encode_store, train_memory, train_vision
-    from wmthesis.data import collect
+    from wmthesis.rollouts import collect
 
     work = hold(data_dir(profile, "boxing-wm", f"seed{seed}"))
 

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from wmthesis.config import PlaNetConfig
 from wmthesis.core import ConstantMind, RandomMind, loop
-from wmthesis.data import EpisodeBuffer
-from wmthesis.metrics import score_summary
-from wmthesis.planet.train import load_planet, make_planet_env, play_greedy
+from wmthesis.rollouts import EpisodeBuffer
+from wmthesis.metrics import score_cell, score_summary
+from wmthesis.references import HUMAN, THESIS_PLANET_BOXING, human
+from wmthesis.planet.config import PlaNetConfig
+from wmthesis.planet.train import load_planet, make_planet_env
+from wmthesis.planet.agent import play_greedy
 
 FIRST_STEPS = 500  # 2,000 frames at action repeat 4: the author's episode cap
 
@@ -47,4 +49,18 @@ def bout_scores(plays: list[dict]) -> dict:
             "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays]}
 
 
-__all__ = ["FIRST_STEPS", "play_bout", "bout_result", "bout_scores"]
+def agent_table(metrics: dict) -> str:
+    """The agent's bouts beside random play on the same bouts and the references (markdown)."""
+    diff, first = metrics["difference"], metrics["difference_first"]
+    return "\n".join([
+        "| player | full bout | first 500 agent steps |", "|---|---|---|",
+        f"| PlaNet (KL scale 0.03, free nats 12), {metrics['env_steps']:,} agent steps, {metrics['updates']:,} updates "
+        f"| {score_cell(metrics['agent']['full'])} | {score_cell(metrics['agent']['first'])} |",
+        f"| random play, same bouts | {score_cell(metrics['random']['full'])} | {score_cell(metrics['random']['first'])} |",
+        f"| agent - random | {diff['difference']:.1f} ± {diff['standard_error']:.1f} (s.e.) "
+        f"| {first['difference']:.1f} ± {first['standard_error']:.1f} (s.e.) |",
+        f"| human ({HUMAN['boxing'].source}) | {human('boxing')} | |",
+        f"| thesis PlaNet ({THESIS_PLANET_BOXING.source}) | {THESIS_PLANET_BOXING.value} | |"])
+
+
+__all__ = ["agent_table", "FIRST_STEPS", "play_bout", "bout_result", "bout_scores"]

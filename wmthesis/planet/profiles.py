@@ -1,10 +1,11 @@
 """PlaNet's sizes per game and profile: the changes on top of the profile's
-:class:`~wmthesis.config.PlaNetConfig` (``for_profile``) that each game needs, written once for
+:class:`~wmthesis.planet.config.PlaNetConfig` (``for_profile``) that each game needs, written once for
 the experiments, the model study and the search.
 """
 from __future__ import annotations
 
-from wmthesis.config import PlaNetConfig, for_profile
+from wmthesis.config import for_profile
+from wmthesis.planet.config import PlaNetConfig
 
 # Atari (Boxing, Freeway) changes on top of the profile, per game. Smoke: the profile's 80 steps
 # (the action-repeat variant's 40 still hold one planner episode after its two seed episodes), 4

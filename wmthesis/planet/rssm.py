@@ -311,7 +311,7 @@ def planet_loss(model: RSSM, observations: torch.Tensor, actions: torch.Tensor,
                 reward_event_weight: float = 1.0,
                 generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
     """The PlaNet loss on a batch of chunks (module docstring). The defaults here are a plain
-    ELBO; :class:`~wmthesis.config.PlaNetConfig` holds the thesis's values.
+    ELBO; :class:`~wmthesis.planet.config.PlaNetConfig` holds the thesis's values.
 
     ``observations`` (B, T, H, W, 3) uint8 (``bits``-bit values), ``actions`` (B, T) long,
     ``rewards`` (B, T) with row t the reward ``r_{t+1}``; all on the model's device.

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.data import EpisodeStore, play_random_episode
+from wmthesis.data import EpisodeStore
+from wmthesis.rollouts import play_random_episode
 from wmthesis.planet.prediction import background_frame, latent_diagnostics, moving_open_loop
 from wmthesis.planet.train import load_planet, make_planet_env
 
@@ -93,4 +94,26 @@ def summarise(scores: dict[str, list[dict]], horizons=(1, 5, 10, 15)) -> dict:
     return out
 
 
-__all__ = ["STUDY", "STUDY_VARIANTS", "BASELINES", "held_out_store", "scene", "score_run", "summarise"]
+def study_table(metrics: dict) -> str:
+    """The study's summary as a markdown table: per configuration, the model's error on the
+    moving pixels at each horizon (seed mean, [min, max]) beside the baselines, and the
+    latent diagnostics."""
+    summary = metrics["summary"]
+    first = next(iter(summary.values()))
+    horizons = list(first["model"])
+    rows = ["| configuration | " + " | ".join(f"+{h}" for h in horizons)
+            + " | beats both baselines at +1..+5 | KL (nats) | free nats | posterior / prior entropy |",
+            "|---" * (len(horizons) + 5) + "|"]
+    for variant, entry in summary.items():
+        run = metrics["runs"][f"{variant}-seed{metrics['seeds'][0]}"]
+        cells = [f"{v['mean']:.4f} [{v['min']:.4f}, {v['max']:.4f}]" for v in entry["model"].values()]
+        diag = entry["diagnostics"]
+        rows.append(f"| {variant}: KL scale {run['kl_scale']:g}, free nats {run['free_nats']:g} | " + " | ".join(cells)
+                    + f" | {'yes' if entry['beats_baselines'] else 'no'} | {diag['kl']:.2f} | {run['free_nats']:g} | "
+                    f"{diag['posterior_entropy']:.1f} / {diag['prior_entropy']:.1f} |")
+    for name in ("repeat last", "mean frame"):
+        rows.append(f"| baseline: {name} | " + " | ".join(f"{first[name][h]:.4f}" for h in horizons) + " | | | | |")
+    return "\n".join(rows)
+
+
+__all__ = ["study_table", "STUDY", "STUDY_VARIANTS", "BASELINES", "held_out_store", "scene", "score_run", "summarise"]

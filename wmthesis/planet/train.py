@@ -31,19 +31,19 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm import tqdm
 
-from wmthesis.config import PlaNetConfig
-from wmthesis.core import Callback, Mind, loop
-from wmthesis.data import EpisodeBuffer, EpisodeStore, episode_seeds, play_random_episode
+from wmthesis.core import loop
+from wmthesis.data import EpisodeStore
 from wmthesis.envs import ATARI_GAMES, make_env
-from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize, to_float
-from wmthesis.planet.cem import cem_belief
-from wmthesis.planet.explore import build_disagreement, disagreement_loss, explored_returns, one_step_batch
+from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize
+from wmthesis.planet.agent import PlanetMind, play_greedy
+from wmthesis.planet.config import PlaNetConfig
+from wmthesis.planet.explore import build_disagreement, disagreement_loss, one_step_batch
 from wmthesis.planet.networks import vision_networks
 from wmthesis.planet.rssm import RSSM, planet_loss
 from wmthesis.planet.variants import variant_changes
+from wmthesis.rollouts import EpisodeBuffer, episode_seeds, play_random_episode
 from wmthesis.runs import atomic_path
 from wmthesis.training import gradient_step, with_added_defaults
 from wmthesis.utils import derive_seeds, device, seed_everything
@@ -105,99 +105,6 @@ def build_model(config: PlaNetConfig, n_actions: int) -> RSSM:
 
 def make_optimizer(model: RSSM, config: PlaNetConfig) -> torch.optim.Adam:
     return torch.optim.Adam(model.parameters(), lr=config.lr, eps=config.adam_eps)
-
-
-# ---------------------------------------------------------------------------- agent
-class BeliefFilter(Mind, Callback):
-    """An agent's belief ``(h_t, s_t)`` under an RSSM, filtered along the episode, for
-    :func:`~wmthesis.core.loop`: the part that PlaNet's planner and the latent value agent
-    (:class:`~wmthesis.planet.value.ValueMind`) share.
-
-    Pass a subclass as the mind AND among the callbacks: ``on_episode_start`` resets the belief
-    and ``on_step_taken`` records the action taken (the policy may differ from the plan).
-    :meth:`reset` does the episode reset by hand.
-    """
-
-    def __init__(self, model: RSSM, bits: int = 5, generator: torch.Generator | None = None):
-        self.model, self.bits = model, bits
-        weight = next(model.parameters())
-        self.generator = generator if generator is not None else torch.Generator(weight.device).manual_seed(0)
-        self.reset()
-
-    def reset(self) -> None:
-        """Start of an episode: zero belief, state and previous action."""
-        self.belief, self.state = self.model.initial(1)
-        self.prev_action = self.belief.new_zeros(1, self.model.n_actions)
-
-    def on_episode_start(self, episode, train_mode):
-        self.reset()
-
-    def on_step_taken(self, step, transition, info):
-        self.prev_action = F.one_hot(torch.tensor([transition.action], device=self.belief.device),
-                                     self.model.n_actions).float()
-
-    @torch.inference_mode()
-    def observe(self, frame: np.ndarray, sample: bool = True) -> None:
-        """Advance ``(h, s)`` with a (size, size, 3) uint8 frame (``bits`` bits, dequantisation
-        noise as in training) and the previous action; ``s`` is the posterior's sample, or its
-        mean when not ``sample``."""
-        x = to_float(torch.as_tensor(frame, device=self.belief.device), self.bits, noise=self.generator)
-        self.belief, _ = self.model.transition(self.belief, self.state, self.prev_action)
-        posterior = self.model.posterior(self.belief, self.model.encode(x[None]))
-        self.state = posterior.sample(self.generator) if sample else posterior.mean
-
-
-class PlanetMind(BeliefFilter):
-    """The PlaNet agent: filter the belief (:class:`BeliefFilter`), plan with CEM. Each
-    :meth:`plan` first updates ``(h, s)`` with the observation and the previous action, then
-    returns the scores of the final CEM belief for the first step (argmax = the plan's action).
-    """
-
-    def __init__(self, model: RSSM, *, horizon: int, candidates: int, top_k: int,
-                 iterations: int, bits: int = 5, generator: torch.Generator | None = None,
-                 explorer=None, explore_scale: float = 0.0):
-        self.sizes = dict(horizon=horizon, candidates=candidates, top_k=top_k, iterations=iterations)
-        self.explorer, self.explore_scale = explorer, explore_scale
-        super().__init__(model, bits, generator)
-
-    @classmethod
-    def from_config(cls, model: RSSM, config: PlaNetConfig, seed: int = 0, explorer=None) -> "PlanetMind":
-        """The config's planner; with an ``explorer`` (:class:`~wmthesis.planet.explore.Disagreement`),
-        the collecting planner whose returns add ``config.explore_scale`` x its disagreement."""
-        generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
-        return cls(model, horizon=config.horizon, candidates=config.candidates, top_k=config.top_k,
-                   iterations=config.iterations, bits=config.bits, generator=generator, explorer=explorer,
-                   explore_scale=config.explore_scale if explorer is not None else 0.0)
-
-    def returns(self, actions: torch.Tensor) -> torch.Tensor:
-        """CEM's objective: one-hot candidates (J, H, A) -> their imagined returns (J,) from the
-        current belief (the thesis's: the sum of predicted rewards; with an explorer, plus its
-        bonus: :func:`~wmthesis.planet.explore.explored_returns`)."""
-        return explored_returns(self.model, self.explorer, self.explore_scale, self.belief, self.state, actions,
-                                self.generator)
-
-    def first_mean(self) -> torch.Tensor | None:
-        """CEM's first mean (H, A) from the current belief; None: zeros, the thesis's."""
-        return None
-
-    @torch.inference_mode()
-    def plan(self, state, train_mode: bool = True, debug_mode: bool = False):
-        self.observe(state)
-        belief = cem_belief(self.returns, self.model.n_actions, generator=self.generator, mean=self.first_mean(),
-                            **self.sizes)
-        scores = belief.mean[0].cpu().numpy()
-        if debug_mode:
-            return scores, {"std": belief.std[0].cpu().numpy(), "best_return": float(belief.returns.max())}
-        return scores
-
-
-def play_greedy(env, model: RSSM, config: PlaNetConfig, env_seed: int, mind_seed: int) -> list[float]:
-    """One greedy planner episode in ``env`` (reset with ``env_seed``; CEM's noise from
-    ``mind_seed``): its rewards, one per agent step."""
-    mind = PlanetMind.from_config(model, config, int(mind_seed))
-    record = EpisodeBuffer()
-    loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
-    return [float(r) for r in record.episode["rewards"]]
 
 
 # ---------------------------------------------------------------------------- training
@@ -488,5 +395,5 @@ def same_training(cached: dict | None, run: dict) -> bool:
             and cached.get("curve") == json.loads(json.dumps(run["curve"])))  # as a metrics file holds it
 
 
-__all__ = ["same_training", "train_planet", "train_updates", "batch_loss", "PlanetMind", "play_greedy", "with_variant", "make_planet_env",
+__all__ = ["same_training", "train_planet", "train_updates", "batch_loss", "with_variant", "make_planet_env",
            "planet_frame", "PlanetFrames", "build_model", "load_planet"]

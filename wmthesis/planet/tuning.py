@@ -20,20 +20,15 @@ trials until the study holds ``trials`` finished (complete or pruned) trials.
 - Dead workers: workers beat a heartbeat into the storage; a RUNNING trial whose worker has
   not beaten for ``grace_period`` seconds is marked FAIL (by any live worker, or when the
   command runs again), and a new trial takes its place. Completed trials are never touched.
-  (A worker killed in the instant between creating its trial and its first heartbeat leaves a
-  RUNNING trial without heartbeats, which optuna cannot tell from a live one: mark it failed
-  by hand, e.g. ``study._storage.set_trial_state_values(trial._trial_id, TrialState.FAIL)``.)
+  (A worker killed between creating its trial and its first heartbeat leaves a RUNNING trial
+  optuna cannot tell from a live one: mark it FAIL by hand.)
 - A trial whose loss diverges (``FloatingPointError``) is PRUNED with the error in its
   ``diverged`` user attribute: it counts as a (bad) result, not as a crash.
 
 Per trial, under ``data/search/FOLDER/trial-NNNN/``: the PlaNet run folder, ``metrics.json``
-and ``open_loop.png`` (the trial's ``folder`` user attribute). ``FOLDER`` (:func:`study_dir`) is
-the study's name for the default storage (``data/search/planet-boxing-quick-both/``) and the
-name plus the storage's fingerprint for any other (``planet-boxing-quick-both-1a2b3c4d/``): the
-first 8 hex digits of the SHA-256 of its URL without the password, SQLite paths made absolute
-(:func:`storage_fingerprint`). So two storages holding a study of the same name keep apart, and
-a study run again through the same URL finds its folder again. (Trials run before storages had
-fingerprints keep their folders, as their ``folder`` attributes say.)
+and ``open_loop.png``. ``FOLDER`` (:func:`study_dir`) is the study's name for the default storage,
+and the name plus the storage's fingerprint (:func:`storage_fingerprint`) for any other: two
+storages holding a study of the same name keep apart.
 
 :func:`run_search` is the entry point; :func:`trial_rows`, :func:`ranked` and
 :func:`search_figure` read a study back (notebook 06).
@@ -42,7 +37,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import json
 import math
 import multiprocessing
 import os
@@ -62,13 +56,14 @@ from optuna.samplers import RandomSampler
 from optuna.trial import TrialState
 from sqlalchemy.engine import make_url
 
-from wmthesis.config import SearchConfig, for_profile, profile_name
+from wmthesis.config import for_profile, profile_name
 from wmthesis.data import EpisodeStore
+from wmthesis.planet.config import SearchConfig
 from wmthesis.planet.figures import open_loop_figure
 from wmthesis.planet.profiles import planet_config
 from wmthesis.planet.study import held_out_store, scene, score_run
 from wmthesis.planet.train import train_planet
-from wmthesis.runs import atomic_path
+from wmthesis.runs import atomic_path, write_json
 from wmthesis.utils import check_choice, data_dir, parallel_calls
 
 
@@ -83,18 +78,14 @@ class Game:
     cutoff: int
 
 
-# Cut-offs (not stated in the thesis): Boxing the planner's horizon (12); Freeway our longer
-# horizon (25; 5.6.6 gives none), since a crossing takes longer than 12 planner steps. Boxing's
-# setting is the thesis's (5.6.4); Freeway's 8e-3 / 3 is our guess (5.6.5 gives no values).
+# Cut-offs (not in the thesis): Boxing the planner's horizon, Freeway our longer one (a crossing
+# takes longer than 12 steps). Boxing's setting is the thesis's (5.6.4), Freeway's our guess.
 GAMES: dict[str, Game] = {
     "planet-boxing": Game("boxing", 3e-2, 12.0, 12),
     "planet-freeway": Game("freeway", 8e-3, 3.0, 25),
 }
-OBJECTIVES: dict[str, tuple[str, ...]] = {          # name -> optuna directions
-    "score": ("maximize",),
-    "error": ("minimize",),
-    "both": ("maximize", "minimize"),                # (score, error)
-}
+# name -> optuna directions (both: score, error)
+OBJECTIVES: dict[str, tuple[str, ...]] = {"score": ("maximize",), "error": ("minimize",), "both": ("maximize", "minimize")}
 FINISHED = (TrialState.COMPLETE, TrialState.PRUNED)  # what counts towards ``trials``
 CONTEXT = 5                                          # open-loop context frames (as the thesis figures)
 METRICS, FIGURE = "metrics.json", "open_loop.png"
@@ -246,7 +237,7 @@ def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str
     try:
         measured = measure(name, config, folder / "run", cfg.seed, cfg, held_out_path(trial.study, name, cfg, storage))
     except FloatingPointError as error:
-        _write_json(folder / METRICS, dict(metrics, diverged=str(error)))
+        write_json(folder / METRICS, dict(metrics, diverged=str(error)))
         trial.set_user_attr("diverged", str(error))
         raise optuna.TrialPruned(f"diverged: {error}") from error
     rollout = measured.pop("rollout")
@@ -257,7 +248,7 @@ def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str
     with atomic_path(folder / FIGURE) as tmp:
         fig.savefig(tmp, dpi=70, format="png")
     plt.close(fig)
-    _write_json(folder / METRICS, metrics)
+    write_json(folder / METRICS, metrics)
     for key in ("score", "error", "horizon"):
         trial.set_user_attr(key, metrics[key])
     trial.set_user_attr("folder", str(folder))
@@ -334,13 +325,8 @@ def confirm_extremes(name: str, study: optuna.Study, *, storage: str | None = No
     out["gap"] = abs(means["best"] - means["worst"])
     out["spread"] = max(abs(np.subtract(*out[label]["values"])) for label in extremes)
     out["discriminates"] = bool(out["gap"] > out["spread"])
-    _write_json(study_dir(study.study_name, storage) / "confirmation.json", out)
+    write_json(study_dir(study.study_name, storage) / "confirmation.json", out)
     return out
-
-
-def _write_json(path: Path, data: dict) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=1))
 
 
 # ---------------------------------------------------------------------------- workers
@@ -376,7 +362,7 @@ def run_search(name: str, *, trials: int | None = None, workers: int | None = No
 
     ``workers`` processes on this machine (1: in this process); ``storage`` an optuna RDB URL
     (default :func:`default_storage`); other arguments override the profile's
-    :class:`~wmthesis.config.SearchConfig`. Returns the study."""
+    :class:`~wmthesis.planet.config.SearchConfig`. Returns the study."""
     profile = profile_name(profile)
     given = dict(trials=trials, workers=workers, objective=objective, seed=seed, **changes)
     cfg = for_profile(SearchConfig, profile, **{k: v for k, v in given.items() if v is not None})

@@ -31,10 +31,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from wmthesis.config import LatentValueConfig
 from wmthesis.envs.preprocessing import to_float
+from wmthesis.planet.config import LatentValueConfig
 from wmthesis.planet.rssm import RSSM, one_hot_previous
-from wmthesis.planet.train import BeliefFilter
+from wmthesis.planet.agent import BeliefFilter
 from wmthesis.training import gradient_step
 
 TARGETS = ("reward-sum", "discounted-sum", "log-discounted-sum", "td")
@@ -129,7 +129,7 @@ def episode_features(model: RSSM, episode: dict[str, np.ndarray], bits: int, see
 
 class ValueMind(BeliefFilter):
     """The value agent for :func:`~wmthesis.core.loop`, passed as the mind and among the
-    callbacks (:class:`~wmthesis.planet.train.BeliefFilter`). :meth:`plan` filters
+    callbacks (:class:`~wmthesis.planet.agent.BeliefFilter`). :meth:`plan` filters
     ``(h_t, s_t)`` with the frame (the posterior's mean) and returns Q of every action."""
 
     def __init__(self, model: RSSM, value: LatentValue, bits: int = 5, seed: int = 0):

@@ -7,11 +7,11 @@ import dataclasses
 import json
 from pathlib import Path
 
-from wmthesis.config import ValuePlannerConfig
 from wmthesis.planet.bouts import bout_result, bout_scores
+from wmthesis.planet.config import ValuePlannerConfig
 from wmthesis.planet.train import load_planet, make_planet_env
-from wmthesis.planet.value_play import play_value
 from wmthesis.planet.value_planner import play_value_planner
+from wmthesis.planet.value_play import play_value
 from wmthesis.planet.value_rounds import load_rounds, load_value
 from wmthesis.runs import atomic_path, cached_for, played_groups
 from wmthesis.training import with_added_defaults
@@ -33,7 +33,7 @@ def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int
 
 
 def planner_defaults(key: dict) -> dict:
-    """A saved cache key whose ``planner`` (a :class:`~wmthesis.config.ValuePlannerConfig` saved
+    """A saved cache key whose ``planner`` (a :class:`~wmthesis.planet.config.ValuePlannerConfig` saved
     before a field was added) reads as what it did (:func:`~wmthesis.training.with_added_defaults`)."""
 
     if isinstance(key.get("planner"), dict):

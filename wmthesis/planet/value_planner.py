@@ -26,12 +26,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from wmthesis.config import PlaNetConfig, ValuePlannerConfig
 from wmthesis.core import loop
-from wmthesis.data import EpisodeBuffer
+from wmthesis.rollouts import EpisodeBuffer
 from wmthesis.planet.cem import cem_belief
+from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.train import BeliefFilter, PlanetMind
+from wmthesis.planet.agent import BeliefFilter, PlanetMind
 from wmthesis.planet.value import LatentValue, action_values
 
 
@@ -75,7 +75,7 @@ def value_scores(model: RSSM, value: LatentValue, belief: torch.Tensor, state: t
 
 
 class ValuePlanetMind(PlanetMind):
-    """PlaNet's agent (:class:`~wmthesis.planet.train.PlanetMind`: the belief filtered with the
+    """PlaNet's agent (:class:`~wmthesis.planet.agent.PlanetMind`: the belief filtered with the
     posterior's sample, CEM's sizes) whose candidates end in ``value`` (:func:`value_returns`)."""
 
     def __init__(self, model: RSSM, value: LatentValue | None, *, discount: float = 1.0, imagine: str = "sample",

@@ -8,7 +8,7 @@ from contextlib import contextmanager, nullcontext
 import numpy as np
 
 from wmthesis.core import loop
-from wmthesis.data import EpisodeBuffer
+from wmthesis.rollouts import EpisodeBuffer
 from wmthesis.planet.rssm import RSSM
 from wmthesis.utils import derive_seeds, parallel_calls, process_pool
 from wmthesis.planet.value import LatentValue, ValueMind

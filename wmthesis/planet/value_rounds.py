@@ -11,8 +11,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from wmthesis.config import LatentValueConfig
-from wmthesis.data import EpisodeStore, play_random_episode
+from wmthesis.data import EpisodeStore
+from wmthesis.rollouts import play_random_episode
+from wmthesis.planet.config import LatentValueConfig
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.value import (LatentValue, TARGETS, best_values, episode_features, fit_value, log_scaled,
                                    reward_sums, round_ensemble, td_targets)

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.config import LatentValueConfig, ValuePlannerConfig
 from wmthesis.data import EpisodeStore
 from wmthesis.metrics import score_difference, score_summary
 from wmthesis.planet.bouts import FIRST_STEPS
+from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
 from wmthesis.planet.figures import learning_curve_figure, plan_choices_figure
 from wmthesis.planet.train import load_planet, make_planet_env
 from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value_planners_scores

@@ -1,5 +1,5 @@
 """The thesis's PlaNet experiments as variants, one registry per game (5.5.1 on Sokoban-small,
-5.6.1-5.6.4 on Boxing, 5.6.5-5.6.6 on Freeway), each a change to :class:`~wmthesis.config.PlaNetConfig`."""
+5.6.1-5.6.4 on Boxing, 5.6.5-5.6.6 on Freeway), each a change to :class:`~wmthesis.planet.config.PlaNetConfig`."""
 from __future__ import annotations
 
 from wmthesis.variants import Variant, Variants

@@ -36,11 +36,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from wmthesis.config import SokobanSearchConfig
 from wmthesis.envs.sokoban import CELL_NAMES
 from wmthesis.runs import atomic_path
 from wmthesis.sokoban_search.agent import SearchAgent, level_seeds, random_play, variant_options
 from wmthesis.sokoban_search.cells import CellCoder, GRID, GridInputs, PixelInputs, fit_coder, render_cells
+from wmthesis.sokoban_search.config import SokobanSearchConfig
 from wmthesis.sokoban_search.evaluation import play_levels
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import Heuristic, steps_to_go, turned

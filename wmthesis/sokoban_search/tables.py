@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from wmthesis.config import SokobanSearchConfig, for_profile, profile_name
+from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
 from wmthesis.references import BOXOBAN_PUBLISHED
 from wmthesis.runs import read_json
+from wmthesis.sokoban_search.config import SokobanSearchConfig
 from wmthesis.sokoban_search.report import BOXOBAN_AGENTS, evaluation_record
 from wmthesis.utils import data_dir
 

@@ -233,7 +233,7 @@ def train_controller(env_name: str, vision: Callable, memory, cfg, *, out_dir: s
 
     ``vision``: frames -> z (e.g. :class:`~wmthesis.world_models.vision.VAEVision`); ``memory``: a
     :class:`~wmthesis.world_models.memory.Memory` or None; ``cfg``: a
-    :class:`~wmthesis.config.ControllerConfig`. With ``out_dir``, each generation writes
+    :class:`~wmthesis.world_models.config.ControllerConfig`. With ``out_dir``, each generation writes
     ``controller.pkl`` and ``curve.json`` there atomically, and an existing checkpoint is
     resumed: only ``generations`` may differ from its config, anything else (config, game,
     sizes, memory weights) raises :class:`~wmthesis.training.ConfigMismatch`.

@@ -18,11 +18,11 @@ import h5py
 import numpy as np
 import torch
 
-from wmthesis.config import MemoryConfig, VisionConfig
 from wmthesis.data import EpisodeStore
 from wmthesis.runs import atomic_path
 from wmthesis.training import train
 from wmthesis.utils import device
+from wmthesis.world_models.config import MemoryConfig, VisionConfig
 from wmthesis.world_models.memory import Memory, memory_loss
 from wmthesis.world_models.vision import VAE, elbo_loss, frames_to_input, input_to_frames, sample_latent
 

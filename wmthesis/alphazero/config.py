@@ -1,0 +1,70 @@
+"""The config of World Models + AlphaZero (thesis 4.3): search, self-play and training, the author's
+values as defaults (profiles: :mod:`wmthesis.config`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class AlphaZeroConfig:
+    """World Models + AlphaZero (thesis 4.3; the author's values): MCTS with c = 1.0, 50
+    simulations (or a ``timeout`` in seconds), Dirichlet noise 0.3 mixed in at 0.25 while
+    training, gamma 0.99, the subtree reused; self-play proportional to the visit counts for 12
+    warm-up steps, then greedy (tests greedy); the latest 1000 games kept; every 10 games, 5
+    epochs of value MSE + policy cross-entropy + L2 1e-4, SGD Nesterov lr 1e-2, momentum 0.9,
+    batch 256; value targets are the returns.
+
+    Not stated in the thesis: the number of ``games``, ``max_steps`` (None: full bouts, ~1,780
+    agent steps), the no-op starts (as the controller's evaluation), greedy tests every
+    ``test_every`` games, ``eval_episodes`` after training (of ``eval_max_steps``). Beyond the
+    thesis (the ``improved`` variant): ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
+    (equal visit counts go to the higher root Q, not to the first action),
+    ``value_target="n-step"`` (``n_step``-step bootstrapped targets instead of ``"monte-carlo"``
+    returns) and ``reuse_tree=False``. The ``learned-reward`` variant adds ``reward_model``: the
+    search's rewards come from an MLP classifier (``reward_hidden`` units, rewards
+    ``-reward_range..reward_range``) of the reward ``reward_delay`` steps after each action,
+    pretrained for ``reward_pretrain_epochs`` on the random rollouts, then ``reward_epochs``
+    on them and the self-play replay after every training round (Adam ``reward_lr``). The
+    ``imitation`` variant sets ``expert_games``: before self-play, the heads train for
+    ``expert_epochs`` on that many greedy games (of ``eval_max_steps``) of an expert, notebook
+    02's controller, as AlphaGo's policy started from expert games; they stay in the replay.
+    """
+
+    c: float = 1.0
+    simulations: int = 50
+    timeout: float | None = None
+    gamma: float = 0.99
+    dirichlet_alpha: float = 0.3
+    noise_ratio: float = 0.25
+    normalize_q: bool = False
+    reuse_tree: bool = True
+    tie_break: str = "first"             # equal visit counts: "first" action (argmax), or higher root "q"
+    warmup: int = 12
+    replay_games: int = 1000
+    train_every: int = 10
+    epochs: int = 5
+    batch_size: int = 256
+    lr: float = 1e-2
+    momentum: float = 0.9
+    l2: float = 1e-4
+    value_target: str = "monte-carlo"
+    n_step: int = 10
+    games: int = 1000                    # not stated in the thesis
+    max_steps: int | None = None         # None: full-length bouts
+    noop_max: int = 30
+    test_every: int = 10                 # 0: no greedy tests while training
+    test_episodes: int = 1
+    eval_episodes: int = 10
+    eval_max_steps: int | None = None    # the final evaluation's games; None: full bouts
+    reward_model: bool = False           # learned-reward variant: the search's rewards from a RewardModel
+    reward_delay: int = 2                # Boxing: a punch lands two agent steps after FIRE
+    reward_hidden: int = 64
+    reward_range: int = 2
+    reward_lr: float = 1e-3
+    reward_pretrain_epochs: int = 6
+    reward_epochs: int = 2
+    expert_games: int = 0                # imitation variant: pretrain the heads on this many expert games
+    expert_epochs: int = 30
+
+
+__all__ = ["AlphaZeroConfig"]

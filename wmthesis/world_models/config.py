@@ -1,0 +1,78 @@
+"""Configs of the World Models wing (thesis 4.2): the vision, the memory and the controller evolved with
+CMA-ES, the thesis's values as their defaults (profiles: :mod:`wmthesis.config`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class VisionConfig:
+    """Vision (thesis 4.2.5): latent 16 (64 for the grid variant, 5.3.2), Adam lr 1e-3,
+    eps 1e-7, batch 256. Not stated in the thesis: the number of updates, the validation
+    split (the last episodes of the store) and early stopping."""
+
+    latent_size: int = 16
+    lr: float = 1e-3
+    adam_eps: float = 1e-7
+    batch_size: int = 256
+    steps: int = 20_000
+    eval_every: int = 500
+    patience: int | None = 5
+    val_fraction: float = 0.1
+
+
+@dataclass(frozen=True)
+class MemoryConfig:
+    """Memory (thesis 4.2.5, 4.3.1, 5.3.3): LSTM 256, 5 Gaussians, Adam lr 1e-3, eps 1e-8,
+    batch 128 chunks of 1000 steps; ``kind`` ``mdn`` or ``deterministic``; ``auxiliary`` adds
+    the value head (Monte-Carlo return with ``discount``). Not stated in the thesis: the number
+    of updates, the validation split and early stopping."""
+
+    kind: str = "mdn"
+    hidden_size: int = 256
+    n_gaussians: int = 5
+    auxiliary: bool = False
+    temperature: float = 1.0
+    lr: float = 1e-3
+    adam_eps: float = 1e-8
+    batch_size: int = 128
+    sequence_length: int = 1000
+    discount: float = 0.99
+    steps: int = 20_000
+    eval_every: int = 500
+    patience: int | None = 5
+    val_fraction: float = 0.1
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Controller evolution (thesis 4.2.2, 4.2.5): CMA-ES, population 64, 5 episodes per
+    candidate, fitness = mean return; a linear greedy controller on ``[z h]``.
+
+    Not stated in the thesis: the initial sigma (0.1, Ha & Schmidhuber's), the number of
+    generations, and the start variation: each episode begins with a seeded random number of
+    no-op actions in ``[0, noop_max)`` (Boxing with sticky actions off is deterministic, so five
+    episodes of a greedy controller would otherwise be identical). ``dream=True`` (beyond the
+    thesis) evolves inside the memory with sampling temperature ``temperature``; every
+    ``eval_every`` generations the CMA-ES mean plays ``eval_episodes`` real episodes.
+    ``diagonal=True`` (beyond the thesis) runs separable CMA-ES: a diagonal covariance, so the
+    state and its checkpoint grow with D rather than D^2 (a Boxing controller on [z h] has
+    D = 4,914: the full strategy pickles to ~390 MB, the diagonal one to ~3 MB).
+    """
+
+    population: int = 64
+    episodes: int = 5                    # per candidate; fitness = mean return over them
+    generations: int = 200               # not stated in the thesis
+    sigma: float = 0.1                   # initial CMA-ES step size; the search starts at zero
+    diagonal: bool = False               # separable CMA-ES (diagonal covariance): O(D) memory and time
+    max_steps: int | None = None         # None: full-length episodes
+    noop_max: int = 30
+    seed: int = 0
+    dream: bool = False
+    temperature: float = 1.0
+    dream_max_steps: int = 1800          # a Boxing bout (2 minutes) is ~1,780 agent steps
+    eval_every: int = 10                 # 0: never play the mean in the real game
+    eval_episodes: int = 5
+
+
+__all__ = ["VisionConfig", "MemoryConfig", "ControllerConfig"]
