@@ -30,20 +30,25 @@ def test_solve_sokoban_refuses_the_held_out_boxoban_sets(capsys):
     assert "kept for an external check" in capsys.readouterr().err
 
 
-def test_validate_sokoban_refuses_an_unknown_lever_before_any_runs_and_reports_each_lever(capsys, monkeypatch):
-    import importlib
+def test_validate_refuses_an_unknown_lever_before_any_runs_and_reports_each_lever(capsys, monkeypatch):
+    import wmthesis.validation as validation
 
-    experiment = importlib.import_module("wmthesis.experiments.sokoban_search")  # the module, not its function
     called = []
     row = {"solved": 92, "levels": 100, "solve_rate": 0.92, "nodes_per_level": 7229.4, "seconds_per_level": 6.04}
-    monkeypatch.setattr(experiment, "validate", lambda *args: called.append(args) or {"rows": {"unfiltered": row}})
-    assert main(["validate-sokoban", "baseline", "bigger-brain", "--profile", "smoke"]) == 2
+    monkeypatch.setattr(validation, "validate_sokoban", lambda *args: called.append(args[:4]) or {"rows": {"unfiltered": row}})
+    assert main(["validate", "sokoban-search", "baseline", "bigger-brain", "--profile", "smoke"]) == 2
     err = capsys.readouterr().err
-    assert "unknown variant 'bigger-brain' of sokoban-search; valid: baseline," in err and not called
+    assert "unknown lever 'bigger-brain' of sokoban-search; valid: baseline," in err and not called
     assert "docs/findings/sokoban-search.md" in err  # where a removed lever's numbers went
-    assert main(["validate-sokoban", "baseline", "prior-afterwards", "--profile", "smoke", "--levels", "3"]) == 0
-    assert called == [("baseline", "smoke", 0, 3), ("prior-afterwards", "smoke", 0, 3)]
-    assert "baseline (seed 0): unfiltered 92/100 (92.0%), 7,229 nodes and 6.0 s a level" in capsys.readouterr().out
+    assert main(["validate", "planet-boxing-value", "H2 from a zero mean", "--profile", "smoke"]) == 2
+    assert "docs/findings/planet-boxing-value.md" in capsys.readouterr().err  # a removed planner lever
+    assert main(["validate", "sokoban-search", "baseline", "prior-afterwards", "--profile", "smoke", "--count", "3",
+                 "--seeds", "0-1"]) == 0
+    assert called == [("baseline", "smoke", 0, 3), ("prior-afterwards", "smoke", 0, 3),
+                      ("baseline", "smoke", 1, 3), ("prior-afterwards", "smoke", 1, 3)]
+    out = capsys.readouterr().out
+    assert "sokoban-search, seed 1" in out and "baseline: unfiltered 92/100 (92.0%), 7,229 nodes and 6.0 s a level" in out
+    assert main(["validate", "boxing-wm", "x"]) == 2  # no levers: refused by the argument check
 
 
 def test_alphazero_experiment_is_on_the_command_line(capsys):
@@ -222,23 +227,17 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
     # a variant that changes the planner alone plays its levers on the value it shares with lean
     assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards-0.7", progress=False) == checked
-    # tools/validate_levers.py: from the finished run's metrics.json, in a pool of its own; a lever
-    # not played yet is played there and saved where validate_planners finds it
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
+    # the command line's validate: the same levers, one more played and saved where validate_planners finds it
     from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
     from wmthesis.planet.value_tables import planner_lever_rows
 
-    tool = Path(__file__).resolve().parents[1] / "tools" / "validate_levers.py"
-    spread = subprocess.run([sys.executable, str(tool), "--profile", "smoke", "--variant", "lean", "--seeds", "0",
-                             "--workers", "2", "--stagger", "0", "--levers", *levers, "H1: the value agent"],
-                            env=os.environ, capture_output=True, text=True, check=True).stdout
+    capsys.readouterr()
+    assert main(["validate", "planet-boxing-value", *levers, "H1: the value agent", "--variant", "lean",
+                 "--profile", "smoke", "--workers", "2"]) == 0
+    printed = capsys.readouterr().out
     played = validate_planners("smoke", 0, levers=(*levers, "H1: the value agent"), variant="lean", progress=False)
     assert played["H1: the value agent"]["config"]["horizon"] == 1
-    assert spread.split("seed 0\n")[1].splitlines() == [" | ".join(row) for row in planner_lever_rows(played, PLANNER_LEVERS)]
+    assert printed.split("lean's value\n")[1].splitlines() == [" | ".join(row) for row in planner_lever_rows(played, PLANNER_LEVERS)]
     # where the lean value changes the plan: from one belief per step, cached for its rounds
     from wmthesis.experiments.planet_boxing_value import value_plan_choices
 

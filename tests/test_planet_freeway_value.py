@@ -190,13 +190,13 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     from wmthesis.planet.value_play import validation_seeds
 
     with pytest.raises(ValueError, match="unknown Freeway planner lever 'H99'; valid: H3, H12"):
-        validate_planners("smoke", 0, "freeway-adam", levers=("H99",), progress=False)
-    levers = validate_planners("smoke", 0, "adam-horizon-12", levers=("H3", "H12"), progress=False)
+        validate_planners("smoke", 0, levers=("H99",), progress=False, variant="freeway-adam")
+    levers = validate_planners("smoke", 0, levers=("H3", "H12"), progress=False, variant="adam-horizon-12")
     assert levers["H12"]["config"]["horizon"] == 12 and levers["H3"]["config"] == adam["value_planner"]["config"]
     saved = work / "planner-validation" / "h12" / "scores.json"
     assert json.loads(saved.read_text())["key"]["bouts"] == [list(validation_seeds(0, 0))]  # not an evaluation episode
     stamp = saved.stat().st_mtime_ns
-    assert validate_planners("smoke", 0, "freeway-adam", levers=("H12",), progress=False) == {"H12": levers["H12"]}
+    assert validate_planners("smoke", 0, levers=("H12",), progress=False, variant="freeway-adam") == {"H12": levers["H12"]}
     assert saved.stat().st_mtime_ns == stamp  # read, not played again
     assert not (tmp_path / "smoke" / "planet-freeway-value" / "adam-horizon-12-seed0" / "planner-validation").exists()
 
@@ -212,7 +212,7 @@ def test_levers_and_their_validation_bouts_are_checked_before_anything_plays(tmp
         checked_levers("lever", ("a", "c"), choices, None, 5)
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     with pytest.raises(ValueError, match="validation bouts must be >= 1, got 0"):
-        validate_planners("smoke", 0, levers=("H3",), episodes=0, progress=False)
+        validate_planners("smoke", 0, levers=("H3",), bouts=0, progress=False)
     assert not any(tmp_path.iterdir())  # refused before any run began
 
 

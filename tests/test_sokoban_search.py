@@ -978,7 +978,7 @@ def test_the_target_table_says_by_how_much_a_target_is_missed():
     assert verdicts["sokoban from pixels: no player vanishes"] == "met"
     assert verdicts["pixels: fewer than 1,000,000 environment steps"] == "met"
     assert verdicts["the whole experiment within 60 minutes (first run)"] == "missed by 1.7 min"
-    # A run trained elsewhere (validate-sokoban): its stages' own wall times and the evaluation's.
+    # A run trained elsewhere (validate sokoban-search): its stages' own wall times and the evaluation's.
     timed = {**metrics, "training_wall_seconds": 2_400.0, "evaluation_wall_seconds": 600.0}
     assert {row[0]: row[2] for row in target_rows(timed)}[
         "the whole experiment within 60 minutes (training's stages + evaluation)"] == "met"

@@ -11,10 +11,10 @@
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
         writes a JSON list of {level, solved, steps, actions}.
-    validate-sokoban LEVER ... [--profile P] [--seed S] [--levels N]
-        Issue 30's levers of the pixel agent (baseline, generated, prior-afterwards, ...)
-        on the first N levels of Boxoban's validation files (unfiltered and medium valid
-        000-001), each trained first if it needs its own run; resumable level by level.
+    validate EXPERIMENT LEVER ... [--variant V] [--seeds 0,1] [--count N] [--workers K] [--profile P]
+        Levers of sokoban-search (its agent's config), planet-boxing-value or planet-freeway-value
+        (the planner ending in the value of --variant's run) on the validation split only
+        (Boxoban valid 000-001; the value's validation bouts); resumable as it goes.
     evaluate-sokoban [--levels N] [--profile P] [--seed S]
         The pixel agent ``reproduce sokoban-search`` trained on the first N (1000) levels of each
         of Boxoban's report files (unfiltered and medium valid 005-009): the closing figures;
@@ -158,14 +158,17 @@ def cmd_solve_sokoban(args) -> int:
     return 0
 
 
-def cmd_validate_sokoban(args) -> int:
-    from wmthesis.experiments.sokoban_search import LEVERS, validate
+def cmd_validate(args) -> int:
+    from wmthesis.sweep import parse_seeds
+    from wmthesis.validation import check_levers, lever_lines, validate
 
-    for lever in args.levers:
-        LEVERS.check(lever)
-    for lever in args.levers:
-        result = validate(lever, args.profile, args.seed, args.levels)
-        print(_solved_line(f"{lever} (seed {args.seed})", result["rows"]))
+    check_levers(args.experiment, args.levers)
+    seeds = parse_seeds(args.seeds)
+    results = validate(args.experiment, args.levers, profile=args.profile, seeds=seeds, variant=args.variant,
+                       count=args.count, workers=args.workers)
+    for seed, levers in results.items():
+        print(f"{args.experiment}, seed {seed}" + (f", {args.variant}'s value" if args.variant else ""))
+        print(*lever_lines(args.experiment, levers), sep="\n")
     return 0
 
 
@@ -291,13 +294,15 @@ def parser() -> argparse.ArgumentParser:
     solve.add_argument("--max-steps", type=at_least(1), default=120, help="steps allowed per level")
     solve.set_defaults(run=cmd_solve_sokoban)
 
-    validate = commands.add_parser("validate-sokoban", help="levers of the Sokoban pixel agent on Boxoban's validation files")
-    validate.add_argument("levers", nargs="+", metavar="LEVER", help="baseline, generated, prior-afterwards, ...")
+    validate = commands.add_parser("validate", help="levers of an experiment on its validation split only")
+    validate.add_argument("experiment", choices=("sokoban-search", "planet-boxing-value", "planet-freeway-value"))
+    validate.add_argument("levers", nargs="+", metavar="LEVER", help="the levers to play (a wrong one lists the valid)")
+    validate.add_argument("--variant", help="a PlaNet value's run whose agent the planners end in (default: its default)")
+    validate.add_argument("--seeds", default="0", help="the trained runs' seeds: a range 0-2, a list 0,2, or one seed")
+    validate.add_argument("--count", type=at_least(1), help="levels (Sokoban) or bouts (a value) each: default the profile's")
+    validate.add_argument("--workers", type=at_least(1), help="processes sharing a value's bouts (default 2)")
     validate.add_argument("--profile", choices=PROFILES)
-    validate.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
-    validate.add_argument("--levels", type=at_least(1), help="the first N levels of each validation set "
-                                                             "(default: the profile's)")
-    validate.set_defaults(run=cmd_validate_sokoban)
+    validate.set_defaults(run=cmd_validate)
 
     report = commands.add_parser("evaluate-sokoban", help="the Sokoban pixel agent (trained first if need be) on "
                                                           "more of Boxoban's report files than the experiment plays")

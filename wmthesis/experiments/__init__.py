@@ -18,6 +18,8 @@ Every step skips work whose artifact exists, so re-running resumes.
 """
 from __future__ import annotations
 
+import concurrent.futures
+import multiprocessing
 import os
 
 from wmthesis.alphazero.selfplay import VARIANTS as ALPHAZERO_VARIANTS
@@ -103,9 +105,6 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
     independent; each resumes from its own artifacts). Returns ``{(name, variant): metrics}``
     in the order of ``runs``.
     """
-    import concurrent.futures
-    import multiprocessing
-
     runs = [tuple(run) for run in runs]
     for name, _ in runs:
         check_choice("experiment", name, EXPERIMENTS)

@@ -7,15 +7,24 @@ from pathlib import Path
 
 import numpy as np
 
+from wmthesis.alphazero import diagnosis
+from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.evaluation import (RECORDING_STEPS, boxing_baselines, controller_minds, evaluation_games,
                                            policy_head_returns, score_figure)
+from wmthesis.alphazero.latent_mdp import LatentMDP
 from wmthesis.alphazero.selfplay import VARIANTS, train_alphazero
 from wmthesis.config import CollectConfig, for_profile, profile_name
+from wmthesis.data import EpisodeStore
+from wmthesis.envs.atari import boxing_env
+from wmthesis.metrics import score_difference, score_summary
 from wmthesis.references import published
+from wmthesis.rollouts import collect
 from wmthesis.runs import atomic_path, first_run_seconds, hold, releasing_holds, run_header
 from wmthesis.utils import data_dir
-from wmthesis.viz import save_figure
+from wmthesis.viz import record_frames, save_figure
 from wmthesis.world_models.config import MemoryConfig, VisionConfig
+from wmthesis.world_models.train import LatentStore, encode_store, train_memory, train_vision
+from wmthesis.world_models.vision import VAEVision
 
 ALPHAZERO_DIAGNOSIS_DEPTH = {"smoke": 5, "quick": 10, "thesis": 10}
 
@@ -47,17 +56,6 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     the metrics; ``score`` is the last variant's (``imitation`` when all run);
     ``against_random``: each agent's mean minus random play's, with its standard error.
     """
-    from wmthesis.alphazero.latent_mdp import LatentMDP
-    from wmthesis.envs.atari import boxing_env
-    from wmthesis.alphazero import diagnosis
-    from wmthesis.world_models.vision import VAEVision
-    from wmthesis.world_models.train import LatentStore, encode_store, train_memory, train_vision
-    from wmthesis.alphazero.config import AlphaZeroConfig
-    from wmthesis.data import EpisodeStore
-    from wmthesis.rollouts import collect
-    from wmthesis.metrics import score_difference, score_summary
-    from wmthesis.viz import record_frames
-
     variants = tuple(VARIANTS) if variant is None else (VARIANTS.check(variant).name,)
     profile = profile_name(profile)
     started = time.time()

@@ -8,15 +8,22 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from wmthesis.config import profile_name
+from wmthesis.data import EpisodeStore
+from wmthesis.envs import ATARI_GAMES
+from wmthesis.metrics import error_at, horizon_errors, score_summary
+from wmthesis.planet.agent import play_greedy
+from wmthesis.planet.figures import horizon_error_figure, learning_curve_figure, open_loop_figure
+from wmthesis.planet.prediction import open_loop
 from wmthesis.planet.profiles import planet_config
-from wmthesis.planet.train import same_training
+from wmthesis.planet.train import load_planet, make_planet_env, same_training, train_planet, with_variant
 from wmthesis.planet.variants import ENVIRONMENTS, REGISTRIES
 from wmthesis.references import HUMAN, RANDOM, published
 from wmthesis.runs import atomic_path, hold, read_json, releasing_holds, run_header
 from wmthesis.utils import check_choice, data_dir, derive_seeds
-from wmthesis.viz import save_figure
+from wmthesis.viz import record_frames, save_figure
 
 # Experiment -> (environment, its variants' names, the default's name), from its registry.
 PLANET_GAMES = {name: (ENVIRONMENTS[name], tuple(registry), registry.default.name) for name, registry in REGISTRIES.items()}
@@ -54,13 +61,6 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     as it is. Returns the metrics: ``score`` (greedy test episodes), ``open_loop`` (error per
     horizon and at the cut-off), the learning ``curve``, ``reference`` (published numbers).
     """
-    from wmthesis.planet.train import load_planet, train_planet, with_variant
-    from wmthesis.planet.figures import horizon_error_figure, learning_curve_figure, open_loop_figure
-    from wmthesis.data import EpisodeStore
-    from wmthesis.envs import ATARI_GAMES
-    from wmthesis.metrics import error_at, horizon_errors, score_summary
-    from wmthesis.viz import record_frames
-
     env_name = ENVIRONMENTS[name]
     variant = REGISTRIES[name].check(variant).name
     profile = profile_name(profile)
@@ -126,9 +126,6 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
 def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval: int, updates: int) -> list[float]:
     """``n_eval`` greedy planner episodes (seeds from (seed, 2, k), apart from training's
     tests); cached in ``evaluation.json`` for the checkpoint's number of updates."""
-    from wmthesis.planet.train import make_planet_env
-    from wmthesis.planet.agent import play_greedy
-
     path = work / "evaluation.json"
     cached = read_json(path)
     if cached is not None and cached["updates"] == updates and len(cached["returns"]) == n_eval:
@@ -149,9 +146,6 @@ def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval
 def _planet_open_loop(model, store, length: int, context: int, config, seed: int, sequences: int = 6) -> dict:
     """:func:`~wmthesis.planet.prediction.open_loop` on chunks of the most recent planner episodes
     long enough (the last one was collected after the final update: never trained on)."""
-    import torch
-
-    from wmthesis.planet.prediction import open_loop
 
     lengths = store.episode_lengths
     long_enough = [i for i in range(config.seed_episodes, len(store)) if lengths[i] >= length]

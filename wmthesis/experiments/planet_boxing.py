@@ -16,11 +16,14 @@ import time
 from pathlib import Path
 
 from wmthesis.config import profile_name
+from wmthesis.data import EpisodeStore
+from wmthesis.metrics import score_difference
 from wmthesis.planet.bouts import FIRST_STEPS, bout_scores, play_bout
 from wmthesis.planet.config import PlaNetConfig
+from wmthesis.planet.figures import learning_curve_figure, study_error_figure, study_label, study_pictures_figure
 from wmthesis.planet.profiles import planet_config
-from wmthesis.planet.study import STUDY
-from wmthesis.planet.train import same_training
+from wmthesis.planet.study import STUDY, STUDY_VARIANTS, held_out_store, scene, score_run, summarise
+from wmthesis.planet.train import load_planet, same_training, train_planet, with_variant
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human, published, random_play
 from wmthesis.runs import atomic_path, hold, played_bouts, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir, derive_seeds, parallel_calls
@@ -35,15 +38,11 @@ AGENT = {"smoke": dict(bouts=2), "quick": dict(bouts=10), "thesis": dict(bouts=1
 def boxing_config(profile: str, variant: str | None = None, study: bool = True) -> PlaNetConfig:
     """The profile's PlaNet config for Boxing with ``variant``; for the ``study``, stopping
     after the seed bouts and the updates on them (``env_steps`` = 0)."""
-    from wmthesis.planet.train import with_variant
-
     config = with_variant(planet_config(GAME, profile), variant)
     return dataclasses.replace(config, env_steps=0) if study else config
 
 
 def _train_study_run(run_dir: Path, config: PlaNetConfig, seed: int) -> dict:
-    from wmthesis.planet.train import train_planet
-
     return train_planet(GAME, config, run_dir, seed=seed, progress=False)
 
 
@@ -54,10 +53,6 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
     ``data/results/planet-boxing-study/<profile>-seed<seed>/``. Returns the metrics:
     ``summary`` (:func:`~wmthesis.planet.study.summarise`), ``errors`` and ``diagnostics`` per
     run, ``files``."""
-    from wmthesis.data import EpisodeStore
-    from wmthesis.planet.figures import study_error_figure, study_label, study_pictures_figure
-    from wmthesis.planet.study import STUDY_VARIANTS, held_out_store, scene, score_run, summarise
-
     profile = profile_name(profile)
     started = time.time()
     sizes = STUDY[profile]
@@ -113,10 +108,6 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     Returns the metrics: ``agent`` and ``random`` (scores over full bouts and over their first
     500 steps), ``difference`` (:func:`~wmthesis.metrics.score_difference`), the learning
     ``curve`` and ``files``."""
-    from wmthesis.metrics import score_difference
-    from wmthesis.planet.figures import learning_curve_figure
-    from wmthesis.planet.train import load_planet, train_planet
-
     profile = profile_name(profile)
     sizes = AGENT[profile]
     study = data_dir(profile, "planet-boxing-study", f"{TUNED}-seed{seed}")
@@ -154,8 +145,6 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: boo
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(metrics, indent=1))
     return metrics
-
-
 
 
 __all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", 

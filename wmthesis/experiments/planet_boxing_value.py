@@ -10,12 +10,17 @@ import dataclasses
 import time
 
 from wmthesis import runs as run_store
-from wmthesis.config import profile_name
+from wmthesis.config import for_profile, profile_name
 from wmthesis.planet.bouts import bout_scores
+from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+from wmthesis.planet.train import load_planet
+from wmthesis.planet.value_bouts import value_bout
+from wmthesis.planet.value_play import validation_seeds
+from wmthesis.planet.value_rounds import agent_rounds, round_values
 from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores, slug,
                                         start_from)
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
-from wmthesis.runs import hold, releasing_holds
+from wmthesis.runs import hold, played_bouts, releasing_holds
 from wmthesis.utils import data_dir
 from wmthesis.variants import Variant, Variants
 
@@ -79,9 +84,6 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: boo
     round) and ``files``. A ``variant`` of :data:`VALUE_VARIANTS` fits its value in a folder of
     its own, on the same model and bouts (a ``td`` value is discounted in the planner as in its
     targets; one may change the planner alone)."""
-    from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
-    from wmthesis.config import for_profile
-
     chosen, variant = VALUE_VARIANTS.check(variant), folder_variant(variant)
     profile = profile_name(profile)
     started = time.time()
@@ -136,13 +138,9 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     value of the run it copies, in that run's folder). All levers' bouts are played in one pool,
     lever by lever: ``executor`` (:func:`~wmthesis.utils.process_pool`), two at a time by
     default; a machine with more cores plays them that many at a time. ``metrics``: the value
-    run's, where it was read from its ``metrics.json`` (a machine that holds only the models,
-    ``tools/validate_levers.py``). Returns lever -> the
+    run's, where it was read from its ``metrics.json`` (a machine that holds only the models).
+    Returns lever -> the
     planner's ``config`` and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
-    from wmthesis.planet.config import ValuePlannerConfig
-    from wmthesis.config import for_profile
-    from wmthesis.planet.value_play import validation_seeds
-
     profile = profile_name(profile)
     levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, progress, variant) if metrics is None else metrics
@@ -168,13 +166,6 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     its round (:func:`~wmthesis.planet.value_play.validation_seeds` from ``validation_bouts`` on: apart
     from the choice among rounds and from the evaluation bouts). Each bout is saved as it ends.
     Returns rule -> its ``rounds`` and their ``full`` and ``first``-500-step scores."""
-    from wmthesis.planet.config import LatentValueConfig
-    from wmthesis.runs import played_bouts
-    from wmthesis.planet.value_bouts import value_bout
-    from wmthesis.planet.train import load_planet
-    from wmthesis.planet.value_rounds import agent_rounds, round_values
-    from wmthesis.planet.value_play import validation_seeds
-
     profile = profile_name(profile)
     rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, progress, variant)

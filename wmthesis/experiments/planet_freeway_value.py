@@ -18,17 +18,33 @@ waits for a car.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
 
-from wmthesis.config import profile_name
+import numpy as np
+from gymnasium.wrappers import TimeLimit
+from scipy.stats import fisher_exact
+
+from wmthesis.config import for_profile, profile_name
+from wmthesis.data import EpisodeStore
+from wmthesis.envs.freeway import play_lookahead
+from wmthesis.metrics import paired_difference
 from wmthesis.planet.bouts import bout_result, bout_scores, play_bout
-from wmthesis.planet.study import STUDY
+from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+from wmthesis.planet.figures import study_error_figure
+from wmthesis.planet.profiles import planet_config
+from wmthesis.planet.study import STUDY, held_out_store, scene, score_run
+from wmthesis.planet.train import load_planet, make_planet_env
+from wmthesis.planet.value_planner import plan_choices
+from wmthesis.planet.value_play import evaluation_seeds, validation_seeds
+from wmthesis.planet.value_rounds import STORE, load_value
 from wmthesis.planet.value_runs import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans, fit_and_compare,
                                         lever_scores, start_from)
 from wmthesis.references import human
 from wmthesis.runs import atomic_path, finished_metrics, hold, played_bouts, read_json, releasing_holds, work_folder
+from wmthesis.training import with_added_defaults
 from wmthesis.utils import data_dir
 from wmthesis.variants import Variant, Variants
 from wmthesis.viz import save_figure
@@ -102,8 +118,6 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
     returns; cached in ``work/baselines.json`` for the bouts, each episode saved in
     ``work/baseline-bouts.json`` as it ends (a run cut off plays only the rest, and a baseline
     added later plays only its own)."""
-    from wmthesis.planet.train import load_planet
-
     key = {"bouts": [list(b) for b in bouts], "planet_run": str(planet_run)}
     cached = read_json(work / "baselines.json")
     if cached is not None and cached.get("key") == key and set(cached["scores"]) == set(BASELINES):
@@ -139,12 +153,6 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bo
     value or the planner in a folder of its own, beside the run on the same model
     (:func:`base_variant`): its baselines are copied from that run, not played again, and one that keeps the
     value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.planet.value_runs.fit_and_compare`."""
-    from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
-    from wmthesis.config import for_profile
-    from wmthesis.data import EpisodeStore
-    from wmthesis.planet.value_rounds import STORE
-    from wmthesis.planet.value_play import evaluation_seeds
-
     own = VALUE_VARIANTS.check(variant).changes
     variant = None if VALUE_VARIANTS.check(variant).name == "default" else variant
     changes = VALUE_VARIANTS.changes(variant)
@@ -180,8 +188,6 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
     episodes mean ± std, first 500 steps, and what it adds over UP at every step episode for
     episode (:func:`~wmthesis.metrics.paired_difference`, ± its standard error). The baselines come
     once, from the first run; a variant that keeps the value gives only its planner's row."""
-    from wmthesis.metrics import paired_difference
-
     first = next(iter(by_variant.values()))
     up = first["baselines"]["always-up"].get("returns")  # runs saved since 2026-11-26 keep them
 
@@ -209,29 +215,25 @@ PLANNER_LEVERS = {"H3": {}, "H12": dict(horizon=12), "H12 from the prior's mean"
 LEVER_EPISODES = {"smoke": 1, "quick": 5, "thesis": 10}  # validation episodes per lever
 
 
-def validate_planners(profile: str | None = None, seed: int = 0, variant: str | None = None,
-                      levers: tuple[str, ...] | None = None, episodes: int | None = None,
-                      progress: bool = True) -> dict[str, dict]:
+def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
+                      bouts: int | None = None, progress: bool = True, variant: str | None = None,
+                      executor=None) -> dict[str, dict]:
     """CEM with the value agent of ``variant``'s run (:func:`planet_freeway_value`, run first if
     need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default) on
-    ``episodes`` (the profile's :data:`LEVER_EPISODES` by default) of the value's validation
+    ``bouts`` (the profile's :data:`LEVER_EPISODES` by default) of the value's validation
     episodes (:func:`~wmthesis.planet.value_play.validation_seeds`: apart from the evaluation
-    episodes), in one pool, each lever cached in the folder of the run that fitted the value
+    episodes), in one pool (``executor``, :func:`~wmthesis.utils.process_pool`; two at a time by default), each lever cached in the folder of the run that fitted the value
     (:func:`value_variant`: a variant that changes the planner alone shares its base's levers).
     Returns lever -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
-    from wmthesis.planet.config import ValuePlannerConfig
-    from wmthesis.config import for_profile
-    from wmthesis.planet.value_play import validation_seeds
-
     profile = profile_name(profile)
-    levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, episodes, LEVER_EPISODES[profile])
+    levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, bouts, LEVER_EPISODES[profile])
     fitted = value_variant(variant)
     metrics = planet_freeway_value(profile, seed, progress, fitted)
     work, _ = value_folders(profile, seed, fitted)
     planners = {lever: for_profile(ValuePlannerConfig, profile, discount=metrics["config"]["discount"], **PLANNER_LEVERS[lever])
                 for lever in levers}
     return lever_scores(frozen_model(profile, seed, model_variant(fitted), progress), work, metrics, planners,
-                        [validation_seeds(seed, k) for k in range(episodes)], progress, game=GAME)
+                        [validation_seeds(seed, k) for k in range(episodes)], progress, game=GAME, executor=executor)
 
 
 CHECK_VERSION = 2  # open_loop_check's cache: 2 added the diagnostics' embedding_spread
@@ -252,11 +254,6 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     errors), ``diagnostics``, ``kl_scale``, ``free_nats``,
     ``updates``, ``below_mean_frame`` (the horizons where the model beats the mean frame) and
     ``files`` (the figure)."""
-    from wmthesis.data import EpisodeStore
-    from wmthesis.planet.figures import study_error_figure
-    from wmthesis.planet.study import held_out_store, scene, score_run
-    from wmthesis.planet.train import STORE, load_planet
-
     profile = profile_name(profile)
     planet_run = frozen_model(profile, seed, model, progress)
     _, out = value_folders(profile, seed, None if model == VARIANT else model)
@@ -293,10 +290,6 @@ def lookahead_bout(profile: str, horizon: int, env_seed: int) -> dict:
     """One episode of Freeway with the profile's PlaNet settings, planned in the emulator itself
     (:func:`~wmthesis.envs.freeway.play_lookahead`, ``horizon`` steps): its ``return``, the
     return of its first 500 steps and its ``steps``."""
-    from wmthesis.envs.freeway import play_lookahead
-    from wmthesis.planet.profiles import planet_config
-    from wmthesis.planet.train import make_planet_env
-
     env = make_planet_env(GAME, planet_config(GAME, profile))
     try:
         return bout_result(play_lookahead(env, horizon, env_seed)["rewards"])
@@ -312,8 +305,6 @@ def lookahead_ceiling(profile: str | None = None, seed: int = 0, horizons: tuple
     (:func:`~wmthesis.planet.value_play.evaluation_seeds`), for each of ``horizons``. Each episode is
     saved as it ends in the default value's results folder (``lookahead-bouts.json``). Returns
     horizon -> ``full`` and ``first``-500-step scores with their returns."""
-    from wmthesis.planet.value_play import evaluation_seeds
-
     profile = profile_name(profile)
     _check_horizons(horizons)
     seeds = [evaluation_seeds(seed, k)[0] for k in range(LOOKAHEAD_EPISODES[profile])]
@@ -341,19 +332,6 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     value alone. Cached in that run's results folder (``when_to_wait.json``). Returns ``steps``,
     ``waits`` (the lookahead's NOOPs among them), ``choices`` (planner -> actions, the
     lookahead's under ``lookahead``) and per planner :func:`hold_back_shares`."""
-    import dataclasses
-
-    import numpy as np
-    from gymnasium.wrappers import TimeLimit
-
-    from wmthesis.planet.config import ValuePlannerConfig
-    from wmthesis.envs.freeway import play_lookahead
-    from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value_play import evaluation_seeds
-    from wmthesis.planet.value_rounds import load_value
-    from wmthesis.planet.value_planner import plan_choices
-    from wmthesis.training import with_added_defaults
-
     profile = profile_name(profile)
     _check_horizons((horizon,))
     metrics = planet_freeway_value(profile, seed, progress, variant)
@@ -387,9 +365,6 @@ def hold_back_shares(lookahead, picks) -> dict[str, float]:
     press UP either; NaN without a wait), ``ups_kept`` (the share of its UPs on which it presses
     UP), and Fisher's exact test of holding back against the lookahead's waiting (scipy):
     ``odds_ratio`` and its two-sided ``p``."""
-    import numpy as np
-    from scipy.stats import fisher_exact
-
     wait, held = np.asarray(lookahead) != UP, np.asarray(picks) != UP
     table = [[int((held & wait).sum()), int((~held & wait).sum())], [int((held & ~wait).sum()), int((~held & ~wait).sum())]]
     test = fisher_exact(table)

@@ -16,7 +16,7 @@ from wmthesis.runs import (atomic_path, cached, first_run_seconds, hold, jsonabl
                            run_header, run_jobs)
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
-from wmthesis.sokoban_search.cells import code_table
+from wmthesis.sokoban_search.cells import code_table, render_cells
 from wmthesis.sokoban_search.config import SokobanSearchConfig
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
                                                 random_board_row, random_row, replay_states)
@@ -37,16 +37,6 @@ BOXOBAN_LEVELS = {"smoke": 2, "quick": 500, "thesis": 1000}  # the first of the 
 REFERENCE_LEVELS = {"smoke": 2, "quick": 100, "thesis": 1000}
 GENERATED = ("sokoban-small", "sokoban")  # our generator's variants: each evaluated on unseen levels
 EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
-
-
-
-
-
-
-
-
-
-
 
 
 def work_folder(profile: str, seed: int) -> Path:
@@ -206,30 +196,6 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
     return result
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
     """The Boxoban evaluations as :func:`run_jobs` jobs, keyed (row, kind, part): each agent
     of ``agents`` (name: (folder, cfg, simulator)) on the first levels of each report file set
@@ -250,16 +216,6 @@ def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
     return jobs
 
 
-
-
-
-
-
-
-
-
-
-
 def _boxoban_table(kind: str, jobs: dict, profile: str) -> dict:
     """A kind's Boxoban rows (random play, the thesis, the agents, A*), each agent's parts
     merged in level order, with its source and how many solutions an independent replay
@@ -272,12 +228,6 @@ def _boxoban_table(kind: str, jobs: dict, profile: str) -> dict:
         rows[title] = boxoban_row(level_plays(jobs, name, kind), source, boards)
     rows["A* (reference)"] = read_json(jobs["astar", kind, 0][0])
     return rows
-
-
-
-
-
-
 
 
 def evaluation_seconds(previous: dict | None, search: dict, seconds: float) -> float | None:
@@ -324,14 +274,10 @@ def _accuracy(run, variant: str, seed: int, levels: int, plans: list[dict]) -> d
             "open_loop": accuracy.open_loop(run.model, sequences, to_types=to_types)}
 
 
-
-
 def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     """Solve rate by round (both inputs); the pixel model's boards against the real ones along
     the longest solution of the last variant (the model fed its own predictions, decoded to
     frames); a recording of it."""
-    from wmthesis.sokoban_search.cells import render_cells
-
     figures = [save_figure(plot_rounds({name: run.history for name, run in runs.items()}), out / "rounds.png")]
     variant = next((v for v in reversed(generated) if solutions[v]), None)
     if variant is None:

@@ -3,6 +3,7 @@ grid states, stochastic or deterministic, with or without auxiliary heads), thre
 and the open-loop measures of what the thesis judged by eye."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -10,13 +11,22 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.config import CollectConfig, for_profile, profile_name
+from wmthesis.data import EpisodeStore
+from wmthesis.envs.sokoban import ACTIONS
+from wmthesis.envs.vector import make_game
+from wmthesis.metrics import score_summary
 from wmthesis.references import THESIS_SOKOBAN_WM
+from wmthesis.rollouts import collect
 from wmthesis.runs import atomic_path, first_run_seconds, hold, jsonable, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir
 from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
+from wmthesis.world_models.evolution import episode_seeds, evaluate_population, random_play, train_controller
 from wmthesis.world_models.figures import sokoban_figures, sokoban_recording
+from wmthesis.world_models.grid import GridVision, encode_grid_store
 from wmthesis.world_models.sokoban import (CONTROLLERS as SOKOBAN_WM_CONTROLLERS, VARIANTS as SOKOBAN_WM_VARIANTS,
                                            check_same_episodes, evaluate_memories, levels_solved)
+from wmthesis.world_models.train import encode_store, train_memory, train_vision
+from wmthesis.world_models.vision import VAEVision
 
 
 # Changes on top of the profile (per config class), as SOKOBAN_CHANGES does for PlaNet.
@@ -82,15 +92,6 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, progress: bo
     ``data/results/sokoban-wm/<profile>-seed<seed>/``; every step resumes from its artifact.
     Returns the metrics; ``score`` is the 5.3.1 controller's.
     """
-    import dataclasses
-
-    from wmthesis.world_models.grid import encode_grid_store
-    from wmthesis.world_models.train import encode_store, train_memory, train_vision
-    from wmthesis.data import EpisodeStore
-    from wmthesis.rollouts import collect
-    from wmthesis.envs.sokoban import ACTIONS
-    from wmthesis.metrics import score_summary
-
     profile = profile_name(profile)
     started = time.time()
     work = hold(data_dir(profile, "sokoban-wm", f"seed{seed}"))
@@ -165,19 +166,12 @@ def _sokoban_options(source: str) -> dict:
 def _sokoban_level_seeds(seed: int, n: int) -> np.ndarray:
     """The seeds of ``n`` unseen levels scoring the controllers and random play (a stream of
     their own: apart from the collected levels and those CMA-ES trained on)."""
-    from wmthesis.world_models.evolution import episode_seeds
-
     return episode_seeds(seed, 0, n, stream=2)
 
 
 def _sokoban_controller(variant: str, vae, memory, cfg, work: Path, level_seeds: np.ndarray, progress: bool) -> dict:
     """Evolve the controller that reads ``[z h]`` of memory ``variant`` (resumable), and play its
     CMA-ES mean on the levels ``level_seeds`` (cached in ``evaluation.json`` per generation)."""
-    from wmthesis.world_models.vision import VAEVision
-    from wmthesis.world_models.evolution import evaluate_population, train_controller
-    from wmthesis.envs.vector import make_game
-    from wmthesis.world_models.grid import GridVision
-
     source = SOKOBAN_WM_VARIANTS[variant][0]
     vision, options = (VAEVision(vae) if source == "rgb" else GridVision()), _sokoban_options(source)
     folder = work / f"controller-{variant}"
@@ -201,9 +195,6 @@ def _sokoban_controller(variant: str, vae, memory, cfg, work: Path, level_seeds:
 
 def _sokoban_random_play(level_seeds: np.ndarray, seed: int, max_steps: int | None) -> tuple[np.ndarray, np.ndarray]:
     """Random play on the controllers' levels (grid observations: the same levels and rules, no drawing)."""
-    from wmthesis.envs.vector import make_game
-    from wmthesis.world_models.evolution import random_play
-
     game = make_game("sokoban", len(level_seeds), observation="grid")
     try:
         return random_play(game, level_seeds, seed=seed, max_steps=max_steps)

@@ -10,13 +10,20 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmthesis.config import CollectConfig, for_profile, profile_name
+from wmthesis.data import EpisodeStore
+from wmthesis.envs.vector import make_game
+from wmthesis.metrics import score_summary
 from wmthesis.references import published
+from wmthesis.rollouts import collect
 from wmthesis.runs import atomic_path, first_run_seconds, hold, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir
-from wmthesis.viz import save_figure
+from wmthesis.viz import image_rows, record_frames, save_figure
 from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
-from wmthesis.world_models.prediction import open_loop_errors
-
+from wmthesis.world_models.evolution import evaluate_population, train_controller
+from wmthesis.world_models.figures import plot_learning_curve
+from wmthesis.world_models.prediction import open_loop, open_loop_errors
+from wmthesis.world_models.train import encode_store, reconstruct, train_memory, train_vision
+from wmthesis.world_models.vision import VAEVision
 
 
 @releasing_holds
@@ -26,13 +33,6 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
     Returns the metrics dict (also written to ``metrics.json``): the controller's score over
     10 full evaluation episodes with varied starts, the learning curves, the open-loop error.
     """
-    from wmthesis.world_models.evolution import train_controller
-    from wmthesis.world_models.prediction import open_loop
-    from wmthesis.world_models.train import reconstruct
-    from wmthesis.data import EpisodeStore
-    from wmthesis.metrics import score_summary
-    from wmthesis.viz import record_frames
-
     profile = profile_name(profile)
     started = time.time()
     wm = _world_model(profile, seed, progress)
@@ -74,9 +74,6 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, progress: boo
 def _final_score(run, vision, memory, cfg, profile: str) -> np.ndarray:
     """The CMA-ES mean's returns (n,) over 10 full bouts (2 short ones in smoke), the same
     seeded no-op starts for every controller and seed."""
-    from wmthesis.world_models.evolution import evaluate_population
-    from wmthesis.envs.vector import make_game
-
     n_eval = 2 if profile == "smoke" else 10
     game = make_game("boxing", n_eval, noop_max=cfg.noop_max)
     try:
@@ -107,10 +104,6 @@ class BoxingWorldModel(NamedTuple):
 def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     """Random rollouts -> VAE -> latents -> MDN-RNN under ``data/<profile>/boxing-wm/seed<seed>/``,
     each step cached."""
-    from wmthesis.world_models.vision import VAEVision
-    from wmthesis.world_models.train import encode_store, train_memory, train_vision
-    from wmthesis.rollouts import collect
-
     work = hold(data_dir(profile, "boxing-wm", f"seed{seed}"))
 
     collect_cfg = for_profile(CollectConfig, profile)
@@ -141,9 +134,6 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
     metrics) the learning curve, whose ``mean``/``best`` are dream returns and ``eval_return``
     real ones, and the real score of the final mean over 10 full bouts.
     """
-    from wmthesis.world_models.evolution import train_controller
-    from wmthesis.metrics import score_summary
-
     if not temperature > 0:
         raise ValueError(f"the dream's temperature must be positive, got {temperature}")
     profile = profile_name(profile)
@@ -162,9 +152,6 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
 
 
 def _boxing_figures(out: Path, frames, reconstructions, rollout, curve) -> list[Path]:
-    from wmthesis.world_models.figures import plot_learning_curve
-    from wmthesis.viz import image_rows
-
     paths = []
     fig = image_rows({"original": list(frames[::25][:8]), "reconstruction": list(reconstructions)})
     fig.suptitle("Fig. 56: vision reconstructions")
