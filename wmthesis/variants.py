@@ -100,4 +100,10 @@ class Variants(Mapping):
         return [[v.name, v.status, v.builds_on or "", v.about] for v in self._variants.values()]
 
 
-__all__ = ["Variant", "Variants", "FINDINGS"]
+def no_variant(experiment: str, variant: str | None) -> None:
+    """Refuse a variant for an experiment that has none (every recipe takes one, as ``reproduce`` does)."""
+    if variant is not None:
+        raise ValueError(f"experiment {experiment!r} has no variants, got {variant!r}")
+
+
+__all__ = ["Variant", "Variants", "FINDINGS", "no_variant"]

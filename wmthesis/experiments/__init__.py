@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
+import functools
 import os
 
 from wmthesis.alphazero.selfplay import VARIANTS as ALPHAZERO_VARIANTS
@@ -41,12 +42,17 @@ from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.utils import check_choice, worker_init
 
-EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
-               "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value", "sokoban-search")
-NO_VARIANTS = ("sokoban-wm", "boxing-wm", "sokoban-search", "planet-boxing-study", "planet-boxing-agent")
+# Experiment -> its recipe, each called ``recipe(profile, seed, variant, progress)``.
+RECIPES = {"sokoban-wm": sokoban_world_models, "boxing-wm": boxing_world_models, "boxing-wm-alphazero": boxing_wm_alphazero,
+           **{name: functools.partial(planet_experiment, name) for name in PLANET_GAMES},
+           "planet-boxing-study": planet_boxing_study, "planet-boxing-agent": planet_boxing_agent,
+           "planet-boxing-value": planet_boxing_value, "planet-freeway-value": planet_freeway_value,
+           "sokoban-search": sokoban_search}
+EXPERIMENTS = tuple(RECIPES)
 # Experiment -> its registry of variants (:mod:`wmthesis.variants`), for those that have them.
 VARIANTS = {**PLANET_REGISTRIES, "boxing-wm-alphazero": ALPHAZERO_VARIANTS, "planet-boxing-value": BOXING_VALUE_VARIANTS,
             "planet-freeway-value": FREEWAY_VALUE_VARIANTS}
+NO_VARIANTS = tuple(name for name in EXPERIMENTS if name not in VARIANTS)
 
 
 # Experiment -> the runs (experiment, variant) a variant of it builds on, for the same profile and seed.
@@ -76,25 +82,7 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     profile = profile_name(profile)
     for before, before_variant in prerequisites(name, variant):  # each resumes, or returns its cached metrics
         reproduce(before, profile, seed, before_variant, progress)
-    if name == "sokoban-wm":
-        return sokoban_world_models(profile, seed, progress)
-    if name == "sokoban-search":
-        return sokoban_search(profile, seed, progress)
-    if name == "boxing-wm":
-        return boxing_world_models(profile, seed, progress)
-    if name == "planet-boxing-study":
-        return planet_boxing_study(profile, seed, progress)
-    if name == "planet-boxing-agent":
-        return planet_boxing_agent(profile, seed, progress)
-    if name == "planet-boxing-value":
-        return planet_boxing_value(profile, seed, progress, variant)
-    if name == "planet-freeway-value":
-        return planet_freeway_value(profile, seed, progress, variant)
-    if name == "boxing-wm-alphazero":
-        return boxing_wm_alphazero(profile, seed, variant, progress)
-    if name in PLANET_GAMES:
-        return planet_experiment(name, profile, seed, variant, progress)
-    raise AssertionError(f"experiment {name!r} is listed but not wired")
+    return RECIPES[name](profile, seed, variant, progress)
 
 
 def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int = 1) -> dict:

@@ -27,6 +27,7 @@ from wmthesis.planet.train import load_planet, same_training, train_planet, with
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human, published, random_play
 from wmthesis.runs import atomic_path, hold, played_bouts, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir, derive_seeds, parallel_calls
+from wmthesis.variants import no_variant
 from wmthesis.viz import record_frames, save_figure
 
 GAME = "boxing"
@@ -47,12 +48,14 @@ def _train_study_run(run_dir: Path, config: PlaNetConfig, seed: int) -> dict:
 
 
 @releasing_holds
-def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def planet_boxing_study(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                        progress: bool = True) -> dict:
     """Train and score the study (module docstring); runs go under
     ``data/<profile>/planet-boxing-study/``, figures and ``metrics.json`` under
     ``data/results/planet-boxing-study/<profile>-seed<seed>/``. Returns the metrics:
     ``summary`` (:func:`~wmthesis.planet.study.summarise`), ``errors`` and ``diagnostics`` per
     run, ``files``."""
+    no_variant("planet-boxing-study", variant)
     profile = profile_name(profile)
     started = time.time()
     sizes = STUDY[profile]
@@ -102,12 +105,14 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, progress: boo
 
 
 @releasing_holds
-def planet_boxing_agent(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                        progress: bool = True) -> dict:
     """The tuned study model (seed ``seed``) goes on as a PlaNet agent until the store holds the
     profile's agent steps; then full bouts of the agent and of random play on the same bouts.
     Returns the metrics: ``agent`` and ``random`` (scores over full bouts and over their first
     500 steps), ``difference`` (:func:`~wmthesis.metrics.score_difference`), the learning
     ``curve`` and ``files``."""
+    no_variant("planet-boxing-agent", variant)
     profile = profile_name(profile)
     sizes = AGENT[profile]
     study = data_dir(profile, "planet-boxing-study", f"{TUNED}-seed{seed}")

@@ -70,8 +70,8 @@ def results_folder(profile: str, seed: int, variant: str | None = None):
 
 
 @releasing_holds
-def planet_boxing_value(profile: str | None = None, seed: int = 0, progress: bool = True,
-                        variant: str | None = None) -> dict:
+def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                        progress: bool = True) -> dict:
     """The PlaNet agent's model (``planet-boxing-agent``'s run, which ``reproduce`` runs first) frozen,
     and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
     its own; after each round, greedy bouts on the agent's evaluation bouts. The round chosen on
@@ -108,7 +108,7 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
     """Where the value changes the plan on Boxing (:func:`~wmthesis.planet.value_runs.compare_plans`
     on the run of :func:`planet_boxing_value` with ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
-    metrics = planet_boxing_value(profile, seed, progress, variant)
+    metrics = planet_boxing_value(profile, seed, variant, progress)
     return compare_plans(GAME, data_dir(profile, "planet-boxing-agent", f"seed{seed}"), value_folder(profile, seed, variant),
                          results_folder(profile, seed, variant),
                          metrics, PLAN_STEPS[profile], seed)
@@ -143,7 +143,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     planner's ``config`` and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
     profile = profile_name(profile)
     levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
-    metrics = planet_boxing_value(profile, seed, progress, variant) if metrics is None else metrics
+    metrics = planet_boxing_value(profile, seed, variant, progress) if metrics is None else metrics
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = value_folder(profile, seed, value_run(variant))  # the run that fitted its value
     planners = {lever: for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]) for lever in levers}
@@ -168,7 +168,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     Returns rule -> its ``rounds`` and their ``full`` and ``first``-500-step scores."""
     profile = profile_name(profile)
     rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, LEVER_BOUTS[profile])
-    metrics = planet_boxing_value(profile, seed, progress, variant)
+    metrics = planet_boxing_value(profile, seed, variant, progress)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = value_folder(profile, seed, folder_variant(variant))
     model, planet, _ = load_planet(planet_run)

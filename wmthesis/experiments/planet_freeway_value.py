@@ -143,8 +143,8 @@ def value_folders(profile: str, seed: int, variant: str | None = None) -> tuple[
 
 
 @releasing_holds
-def planet_freeway_value(profile: str | None = None, seed: int = 0, progress: bool = True,
-                         variant: str | None = None) -> dict:
+def planet_freeway_value(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                         progress: bool = True) -> dict:
     """PlaNet's Freeway agent (``planet-freeway``, ``freeway-tuned`` or the variant's
     :func:`model_variant`, trained first if need be)
     frozen; a value fitted on its episodes, then rounds of its own (:data:`FREEWAY_VALUE`); the
@@ -228,7 +228,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     profile = profile_name(profile)
     levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, bouts, LEVER_EPISODES[profile])
     fitted = value_variant(variant)
-    metrics = planet_freeway_value(profile, seed, progress, fitted)
+    metrics = planet_freeway_value(profile, seed, fitted, progress)
     work, _ = value_folders(profile, seed, fitted)
     planners = {lever: for_profile(ValuePlannerConfig, profile, discount=metrics["config"]["discount"], **PLANNER_LEVERS[lever])
                 for lever in levers}
@@ -334,7 +334,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     lookahead's under ``lookahead``) and per planner :func:`hold_back_shares`."""
     profile = profile_name(profile)
     _check_horizons((horizon,))
-    metrics = planet_freeway_value(profile, seed, progress, variant)
+    metrics = planet_freeway_value(profile, seed, variant, progress)
     work, _ = value_folders(profile, seed, value_variant(variant))
     planner = ValuePlannerConfig(**with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"]))
     steps = PLAN_STEPS[profile]
@@ -379,7 +379,7 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
     (:func:`~wmthesis.planet.value_runs.compare_plans` on a :func:`planet_freeway_value`
     run of ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
-    metrics = planet_freeway_value(profile, seed, progress, variant)
+    metrics = planet_freeway_value(profile, seed, variant, progress)
     work, out = value_folders(profile, seed, variant)
     return compare_plans(GAME, frozen_model(profile, seed, model_variant(variant), progress), work, out, metrics,
                          PLAN_STEPS[profile], seed)

@@ -26,7 +26,7 @@ from wmthesis.sokoban_search.iteration import (evaluation_search, load_run, poli
 from wmthesis.sokoban_search.report import (BOXOBAN_AGENTS, EVAL_PARTS, boxoban_job, boxoban_reference, boxoban_row,
                                             evaluation_record, generated_job, level_plays, merged_parts)
 from wmthesis.utils import data_dir
-from wmthesis.variants import Variant, Variants
+from wmthesis.variants import Variant, Variants, no_variant
 from wmthesis.viz import save_figure
 
 BOXOBAN_LEVELS = {"smoke": 2, "quick": 500, "thesis": 1000}  # the first of the report files' levels, each kind
@@ -45,11 +45,13 @@ def work_folder(profile: str, seed: int) -> Path:
 
 
 @releasing_holds
-def sokoban_search(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                   progress: bool = True) -> dict:
     """Train the search agent from pixels (resumable), evaluate it on ``eval_levels`` unseen
     levels of each of our generator's variants (:data:`GENERATED`) and on Boxoban's report files
     beside random play, the thesis, and its search with the true rules and A* (the reference rows,
     on the first :data:`REFERENCE_LEVELS` of them); return the metrics."""
+    no_variant("sokoban-search", variant)
     profile = profile_name(profile)
     started = time.time()
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")

@@ -19,6 +19,7 @@ from wmthesis.references import THESIS_SOKOBAN_WM
 from wmthesis.rollouts import collect
 from wmthesis.runs import atomic_path, first_run_seconds, hold, jsonable, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir
+from wmthesis.variants import no_variant
 from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.evolution import episode_seeds, evaluate_population, random_play, train_controller
 from wmthesis.world_models.figures import sokoban_figures, sokoban_recording
@@ -70,7 +71,8 @@ def sokoban_wm_configs(profile: str | None = None, seed: int = 0) -> dict:
 
 
 @releasing_holds
-def sokoban_world_models(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                         progress: bool = True) -> dict:
     """Thesis 5.3.1-5.3.3: World Models on Sokoban (10x10, 4 boxes, a new level each episode).
 
     1. Random rollouts, stored twice from the same seeds (the same levels and actions): 64x64
@@ -92,6 +94,7 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, progress: bo
     ``data/results/sokoban-wm/<profile>-seed<seed>/``; every step resumes from its artifact.
     Returns the metrics; ``score`` is the 5.3.1 controller's.
     """
+    no_variant("sokoban-wm", variant)
     profile = profile_name(profile)
     started = time.time()
     work = hold(data_dir(profile, "sokoban-wm", f"seed{seed}"))

@@ -17,6 +17,7 @@ from wmthesis.references import published
 from wmthesis.rollouts import collect
 from wmthesis.runs import atomic_path, first_run_seconds, hold, read_json, releasing_holds, run_header
 from wmthesis.utils import data_dir
+from wmthesis.variants import no_variant
 from wmthesis.viz import image_rows, record_frames, save_figure
 from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.evolution import evaluate_population, train_controller
@@ -27,12 +28,14 @@ from wmthesis.world_models.vision import VAEVision
 
 
 @releasing_holds
-def boxing_world_models(profile: str | None = None, seed: int = 0, progress: bool = True) -> dict:
+def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                        progress: bool = True) -> dict:
     """Thesis 5.4.1: World Models on Boxing, random rollouts -> VAE -> MDN-RNN -> CMA-ES.
 
     Returns the metrics dict (also written to ``metrics.json``): the controller's score over
     10 full evaluation episodes with varied starts, the learning curves, the open-loop error.
     """
+    no_variant("boxing-wm", variant)
     profile = profile_name(profile)
     started = time.time()
     wm = _world_model(profile, seed, progress)

@@ -47,8 +47,9 @@ def variant_changes(name: str) -> dict:
         if name in registry:
             return registry.changes(name)
     valid = ", ".join(dict.fromkeys(n for registry in REGISTRIES.values() for n in registry))
+    findings = ", ".join(registry.findings for registry in REGISTRIES.values())
     raise ValueError(f"unknown PlaNet variant {name!r}; valid: {valid} (variants no longer in the code, with "
-                     f"their numbers: docs/findings/)")
+                     f"their numbers: {findings})")
 
 
 __all__ = ["PLANET_SOKOBAN", "PLANET_BOXING", "PLANET_FREEWAY", "REGISTRIES", "ENVIRONMENTS", "FREEWAY_KL",

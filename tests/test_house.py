@@ -1,0 +1,118 @@
+"""The one house: variants declared one way, the run store, published figures written once, and
+the rules the package keeps (no module imports another's underscore names, no recipe imports a
+sibling recipe, no file over 450 lines)."""
+from __future__ import annotations
+
+import ast
+import json
+import warnings
+from pathlib import Path
+
+import pytest
+
+from wmthesis.experiments import EXPERIMENTS, NO_VARIANTS, RECIPES, VARIANTS, prerequisites, reproduce
+from wmthesis.references import PUBLISHED, human, published
+from wmthesis.runs import finished_metrics, read_json, results_folder, work_folder, write_json
+from wmthesis.summary import read_runs
+from wmthesis.variants import Variant, Variants
+
+PACKAGE = Path(__file__).resolve().parents[1] / "wmthesis"
+
+
+def test_a_registry_holds_one_default_and_merges_changes_along_what_a_variant_builds_on():
+    registry = Variants("demo", Variant("base", "the default", dict(value=dict(rounds=5)), default=True),
+                        Variant("more", "more rounds", dict(value=dict(rounds=10), planner=dict(horizon=2)),
+                                builds_on="base"),
+                        Variant("lean", "lean", dict(value=dict(score=False)), builds_on="more"))
+    assert registry.default.name == "base" and registry.check(None) is registry.default
+    assert registry.changes("lean") == {"value": {"rounds": 10, "score": False}, "planner": {"horizon": 2}}
+    assert registry.changes("lean", "value") == {"rounds": 10, "score": False}
+    assert [v.name for v in registry.lineage("lean")] == ["base", "more", "lean"]
+    assert registry.rows()[1] == ["more", "ablation", "base", "more rounds"]
+    with pytest.raises(ValueError, match=r"unknown variant 'gone' of demo; valid: base, more, lean .*docs/findings/demo.md"):
+        registry.check("gone")
+    with pytest.raises(ValueError, match="exactly one default"):
+        Variants("demo", Variant("a", "a"), Variant("b", "b"))
+    with pytest.raises(ValueError, match="declared twice"):
+        Variants("demo", Variant("a", "a", default=True), Variant("a", "again"))
+    with pytest.raises(ValueError, match="builds on 'nowhere'"):
+        Variants("demo", Variant("a", "a", default=True), Variant("b", "b", builds_on="nowhere"))
+
+
+def test_every_experiment_has_one_recipe_signature_and_refuses_a_variant_it_lacks():
+    assert tuple(RECIPES) == EXPERIMENTS and set(NO_VARIANTS) | set(VARIANTS) == set(EXPERIMENTS)
+    for name, registry in VARIANTS.items():  # the file a refusal names is there
+        assert registry.experiment == name and Path(PACKAGE.parent, registry.findings).is_file(), name
+    for name in NO_VARIANTS:  # refused before anything runs
+        with pytest.raises(ValueError, match="has no variants"):
+            RECIPES[name]("smoke", 0, "anything", False)
+    with pytest.raises(ValueError, match="docs/findings/planet-boxing-value.md"):
+        reproduce("planet-boxing-value", "smoke", 0, "td")  # removed: its numbers went to the findings
+    assert prerequisites("planet-freeway-value", "adam-log") == [("planet-freeway", "freeway-adam"),
+                                                                  ("planet-freeway", "freeway-tuned")]
+    assert prerequisites("boxing-wm-alphazero", "improved") == [] and prerequisites("boxing-wm") == []
+
+
+def test_the_run_store_names_folders_one_way_and_says_what_a_missing_run_needs(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    assert work_folder("quick", "planet-freeway", 3, "freeway-adam") == tmp_path / "quick/planet-freeway/freeway-adam-seed3"
+    assert results_folder("boxing-wm", "quick", 3) == tmp_path / "results/boxing-wm/quick-seed3"
+    with pytest.raises(FileNotFoundError, match="reproduce planet-boxing-agent --profile quick --seed 3` first"):
+        finished_metrics("planet-boxing-agent", "quick", 3)
+    path = write_json(results_folder("planet-boxing-agent", "quick", 3) / "metrics.json", {"score": 1.5})
+    assert finished_metrics("planet-boxing-agent", "quick", 3) == {"score": 1.5}
+    path.write_text("{not json")
+    assert read_json(path) is None  # corrupt: computed again, never a traceback
+
+
+def test_published_figures_are_written_once_and_shown_with_their_sources():
+    assert human("boxing") == 12.1 and human("freeway") == 29.6
+    assert published("boxing-wm")["thesis World Models"] == "above 18 on average across 5 runs"
+    assert all(ref.source for refs in PUBLISHED.values() for ref in refs)
+    sources = [p for p in PACKAGE.rglob("*.py") if p.name != "references.py"]
+    assert not [p for p in sources if "12.1" in p.read_text()]  # the human score, only in references.py
+
+
+def test_the_summary_skips_a_removed_variants_folder_naming_it(tmp_path):
+    kept = {"experiment": "planet-boxing-value", "variant": "lean", "profile": "quick", "seed": 0,
+            "value": {"mean": 30.0}, "wall_seconds": 60}
+    write_json(tmp_path / "planet-boxing-value/quick-seed0/lean/metrics.json", kept)
+    write_json(tmp_path / "planet-boxing-value/quick-seed0/td/metrics.json", {**kept, "variant": "td"})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        runs = read_runs(tmp_path)
+    assert [(r.variant, r.score) for r in runs] == [("lean", 30.0)]
+    said = " ".join(str(w.message) for w in caught)
+    assert "quick-seed0/td: skipped, written by variant 'td'" in said and "docs/findings/planet-boxing-value.md" in said
+
+
+def _imports(path: Path):
+    return [node for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.ImportFrom)
+            and node.module and node.module.startswith("wmthesis")]
+
+
+def test_no_module_imports_another_modules_underscore_names_and_no_recipe_a_sibling():
+    underscore, sibling = [], []
+    for path in PACKAGE.rglob("*.py"):
+        module = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+        for node in _imports(path):
+            underscore += [f"{path.name}: {node.module}.{a.name}" for a in node.names
+                           if a.name.startswith("_") and node.module != module]
+            if path.parent.name == "experiments" and path.name != "__init__.py" and ".experiments." in node.module:
+                sibling.append(f"{path.name}: {node.module}")
+    assert underscore == [] and sibling == []
+
+
+def test_no_file_of_the_package_runs_over_450_lines_and_the_recipes_stay_thin():
+    lengths = {str(p.relative_to(PACKAGE)): len(p.read_text().splitlines()) for p in PACKAGE.rglob("*.py")}
+    assert {name: n for name, n in lengths.items() if n > 450} == {}
+    assert sum(n for name, n in lengths.items() if name.startswith("experiments/")) <= 2000
+
+
+def test_the_committed_results_of_kept_variants_still_read():
+    results = PACKAGE.parent / "data" / "results"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no committed folder is skipped
+        runs = read_runs(results)
+    summary = json.loads((results / "summary.json").read_text())["rows"]
+    assert {(r.experiment, r.variant) for r in runs} >= {(row["experiment"], row["variant"]) for row in summary}
