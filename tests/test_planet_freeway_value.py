@@ -181,7 +181,7 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     planner_only = Variant("adam-horizon-12", "freeway-adam's value, 12 steps", dict(planner=dict(horizon=12)),
                            builds_on="freeway-adam")
     monkeypatch.setattr(module, "VALUE_VARIANTS", Variants("planet-freeway-value", *VALUE_VARIANTS.values(), planner_only))
-    longer = reproduce("planet-freeway-value", "smoke", 0, variant="adam-horizon-12", progress=False)
+    longer = module.planet_freeway_value("smoke", 0, "adam-horizon-12", progress=False)
     assert longer["value_planner"]["config"]["horizon"] == 12 != adam["value_planner"]["config"]["horizon"]
     assert longer["curve"] == adam["curve"] and longer["best_round"] == adam["best_round"]  # the same value
     assert longer["baselines"] == adam["baselines"]

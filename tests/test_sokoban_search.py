@@ -763,11 +763,10 @@ def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smalle
     import os
 
     experiment = importlib.import_module("wmthesis.experiments.sokoban_search")  # the module, not its function
-    evaluation = importlib.import_module("wmthesis.sokoban_search.evaluation")
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     monkeypatch.setattr(os, "cpu_count", lambda: 1)  # the parts in this process, so that the spy sees them
-    played, real = [], evaluation.solve_boards
-    monkeypatch.setattr(evaluation, "solve_boards", lambda agent, boards, **kw: played.append(kw["levels"]) or real(agent, boards, **kw))
+    played, real = [], report.solve_boards
+    monkeypatch.setattr(report, "solve_boards", lambda agent, boards, **kw: played.append(kw["levels"]) or real(agent, boards, **kw))
     first = experiment.evaluate_report("smoke", seed=3, levels=2, progress=False)  # trains the pixel agent first
     assert played == [[0], [1]] * 2  # unfiltered, then medium: each kind's two parts
     cfg = for_profile(SokobanSearchConfig, "smoke", seed=3, inputs="pixels")

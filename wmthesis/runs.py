@@ -38,6 +38,24 @@ def results_folder(experiment: str, profile: str, seed: int, variant: str | None
     return data_dir("results", experiment, f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
 
 
+_RUNNER: list = []  # the package's ``reproduce``, registered by :mod:`wmthesis.experiments`
+
+
+def register_runner(runner: Callable) -> None:
+    """The function that runs an experiment, ``runner(name, profile, seed, variant, progress)``
+    (:func:`wmthesis.experiments.reproduce`): how one recipe has another's run made, without
+    importing it (:func:`built_on`)."""
+    _RUNNER[:] = [runner]
+
+
+def built_on(experiment: str, profile: str, seed: int, variant: str | None = None, progress: bool = True) -> dict:
+    """The metrics of the run of ``experiment`` that a recipe builds on (same profile and seed):
+    made first, resumed, or returned as it is by the registered runner (:func:`register_runner`)."""
+    if not _RUNNER:
+        raise RuntimeError("no experiment runner registered: import wmthesis.experiments first")
+    return _RUNNER[0](experiment, profile, seed, variant, progress)
+
+
 def finished_metrics(experiment: str, profile: str, seed: int, variant: str | None = None) -> dict:
     """The ``metrics.json`` of a finished run, which another experiment builds on; a missing or
     unreadable one raises FileNotFoundError naming the command that makes it (``reproduce`` runs
@@ -285,6 +303,6 @@ def _alive(pid) -> bool:
     return True
 
 
-__all__ = ["work_folder", "results_folder", "finished_metrics", "atomic_path", "write_json", "read_json", "jsonable", "cached",
+__all__ = ["work_folder", "results_folder", "register_runner", "built_on", "finished_metrics", "atomic_path", "write_json", "read_json", "jsonable", "cached",
            "run_header", "first_run_seconds", "cached_for", "played_bouts", "played_groups", "partial_path",
            "run_jobs", "LOCK_NAME", "FolderHeld", "hold", "release", "releasing_holds"]

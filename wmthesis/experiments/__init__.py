@@ -19,8 +19,8 @@ Every step skips work whose artifact exists, so re-running resumes.
 from __future__ import annotations
 
 import concurrent.futures
-import multiprocessing
 import functools
+import multiprocessing
 import os
 
 from wmthesis.alphazero.selfplay import VARIANTS as ALPHAZERO_VARIANTS
@@ -40,6 +40,7 @@ from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOB
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
+from wmthesis.runs import register_runner
 from wmthesis.utils import check_choice, worker_init
 
 # Experiment -> its recipe, each called ``recipe(profile, seed, variant, progress)``.
@@ -68,8 +69,9 @@ def prerequisites(name: str, variant: str | None = None) -> list[tuple[str, str 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
               progress: bool = True) -> dict:
-    """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics; the runs it
-    builds on (:func:`prerequisites`, same profile and seed) first.
+    """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics; a recipe has
+    the runs it builds on (:func:`prerequisites`, same profile and seed) made first through
+    :func:`~wmthesis.runs.built_on`, which calls this function.
 
     ``variant`` selects a variant of experiments that have them (PlaNet's, AlphaZero's, the
     PlaNet value's); others refuse one.
@@ -79,10 +81,10 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
         raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
     if name in VARIANTS and variant is not None:
         VARIANTS[name].check(variant)
-    profile = profile_name(profile)
-    for before, before_variant in prerequisites(name, variant):  # each resumes, or returns its cached metrics
-        reproduce(before, profile, seed, before_variant, progress)
-    return RECIPES[name](profile, seed, variant, progress)
+    return RECIPES[name](profile_name(profile), seed, variant, progress)  # its prerequisites first (built_on)
+
+
+register_runner(reproduce)
 
 
 def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int = 1) -> dict:

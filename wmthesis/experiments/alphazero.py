@@ -19,7 +19,7 @@ from wmthesis.envs.atari import boxing_env
 from wmthesis.metrics import score_difference, score_summary
 from wmthesis.references import published
 from wmthesis.rollouts import collect
-from wmthesis.runs import atomic_path, first_run_seconds, hold, releasing_holds, run_header
+from wmthesis.runs import atomic_path, built_on, first_run_seconds, hold, releasing_holds, run_header
 from wmthesis.utils import data_dir
 from wmthesis.viz import record_frames, save_figure
 from wmthesis.world_models.config import MemoryConfig, VisionConfig
@@ -142,8 +142,11 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
 
 def _expert(profile: str, seed: int, wm: Path, vision, progress: bool):
     """``agent_seed -> ControllerMind``: notebook 02's controller (the CMA-ES mean) as the
-    imitation variant's expert (``reproduce`` trains it first, :func:`prerequisites`)."""
+    imitation variant's expert; trains it first (the boxing-wm pipeline, its steps cached) if it is missing."""
     make_mind, note = controller_minds(profile, wm, vision)
+    if make_mind is None:
+        built_on("boxing-wm", profile, seed, progress=progress)
+        make_mind, note = controller_minds(profile, wm, vision)
     if make_mind is None:
         raise RuntimeError(f"the imitation variant needs notebook 02's controller: {note}")
     return make_mind

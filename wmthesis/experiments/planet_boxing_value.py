@@ -72,7 +72,7 @@ def results_folder(profile: str, seed: int, variant: str | None = None):
 @releasing_holds
 def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str | None = None,
                         progress: bool = True) -> dict:
-    """The PlaNet agent's model (``planet-boxing-agent``'s run, which ``reproduce`` runs first) frozen,
+    """The PlaNet agent's model (``planet-boxing-agent``'s run, made first if need be) frozen,
     and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
     its own; after each round, greedy bouts on the agent's evaluation bouts. The round chosen on
     validation bouts of its own (:func:`~wmthesis.planet.value_rounds.best_round`) compares with random
@@ -87,7 +87,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
     chosen, variant = VALUE_VARIANTS.check(variant), folder_variant(variant)
     profile = profile_name(profile)
     started = time.time()
-    agent = run_store.finished_metrics("planet-boxing-agent", profile, seed)
+    agent = run_store.built_on("planet-boxing-agent", profile, seed, progress=progress)
     planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
     work = hold(value_folder(profile, seed, variant))
     out = results_folder(profile, seed, variant)

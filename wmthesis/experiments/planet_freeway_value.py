@@ -43,7 +43,8 @@ from wmthesis.planet.value_rounds import STORE, load_value
 from wmthesis.planet.value_runs import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans, fit_and_compare,
                                         lever_scores, start_from)
 from wmthesis.references import human
-from wmthesis.runs import atomic_path, finished_metrics, hold, played_bouts, read_json, releasing_holds, work_folder
+from wmthesis.runs import (atomic_path, built_on, hold, played_bouts, read_json, releasing_holds,
+                           work_folder)
 from wmthesis.training import with_added_defaults
 from wmthesis.utils import data_dir
 from wmthesis.variants import Variant, Variants
@@ -99,9 +100,8 @@ def value_variant(variant: str | None = None) -> str | None:
 
 
 def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
-    """The frozen run of ``planet-freeway``'s variant ``model``: a finished run (``reproduce``
-    runs it first, :func:`prerequisites`; otherwise FileNotFoundError names the command)."""
-    finished_metrics("planet-freeway", profile, seed, model)
+    """The frozen run of ``planet-freeway``'s variant ``model``, trained first if need be."""
+    built_on("planet-freeway", profile, seed, model, progress)
     return work_folder(profile, "planet-freeway", seed, model)
 
 
