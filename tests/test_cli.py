@@ -48,7 +48,9 @@ def test_validate_refuses_an_unknown_lever_before_any_runs_and_reports_each_leve
                       ("baseline", "smoke", 1, 3), ("prior-afterwards", "smoke", 1, 3)]
     out = capsys.readouterr().out
     assert "sokoban-search, seed 1" in out and "baseline: unfiltered 92/100 (92.0%), 7,229 nodes and 6.0 s a level" in out
-    assert main(["validate", "boxing-wm", "x"]) == 2  # no levers: refused by the argument check
+    with pytest.raises(SystemExit) as refused:  # no levers: refused by the argument check
+        main(["validate", "boxing-wm", "x"])
+    assert refused.value.code == 2
 
 
 def test_alphazero_experiment_is_on_the_command_line(capsys):
@@ -223,10 +225,11 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     checked = validate_planners("smoke", 0, levers=levers, variant="lean", progress=False)
     assert checked["the value's rewards"]["config"]["rewards"] == "value" and checked[levers[0]]["config"]["rewards"] != "value"
     assert all(len(scores["returns"]) == 1 for scores in checked.values())
-    monkeypatch.setattr(value_bouts, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
-    assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
-    # a variant that changes the planner alone plays its levers on the value it shares with lean
-    assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards-0.7", progress=False) == checked
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(value_bouts, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
+        assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
+        # a variant that changes the planner alone plays its levers on the value it shares with lean
+        assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards-0.7", progress=False) == checked
     # the command line's validate: the same levers, one more played and saved where validate_planners finds it
     from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
     from wmthesis.planet.value_tables import planner_lever_rows

@@ -372,7 +372,7 @@ def alive(pid: int) -> bool:
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to find the workers")
 def test_sigkill_while_collecting_keeps_complete_episodes_and_ends_the_workers(tmp_path):
     path = tmp_path / "killed.h5"
-    child = run_python(f"from wmthesis.data import collect\n"
+    child = run_python(f"from wmthesis.rollouts import collect\n"
                        f"collect('boxing', 400, {str(path)!r}, workers=2, max_steps=15, progress=False)")
     wait_for_size(path, 200_000)  # several episodes are written
     time.sleep(np.random.default_rng().uniform(0, 0.2))
@@ -411,7 +411,7 @@ def test_a_store_held_by_a_live_writer_is_not_repaired(tmp_path):
 
 def test_ctrl_c_stops_the_workers_and_keeps_complete_episodes(reference, tmp_path):
     path = tmp_path / "interrupted.h5"
-    child = run_python(f"from wmthesis.data import collect\n"
+    child = run_python(f"from wmthesis.rollouts import collect\n"
                        f"collect('boxing', 4000, {str(path)!r}, workers=2, max_steps=15, progress=False)",
                        stdout=None, stderr=subprocess.PIPE, start_new_session=True)
     wait_for_size(path, 100_000)

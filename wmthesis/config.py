@@ -1,7 +1,9 @@
-"""Configs as dataclasses with the thesis defaults written once, and the three profiles.
+"""The three profiles, and the collection's config. Each wing keeps its configs as dataclasses
+with the thesis defaults written once (``wmthesis/world_models/config.py``, ``planet/config.py``,
+``alphazero/config.py``, ``sokoban_search/config.py``).
 
 A config's defaults ARE the thesis's values (the `thesis` profile). The `smoke` and `quick`
-profiles override a few fields:
+profiles override a few fields (:data:`OVERRIDES`, by config class name):
 
 - ``smoke``: seconds per step; proves the plumbing in CI.
 - ``quick``: a 2-core CPU in under an hour per experiment, with meaningful results.
