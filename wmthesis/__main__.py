@@ -39,7 +39,7 @@ from pathlib import Path
 
 from wmthesis.config import CollectConfig, PROFILES, for_profile
 from wmthesis.envs import ATARI_GAMES, ENV_NAMES
-from wmthesis.runs import FolderHeld
+from wmthesis.runs import FolderHeld, write_json
 from wmthesis.utils import data_dir
 
 
@@ -130,7 +130,6 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_solve_sokoban(args) -> int:
-    import json
 
     from wmthesis.sokoban_search.config import SokobanSearchConfig
     from wmthesis.config import for_profile, profile_name
@@ -138,7 +137,6 @@ def cmd_solve_sokoban(args) -> int:
     from wmthesis.experiments.sokoban_search import work_folder
     from wmthesis.sokoban_search.evaluation import solve_boards
     from wmthesis.sokoban_search.iteration import evaluation_search, load_run
-    from wmthesis.runs import atomic_path
 
     profile = profile_name(args.profile)
     boards = load_levels(args.levels)
@@ -152,8 +150,7 @@ def cmd_solve_sokoban(args) -> int:
     boxoban = args.levels.startswith("boxoban-")
     out = Path(args.out) if args.out else data_dir("results", "solutions") / f"{args.levels.replace(':', '_')}.json" \
         if boxoban else Path(args.levels).with_suffix(".solutions.json")
-    with atomic_path(out) as tmp:
-        tmp.write_text(json.dumps(results, indent=1))
+    write_json(out, results)
     print(f"{out}: {sum(r['solved'] for r in results)} of {len(results)} levels solved")
     return 0
 

@@ -3,7 +3,6 @@ no-op starts for each, greedy play, returns; the trained heads with and without 
 play and the World Models controller on them, each cached; the scores as a figure."""
 from __future__ import annotations
 
-import json
 import pickle
 from pathlib import Path
 from typing import Callable
@@ -18,7 +17,7 @@ from wmthesis.config import for_profile
 from wmthesis.core import Mind, RandomMind, loop
 from wmthesis.envs.atari import boxing_env, noop_count
 from wmthesis.references import human, random_play
-from wmthesis.runs import atomic_path, read_json
+from wmthesis.runs import atomic_path, read_json, write_json
 from wmthesis.training import load_weights
 from wmthesis.utils import derive_seeds, fingerprint, read_pickle
 from wmthesis.world_models.config import MemoryConfig
@@ -105,8 +104,7 @@ def policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list
         returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=cfg.eval_max_steps)
     finally:
         env.close()
-    with atomic_path(work / "policy_head.json") as tmp:
-        tmp.write_text(json.dumps({"key": key, "returns": returns}, indent=1))
+    write_json(work / "policy_head.json", {"key": key, "returns": returns})
     return returns
 
 
@@ -151,8 +149,7 @@ def boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int)
     finally:
         env.close()
     result = {"key": key, "returns": returns, "notes": notes}
-    with atomic_path(work / "baselines.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=1))
+    write_json(work / "baselines.json", result)
     return result
 
 

@@ -1,7 +1,6 @@
 """World Models + AlphaZero on Boxing (thesis 5.4.2), and why the thesis's version fails."""
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -19,8 +18,8 @@ from wmthesis.envs.atari import boxing_env
 from wmthesis.metrics import score_difference, score_summary
 from wmthesis.references import published
 from wmthesis.rollouts import collect
-from wmthesis.runs import atomic_path, built_on, first_run_seconds, hold, releasing_holds, run_header
-from wmthesis.utils import data_dir
+from wmthesis.runs import (built_on, first_run_seconds, hold, releasing_holds, results_folder, run_header, work_folder,
+                           write_json)
 from wmthesis.viz import record_frames, save_figure
 from wmthesis.world_models.config import MemoryConfig, VisionConfig
 from wmthesis.world_models.train import LatentStore, encode_store, train_memory, train_vision
@@ -59,9 +58,9 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     variants = tuple(VARIANTS) if variant is None else (VARIANTS.check(variant).name,)
     profile = profile_name(profile)
     started = time.time()
-    wm = data_dir(profile, "boxing-wm", f"seed{seed}")
-    work = hold(data_dir(profile, "boxing-wm-alphazero", f"seed{seed}"))
-    out = data_dir("results", "boxing-wm-alphazero", f"{profile}-seed{seed}", *(() if variant is None else (variant,)))
+    wm = work_folder(profile, "boxing-wm", seed)
+    work = hold(work_folder(profile, "boxing-wm-alphazero", seed))
+    out = results_folder("boxing-wm-alphazero", profile, seed, variant)
     collect_cfg = for_profile(CollectConfig, profile)
     store = collect("boxing", collect_cfg.episodes, wm / "random.h5", workers=collect_cfg.workers, seed=seed,
                     preprocessing="world_models", max_steps=collect_cfg.max_steps, progress=progress)
@@ -135,8 +134,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
     metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1, default=float))
+    write_json(out / "metrics.json", metrics, default=float)
     return metrics
 
 

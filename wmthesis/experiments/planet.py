@@ -3,7 +3,6 @@ variants per game, the changes to the profiles, training, greedy evaluation and 
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -21,8 +20,8 @@ from wmthesis.planet.profiles import planet_config
 from wmthesis.planet.train import load_planet, make_planet_env, same_training, train_planet, with_variant
 from wmthesis.planet.variants import ENVIRONMENTS, REGISTRIES
 from wmthesis.references import HUMAN, RANDOM, published
-from wmthesis.runs import atomic_path, hold, read_json, releasing_holds, run_header
-from wmthesis.utils import check_choice, data_dir, derive_seeds
+from wmthesis.runs import hold, read_json, releasing_holds, results_folder, run_header, work_folder, write_json
+from wmthesis.utils import check_choice, derive_seeds
 from wmthesis.viz import record_frames, save_figure
 
 # Experiment -> (environment, its variants' names, the default's name), from its registry.
@@ -64,8 +63,8 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     env_name = ENVIRONMENTS[name]
     variant = REGISTRIES[name].check(variant).name
     profile = profile_name(profile)
-    work = hold(data_dir(profile, name, f"{variant}-seed{seed}"))
-    out = data_dir("results", name, f"{profile}-seed{seed}", variant)
+    work = hold(work_folder(profile, name, seed, variant))
+    out = results_folder(name, profile, seed, variant)
     config = planet_config(env_name, profile)
     repeat = with_variant(config, variant).action_repeat
     if env_name in ATARI_GAMES and repeat != config.action_repeat:      # the same frames
@@ -118,8 +117,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
         "config": run["config"], "curve": meta["curve"],
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1, default=float))
+    write_json(out / "metrics.json", metrics, default=float)
     return metrics
 
 
@@ -138,8 +136,7 @@ def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval
             returns.append(float(sum(play_greedy(env, model, config, env_seed, mind_seed))))
     finally:
         env.close()
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps({"updates": updates, "returns": returns}))
+    write_json(path, {"updates": updates, "returns": returns}, indent=None)
     return returns
 
 

@@ -11,7 +11,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -25,7 +24,8 @@ from wmthesis.planet.profiles import planet_config
 from wmthesis.planet.study import STUDY, STUDY_VARIANTS, held_out_store, scene, score_run, summarise
 from wmthesis.planet.train import load_planet, same_training, train_planet, with_variant
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human, published, random_play
-from wmthesis.runs import atomic_path, hold, played_bouts, read_json, releasing_holds, run_header
+from wmthesis.runs import (hold, played_bouts, read_json, releasing_holds, results_folder, run_header, work_folder,
+                           write_json)
 from wmthesis.utils import data_dir, derive_seeds, parallel_calls
 from wmthesis.variants import no_variant
 from wmthesis.viz import record_frames, save_figure
@@ -60,7 +60,7 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, variant: str 
     started = time.time()
     sizes = STUDY[profile]
     work = hold(data_dir(profile, "planet-boxing-study"))
-    out = data_dir("results", "planet-boxing-study", f"{profile}-seed{seed}")
+    out = results_folder("planet-boxing-study", profile, seed)
     seeds = [seed + k for k in range(sizes["seeds"])]
     runs = {(variant, s): work / f"{variant}-seed{s}" for variant in STUDY_VARIANTS for s in seeds}
     parallel_calls([(_train_study_run, path, boxing_config(profile, variant), s)
@@ -96,8 +96,7 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, variant: str 
                                                                               "kl_scale", "free_nats")}
                         for v in STUDY_VARIANTS for i, s in enumerate(seeds)},
                "files": {"figures": [str(f) for f in figures], "recording": str(recording)}}
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1))
+    write_json(out / "metrics.json", metrics)
     return metrics
 
 
@@ -115,10 +114,10 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str 
     no_variant("planet-boxing-agent", variant)
     profile = profile_name(profile)
     sizes = AGENT[profile]
-    study = data_dir(profile, "planet-boxing-study", f"{TUNED}-seed{seed}")
+    study = work_folder(profile, "planet-boxing-study", seed, TUNED)
     _train_study_run(study, boxing_config(profile, TUNED), seed)
-    work = hold(data_dir(profile, "planet-boxing-agent", f"seed{seed}"))
-    out = data_dir("results", "planet-boxing-agent", f"{profile}-seed{seed}")
+    work = hold(work_folder(profile, "planet-boxing-agent", seed))
+    out = results_folder("planet-boxing-agent", profile, seed)
     config = boxing_config(profile, TUNED, study=False)
     run = train_planet(GAME, config, work, seed=seed, progress=progress, start_from=study)
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
@@ -147,8 +146,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str 
                "difference_first": score_difference(scores["agent"]["first_returns"], scores["random"]["first_returns"]),
                "bouts": bouts, "curve": meta["curve"], "reference": published("planet-boxing"),
                "files": {"figures": [str(figure)]}}
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1))
+    write_json(out / "metrics.json", metrics)
     return metrics
 
 

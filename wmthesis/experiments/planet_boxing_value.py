@@ -21,7 +21,6 @@ from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plan
                                         start_from)
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
 from wmthesis.runs import hold, played_bouts, releasing_holds
-from wmthesis.utils import data_dir
 from wmthesis.variants import Variant, Variants
 
 # Each variant fits its value on the same frozen model and bouts, in a folder of its own; one that
@@ -88,7 +87,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
     profile = profile_name(profile)
     started = time.time()
     agent = run_store.built_on("planet-boxing-agent", profile, seed, progress=progress)
-    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
+    planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
     work = hold(value_folder(profile, seed, variant))
     out = results_folder(profile, seed, variant)
     config = for_profile(LatentValueConfig, profile, test_bouts=len(agent["bouts"]),
@@ -109,7 +108,7 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
     on the run of :func:`planet_boxing_value` with ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_boxing_value(profile, seed, variant, progress)
-    return compare_plans(GAME, data_dir(profile, "planet-boxing-agent", f"seed{seed}"), value_folder(profile, seed, variant),
+    return compare_plans(GAME, run_store.work_folder(profile, "planet-boxing-agent", seed), value_folder(profile, seed, variant),
                          results_folder(profile, seed, variant),
                          metrics, PLAN_STEPS[profile], seed)
 
@@ -144,7 +143,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     profile = profile_name(profile)
     levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, variant, progress) if metrics is None else metrics
-    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
+    planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
     work = value_folder(profile, seed, value_run(variant))  # the run that fitted its value
     planners = {lever: for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]) for lever in levers}
     return lever_scores(planet_run, work, metrics, planners, [validation_seeds(seed, k) for k in range(bouts)],
@@ -169,7 +168,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     profile = profile_name(profile)
     rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, variant, progress)
-    planet_run = data_dir(profile, "planet-boxing-agent", f"seed{seed}")
+    planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
     work = value_folder(profile, seed, folder_variant(variant))
     model, planet, _ = load_planet(planet_run)
     round_values(model, planet.bits, work, seed=seed, progress=progress)

@@ -19,7 +19,6 @@ waits for a car.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -43,8 +42,8 @@ from wmthesis.planet.value_rounds import STORE, load_value
 from wmthesis.planet.value_runs import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans, fit_and_compare,
                                         lever_scores, start_from)
 from wmthesis.references import human
-from wmthesis.runs import (atomic_path, built_on, hold, played_bouts, read_json, releasing_holds,
-                           work_folder)
+from wmthesis.runs import (built_on, hold, played_bouts, read_json, releasing_holds, results_folder, work_folder,
+                           write_json)
 from wmthesis.training import with_added_defaults
 from wmthesis.utils import data_dir
 from wmthesis.variants import Variant, Variants
@@ -129,17 +128,15 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
                           for name in BASELINES for bout in bouts])
     parts = {name: plays[i * len(bouts):(i + 1) * len(bouts)] for i, name in enumerate(BASELINES)}
     scores = {name: bout_scores(part) for name, part in parts.items()}
-    with atomic_path(work / "baselines.json") as tmp:
-        tmp.write_text(json.dumps({"key": key, "scores": scores}, indent=1))
+    write_json(work / "baselines.json", {"key": key, "scores": scores})
     return scores
 
 
 def value_folders(profile: str, seed: int, variant: str | None = None) -> tuple[Path, Path]:
     """A run's work folder (``data/<profile>/planet-freeway-value/[<variant>-]seed<seed>``) and
     its results folder (``data/results/planet-freeway-value/<profile>-seed<seed>[/<variant>]``)."""
-    name = f"seed{seed}" if variant is None else f"{variant}-seed{seed}"
-    return (data_dir(profile, "planet-freeway-value", name),
-            data_dir("results", "planet-freeway-value", f"{profile}-seed{seed}", *(() if variant is None else (variant,))))
+    return (work_folder(profile, "planet-freeway-value", seed, variant),
+            results_folder("planet-freeway-value", profile, seed, variant))
 
 
 @releasing_holds
@@ -269,8 +266,7 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
             score = score_run(planet_run, episodes, background, mean_frame, context=sizes["context"],
                               horizon=sizes["horizon"], sequences=sizes["sequences"], seed=seed)
         cached = {"key": key, "score": {k: v for k, v in score.items() if k != "rollout"}}
-        with atomic_path(out / "open_loop_check.json") as tmp:
-            tmp.write_text(json.dumps(cached, indent=1))
+        write_json(out / "open_loop_check.json", cached)
     score = cached["score"]
     figure = save_figure(study_error_figure({model: [score]}, title="Freeway: open-loop error on the moving pixels "
                                                                    "(held-out random episodes)"),
@@ -352,8 +348,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
         frames, taken = episode["observations"][:steps], episode["actions"][:steps]
         choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
         cached = {"key": key, "choices": {"lookahead": taken.tolist(), **{n: c.tolist() for n, c in choices.items()}}}
-        with atomic_path(out / "when_to_wait.json") as tmp:
-            tmp.write_text(json.dumps(cached))
+        write_json(out / "when_to_wait.json", cached, indent=None)
     lookahead = np.asarray(cached["choices"]["lookahead"])
     shares = {name: hold_back_shares(lookahead, np.asarray(c)) for name, c in cached["choices"].items() if name != "lookahead"}
     return {"steps": len(lookahead), "waits": int((lookahead != UP).sum()), "choices": cached["choices"], "planners": shares}

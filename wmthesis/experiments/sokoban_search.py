@@ -2,7 +2,6 @@
 iteration, then the table on unseen levels, the model's accuracy, solutions saved and replayed."""
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -12,8 +11,8 @@ from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS, load_levels
 from wmthesis.metrics import score_summary
 from wmthesis.references import BOXOBAN, published
-from wmthesis.runs import (atomic_path, cached, first_run_seconds, hold, jsonable, read_json, releasing_holds,
-                           run_header, run_jobs)
+from wmthesis.runs import (cached, first_run_seconds, hold, jsonable, read_json, releasing_holds, results_folder,
+                           run_header, run_jobs, work_folder as run_folder, write_json)
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table, render_cells
@@ -25,7 +24,6 @@ from wmthesis.sokoban_search.iteration import (evaluation_search, load_run, poli
                                                train_search_agent)
 from wmthesis.sokoban_search.report import (BOXOBAN_AGENTS, EVAL_PARTS, boxoban_job, boxoban_reference, boxoban_row,
                                             evaluation_record, generated_job, level_plays, merged_parts)
-from wmthesis.utils import data_dir
 from wmthesis.variants import Variant, Variants, no_variant
 from wmthesis.viz import save_figure
 
@@ -41,7 +39,7 @@ EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
 
 def work_folder(profile: str, seed: int) -> Path:
     """Where a run's experience and checkpoints live (``solve-sokoban`` reads them)."""
-    return data_dir(profile, "sokoban-search", f"seed{seed}")
+    return run_folder(profile, "sokoban-search", seed)
 
 
 @releasing_holds
@@ -55,7 +53,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
     profile = profile_name(profile)
     started = time.time()
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
-    work, out = hold(work_folder(profile, seed)), data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
+    work, out = hold(work_folder(profile, seed)), results_folder("sokoban-search", profile, seed)
     runs = {"pixels": _trained_run(work / "pixels", cfg, progress)}
     trained_at = time.time()
     tables, model_accuracy, solutions = {}, {}, {}
@@ -83,8 +81,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
                                    for name, run in runs.items()}
         solutions[variant] = played["pixels"]["solutions"]
         for name in runs:
-            with atomic_path(out / f"solutions-{name}-{variant}.json") as tmp:
-                tmp.write_text(json.dumps(played[name]["solutions"]))
+            write_json(out / f"solutions-{name}-{variant}.json", played[name]["solutions"], indent=None)
     boxoban_tables = {kind: _boxoban_table(kind, boxoban, profile) for kind in BOXOBAN_SPLITS["report"]}
     figures, recording = _figures(out, runs, generated, solutions)
     last = generated[-1]
@@ -109,8 +106,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
     metrics["search"] = evaluation_record(cfg)
     metrics["evaluation_wall_seconds"] = evaluation_seconds(read_json(out / "metrics.json"), metrics["search"],
                                                              time.time() - trained_at)
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(jsonable(metrics), indent=1))
+    write_json(out / "metrics.json", jsonable(metrics))
     return metrics
 
 
@@ -165,9 +161,8 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     result = {"lever": lever, "changes": changes, "profile": profile, "seed": seed, "rows": rows,
               "search": evaluation_record(cfg),
               "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
-    out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
-    with atomic_path(out / f"validation-{lever}.json") as tmp:
-        tmp.write_text(json.dumps(jsonable(result), indent=1))
+    out = results_folder("sokoban-search", profile, seed)
+    write_json(out / f"validation-{lever}.json", jsonable(result))
     return result
 
 
@@ -192,9 +187,8 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
               "env_steps": int(sum(h["env_steps"] for h in run.history)),
               "rows": {kind: boxoban_row(level_plays(jobs, "pixels", kind), source, load_levels(source))
                        for kind, source in BOXOBAN_SPLITS["report"].items()}}
-    out = data_dir("results", "sokoban-search", f"{profile}-seed{seed}")
-    with atomic_path(out / f"boxoban-report-{levels}.json") as tmp:
-        tmp.write_text(json.dumps(jsonable(result), indent=1))
+    out = results_folder("sokoban-search", profile, seed)
+    write_json(out / f"boxoban-report-{levels}.json", jsonable(result))
     return result
 
 

@@ -4,7 +4,6 @@ and the open-loop measures of what the thesis judged by eye."""
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -17,8 +16,8 @@ from wmthesis.envs.vector import make_game
 from wmthesis.metrics import score_summary
 from wmthesis.references import THESIS_SOKOBAN_WM
 from wmthesis.rollouts import collect
-from wmthesis.runs import atomic_path, first_run_seconds, hold, jsonable, read_json, releasing_holds, run_header
-from wmthesis.utils import data_dir
+from wmthesis.runs import (first_run_seconds, hold, jsonable, read_json, releasing_holds, results_folder, run_header,
+                           work_folder, write_json)
 from wmthesis.variants import no_variant
 from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.evolution import episode_seeds, evaluate_population, random_play, train_controller
@@ -97,8 +96,8 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str
     no_variant("sokoban-wm", variant)
     profile = profile_name(profile)
     started = time.time()
-    work = hold(data_dir(profile, "sokoban-wm", f"seed{seed}"))
-    out = data_dir("results", "sokoban-wm", f"{profile}-seed{seed}")
+    work = hold(work_folder(profile, "sokoban-wm", seed))
+    out = results_folder("sokoban-wm", profile, seed)
     configs = sokoban_wm_configs(profile, seed)
     evaluation = SOKOBAN_WM_EVAL[profile]
     collect_cfg = configs["collect"]
@@ -156,8 +155,7 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str
     }
     metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     metrics = jsonable(metrics)
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1))
+    write_json(out / "metrics.json", metrics)
     return metrics
 
 
@@ -190,8 +188,7 @@ def _sokoban_controller(variant: str, vae, memory, cfg, work: Path, level_seeds:
             game.close()
         cached = {"generation": run.generation, "seeds": level_seeds.tolist(), "returns": returns[0].tolist(),
                   "steps": steps[0].tolist()}
-        with atomic_path(path) as tmp:
-            tmp.write_text(json.dumps(cached))
+        write_json(path, cached, indent=None)
     return {"run": run, "returns": cached["returns"], "steps": cached["steps"],
             "solved": levels_solved(cached["returns"], cached["steps"])}
 

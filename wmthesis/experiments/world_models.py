@@ -15,8 +15,8 @@ from wmthesis.envs.vector import make_game
 from wmthesis.metrics import score_summary
 from wmthesis.references import published
 from wmthesis.rollouts import collect
-from wmthesis.runs import atomic_path, first_run_seconds, hold, read_json, releasing_holds, run_header
-from wmthesis.utils import data_dir
+from wmthesis.runs import (first_run_seconds, hold, read_json, releasing_holds, results_folder, run_header, work_folder,
+                           write_json)
 from wmthesis.variants import no_variant
 from wmthesis.viz import image_rows, record_frames, save_figure
 from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
@@ -69,8 +69,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
     metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1, default=float))
+    write_json(out / "metrics.json", metrics, default=float)
     return metrics
 
 
@@ -107,7 +106,7 @@ class BoxingWorldModel(NamedTuple):
 def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     """Random rollouts -> VAE -> latents -> MDN-RNN under ``data/<profile>/boxing-wm/seed<seed>/``,
     each step cached."""
-    work = hold(data_dir(profile, "boxing-wm", f"seed{seed}"))
+    work = hold(work_folder(profile, "boxing-wm", seed))
 
     collect_cfg = for_profile(CollectConfig, profile)
     store = collect("boxing", collect_cfg.episodes, work / "random.h5", workers=collect_cfg.workers, seed=seed,
@@ -116,7 +115,7 @@ def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     latents = encode_store(store, vae, work / "latents.h5", progress=progress)
     memory, memory_history = train_memory(latents, work, for_profile(MemoryConfig, profile), n_actions=18,
                                           seed=seed, progress=progress)
-    return BoxingWorldModel(work, data_dir("results", "boxing-wm", f"{profile}-seed{seed}"), store, vae,
+    return BoxingWorldModel(work, results_folder("boxing-wm", profile, seed), store, vae,
                             VAEVision(vae), memory, vision_history, memory_history)
 
 
@@ -149,8 +148,7 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
     returns = _final_score(run, vision, memory, cfg, profile)
     metrics = {**run_header("boxing-wm-dream", profile, seed, time.time() - started, temperature=temperature),
                "score": score_summary(returns), "controller_curve": run.curve}
-    with atomic_path(wm.out / f"dream-t{temperature:g}.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1, default=float))
+    write_json(wm.out / f"dream-t{temperature:g}.json", metrics, default=float)
     return metrics
 
 

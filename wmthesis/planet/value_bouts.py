@@ -4,7 +4,6 @@ their scores cached for the value agent, the planner's config and the bouts (:fu
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 from wmthesis.planet.bouts import bout_result, bout_scores
@@ -13,7 +12,7 @@ from wmthesis.planet.train import load_planet, make_planet_env
 from wmthesis.planet.value_planner import play_value_planner
 from wmthesis.planet.value_play import play_value
 from wmthesis.planet.value_rounds import load_rounds, load_value
-from wmthesis.runs import atomic_path, cached_for, played_groups
+from wmthesis.runs import cached_for, played_groups, write_json
 from wmthesis.training import with_added_defaults
 
 
@@ -86,8 +85,7 @@ def value_planners_scores(planet_run: Path, value_run: Path, planners: list[tupl
                             planner_defaults) for j in todo], progress, executor)
     for j, played in zip(todo, plays):
         scores = {**bout_scores(played), "config": dataclasses.asdict(planners[j][0])}
-        with atomic_path(planners[j][1]) as tmp:
-            tmp.write_text(json.dumps({"key": keys[j], "scores": scores}, indent=1))
+        write_json(planners[j][1], {"key": keys[j], "scores": scores})
         cached[j] = {"scores": scores}
     return [c["scores"] for c in cached]
 

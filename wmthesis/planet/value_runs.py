@@ -6,7 +6,6 @@ where the value changes the plan (:func:`compare_plans`)."""
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ from wmthesis.planet.train import load_planet, make_planet_env
 from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value_planners_scores
 from wmthesis.planet.value_planner import PLANNERS, plan_choices
 from wmthesis.planet.value_rounds import CHECKPOINT, STORE, load_value, train_value
-from wmthesis.runs import atomic_path, first_run_seconds, run_header
+from wmthesis.runs import atomic_path, first_run_seconds, run_header, write_json
 from wmthesis.training import with_added_defaults
 from wmthesis.utils import check_choice
 from wmthesis.viz import image_grid, save_figure
@@ -119,8 +118,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                "bouts": [list(b) for b in bouts], "curve": run["curve"], "best_round": run["best_round"],
                "agent_rounds": chosen["rounds"],
                "config": dataclasses.asdict(config), "files": {"figures": [str(figure)]}}
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(metrics, indent=1))
+    write_json(out / "metrics.json", metrics)
     return metrics
 
 
@@ -171,8 +169,7 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
     if cached is None:
         choices = plan_choices(model, load_value(work, model), planet, planner, frames, taken, seed)
         cached = {"key": key, "choices": {name: c.tolist() for name, c in choices.items()}}
-        with atomic_path(work / "plan_choices.json") as tmp:
-            tmp.write_text(json.dumps(cached))
+        write_json(work / "plan_choices.json", cached, indent=None)
     choices = {name: np.asarray(c) for name, c in cached["choices"].items()}
     env = make_planet_env(game, planet)
     names = env.unwrapped.get_action_meanings()

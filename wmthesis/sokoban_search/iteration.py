@@ -25,7 +25,6 @@ pixels), the agent of the last two 10x10 rounds solved 96.8% and 98.8% with them
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import pickle
 import shutil
@@ -37,7 +36,7 @@ import torch
 from tqdm import tqdm
 
 from wmthesis.envs.sokoban import CELL_NAMES
-from wmthesis.runs import atomic_path
+from wmthesis.runs import atomic_path, write_json
 from wmthesis.sokoban_search.agent import SearchAgent, level_seeds, random_play, variant_options
 from wmthesis.sokoban_search.cells import CellCoder, GRID, GridInputs, PixelInputs, fit_coder, render_cells
 from wmthesis.sokoban_search.config import SokobanSearchConfig
@@ -385,8 +384,7 @@ def save_run(folder: Path, run: Run, cfg: SokobanSearchConfig) -> None:
                "coder": run.inputs.coder.state() if isinstance(run.inputs, PixelInputs) else None}
     with atomic_path(folder / "state.pt") as tmp:
         torch.save(payload, tmp)
-    with atomic_path(folder / "history.json") as tmp:
-        Path(tmp).write_text(json.dumps(run.history, indent=1))
+    write_json(folder / "history.json", run.history)
 
 
 EVALUATION_FIELDS = ("eval_budget", "eval_levels")  # read by the evaluation alone, not by training

@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 
 from wmthesis.envs.boxoban import load_levels
-from wmthesis.runs import atomic_path, partial_path, read_json
+from wmthesis.runs import partial_path, read_json, write_json
 from wmthesis.sokoban_search.evaluation import agent_row, check_board_solutions, solve_boards
 from wmthesis.sokoban_search.iteration import evaluation_search, load_run, policy_afterwards
 from wmthesis.sokoban_search.search import Simulator
@@ -40,8 +40,7 @@ def evaluate_levels(folder: Path, cfg, variant: str, seeds, simulator: bool = Fa
         if seed not in done:
             done[seed] = agent.play(env, seed).record()
             if partial is not None:
-                with atomic_path(partial) as tmp:
-                    tmp.write_text(json.dumps({"plays": list(done.values()), "search": record}))
+                write_json(partial, {"plays": list(done.values()), "search": record}, indent=None)
     return {"plays": [done[int(seed)] for seed in seeds], "search": record}
 
 def search_record(search) -> dict:
@@ -106,8 +105,7 @@ def evaluate_boxoban(folder: Path, cfg, source: str, count: int, part: int, simu
     def keep(play: dict) -> None:
         done[play["level"]] = play
         if partial is not None:
-            with atomic_path(partial) as tmp:
-                tmp.write_text(json.dumps({"plays": list(done.values()), "search": record}))
+            write_json(partial, {"plays": list(done.values()), "search": record}, indent=None)
 
     todo = [i for i in levels if i not in done]
     solve_boards(agent, [boards[i] for i in todo], progress=False, levels=todo, on_level=keep)

@@ -9,7 +9,7 @@ from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
 from wmthesis.references import BOXOBAN_PUBLISHED
-from wmthesis.runs import read_json
+from wmthesis.runs import read_json, results_folder
 from wmthesis.sokoban_search.config import SokobanSearchConfig
 from wmthesis.sokoban_search.report import BOXOBAN_AGENTS, evaluation_record
 from wmthesis.utils import data_dir
@@ -113,7 +113,7 @@ def lever_rows(profile: str | None = None, seed: int = 0) -> list[list]:
     :func:`validate` wrote, or kept from an earlier baseline under its own name): (lever, its
     changes, unfiltered %, medium %, levels, nodes per level, seconds per level, environment
     steps), the baseline first."""
-    folder = data_dir("results", "sokoban-search", f"{profile_name(profile)}-seed{seed}")
+    folder = results_folder("sokoban-search", profile_name(profile), seed)
     found = [result for result in map(read_json, folder.glob("validation-*.json")) if result and "lever" in result]
     found.sort(key=lambda result: (result["lever"] != "baseline", result["lever"]))
     rows = []

@@ -27,7 +27,6 @@ Memory may be ``None`` (controller on ``z`` alone).
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import pickle
 import time
@@ -39,7 +38,7 @@ import torch
 from tqdm import tqdm
 
 from wmthesis.envs.vector import make_game
-from wmthesis.runs import atomic_path
+from wmthesis.runs import atomic_path, write_json
 from wmthesis.training import check_resumable
 from wmthesis.utils import check_choice, derive_seeds, fingerprint, read_pickle, timed
 from wmthesis.world_models.controller import Controller, features, num_parameters, population_scores, unflatten
@@ -353,8 +352,7 @@ def save_run(run: ControllerRun, out_dir: str | os.PathLike) -> None:
     with atomic_path(out_dir / CHECKPOINT_NAME) as tmp:
         with open(tmp, "wb") as f:
             pickle.dump({"format": FORMAT, "version": FORMAT_VERSION, **dataclasses.asdict(run)}, f)
-    with atomic_path(out_dir / CURVE_NAME) as tmp:
-        tmp.write_text(json.dumps({"config": run.config, "task": run.task, "curve": run.curve}, indent=1))
+    write_json(out_dir / CURVE_NAME, {"config": run.config, "task": run.task, "curve": run.curve})
 
 
 def load_run(path: str | os.PathLike) -> ControllerRun:
