@@ -244,7 +244,7 @@ def test_a_variant_that_adds_rounds_starts_from_a_copy_and_matches_a_run_from_sc
 
 
 def test_the_discounted_sum_target_discounts_each_reward_and_the_plain_sum_does_not(tmp_path):
-    from wmthesis.planet.value_rounds import _dataset
+    from wmthesis.planet.value_rounds import value_dataset
 
     model, env = frozen_rssm(), DelayedPunch()
     with EpisodeStore(tmp_path / "episodes.h5", "a", preprocessing="planet", seed=0,
@@ -254,12 +254,12 @@ def test_the_discounted_sum_target_discounts_each_reward_and_the_plain_sum_does_
         rewards = [store.episode(i)["rewards"] for i in range(2)]
     assert any(r.sum() > 0 for r in rewards)
     base = LatentValueConfig(reward_steps=4, discount=0.5)
-    discounted = _dataset(model, tmp_path / "episodes.h5", dataclasses.replace(base, target="discounted-sum"), 5, [])
-    plain = _dataset(model, tmp_path / "episodes.h5", base, 5, [])
+    discounted = value_dataset(model, tmp_path / "episodes.h5", dataclasses.replace(base, target="discounted-sum"), 5, [])
+    plain = value_dataset(model, tmp_path / "episodes.h5", base, 5, [])
     for r, d, p in zip(rewards, discounted, plain):
         by_hand = [sum(0.5 ** k * r[t + k] for k in range(4) if t + k < len(r)) for t in range(len(r))]
         assert np.allclose(d["sums"].numpy(), by_hand) and np.allclose(p["sums"].numpy(), reward_sums(r, 4))
-    logged = _dataset(model, tmp_path / "episodes.h5", dataclasses.replace(base, target="log-discounted-sum"), 5, [])
+    logged = value_dataset(model, tmp_path / "episodes.h5", dataclasses.replace(base, target="log-discounted-sum"), 5, [])
     for d, g in zip(discounted, logged):  # floored at a reward just past the window, 0.5^4
         assert np.allclose(g["sums"].numpy(), np.log(d["sums"].numpy() + 0.5 ** 4))
 

@@ -177,16 +177,16 @@ def test_trials_take_the_search_budget_and_episode_cap(tmp_path, monkeypatch):
 def test_a_trial_racing_for_the_last_place_is_surplus(tmp_path):
     from optuna.trial import TrialState
 
-    from wmthesis.planet.tuning import _surplus
+    from wmthesis.planet.tuning import surplus_trial
 
     study = optuna.create_study(storage=f"sqlite:///{tmp_path / 's.db'}", directions=["maximize"])
     cfg = dataclasses.replace(SMOKE, trials=2)
     study.tell(study.ask(), 1.0)
     a, b = study.ask(), study.ask()  # two workers start a trial at once for the last place
-    assert not _surplus(a, cfg) and _surplus(b, cfg)
+    assert not surplus_trial(a, cfg) and surplus_trial(b, cfg)
     study.tell(b, state=TrialState.FAIL)
     study.tell(a, state=TrialState.FAIL)  # a's worker dies: the place is free again
-    assert not _surplus(study.ask(), cfg)
+    assert not surplus_trial(study.ask(), cfg)
 
 
 def test_trials_share_held_out_episodes_and_the_extremes_are_trained_again(tmp_path):

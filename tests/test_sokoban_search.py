@@ -20,7 +20,7 @@ from wmthesis.sokoban_search.agent import SearchAgent, grid_env, grid_state, lev
 from wmthesis.sokoban_search.evaluation import check_solutions, solve_boards
 from wmthesis.sokoban_search.experience import Experience
 from wmthesis.sokoban_search.heuristic import turned
-from wmthesis.sokoban_search.iteration import _batches, fit_model, load_run, train_search_agent
+from wmthesis.sokoban_search.iteration import training_batches, fit_model, load_run, train_search_agent
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.search import Simulator, best_first
 from wmthesis.utils import half_precision
@@ -267,18 +267,18 @@ def test_an_agent_keeping_backups_labels_what_its_searches_expanded_and_plays_as
 
 
 def test_the_value_trains_on_the_last_rounds_backed_up_states_beside_the_solved_ones(tmp_path):
-    from wmthesis.sokoban_search.iteration import _batches, _last_round, _with_backed_up
+    from wmthesis.sokoban_search.iteration import training_batches, last_round, with_backed_up
 
     with Experience(tmp_path / "experience.h5") as experience:
         experience.add("backed_up", 1, states=np.zeros((3, 4, 4), np.uint8), labels=np.full(3, 1.0, np.float32))
         experience.add("backed_up", 2, states=np.ones((2, 4, 4), np.uint8), labels=np.full(2, 2.0, np.float32))
         experience.add("backed_up", 2, states=np.ones((2, 5, 5), np.uint8), labels=np.full(2, 3.0, np.float32))
-        last = _last_round(experience.arrays("backed_up"))
+        last = last_round(experience.arrays("backed_up"))
     assert sorted(last) == ["4x4", "5x5"] and np.all(last["4x4"]["to_go"] == 2.0)
     solved = {"4x4": {"states": np.full((6, 4, 4), 2, np.uint8), "to_go": np.full(6, 9.0, np.float32)},
               "3x3": {"states": np.full((6, 3, 3), 2, np.uint8), "to_go": np.full(6, 9.0, np.float32)}}
     rng = np.random.default_rng(0)
-    batches = _with_backed_up(_batches(solved, 6, rng), last, 2, rng)
+    batches = with_backed_up(training_batches(solved, 6, rng), last, 2, rng)
     for _ in range(20):
         batch = next(batches)
         if batch["states"].shape[1] == 4:  # 6 solved rows and 2 of the last round, of the same size
@@ -1010,10 +1010,10 @@ def test_a_batch_draws_its_special_fractions_among_the_rows_they_mark():
     groups = {"5x5": {"states": np.zeros((1000, 5, 5), np.uint8), "rewards": (rows % 100 == 0).astype(np.float32),
                       "rounds": (rows >= 900).astype(np.int64), "index": rows}}
     special = [(0.25, lambda g: g["rewards"] > 0), (0.5, lambda g: g["rounds"] > 0)]
-    batch = next(_batches(groups, 64, np.random.default_rng(0), special))
+    batch = next(training_batches(groups, 64, np.random.default_rng(0), special))
     index = batch["index"].numpy()
     assert (index[:16] % 100 == 0).all() and (index[16:48] >= 900).all()
-    uniform = next(_batches(groups, 64, np.random.default_rng(0)))["index"].numpy()
+    uniform = next(training_batches(groups, 64, np.random.default_rng(0)))["index"].numpy()
     assert (uniform >= 900).mean() < 0.3  # without them, about a tenth
     with pytest.raises(ValueError, match="more than 1"):
-        next(_batches(groups, 64, np.random.default_rng(0), [(0.6, special[0][1]), (0.6, special[1][1])]))
+        next(training_batches(groups, 64, np.random.default_rng(0), [(0.6, special[0][1]), (0.6, special[1][1])]))

@@ -215,7 +215,7 @@ class SurplusTrial(Exception):
     before any work, and does not count towards ``trials``."""
 
 
-def _surplus(trial: optuna.Trial, cfg: SearchConfig) -> bool:
+def surplus_trial(trial: optuna.Trial, cfg: SearchConfig) -> bool:
     """Whether ``cfg.trials`` trials numbered below this one already finished or are running."""
     earlier = trial.study.get_trials(deepcopy=False, states=FINISHED + (TrialState.RUNNING,))
     return sum(other.number < trial.number for other in earlier) >= cfg.trials
@@ -225,7 +225,7 @@ def run_trial(trial: optuna.Trial, *, name: str, cfg: SearchConfig, profile: str
     """Train PlaNet with the trial's setting, measure it, save ``metrics.json`` and the
     open-loop figure in :func:`trial_dir`; return the objective value(s)."""
     game = GAMES[name]
-    if _surplus(trial, cfg):
+    if surplus_trial(trial, cfg):
         trial.set_user_attr("surplus", True)
         raise SurplusTrial(f"trial {trial.number}: {cfg.trials} earlier trials already finished or running")
     params = suggest(trial, cfg)

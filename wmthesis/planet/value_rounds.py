@@ -26,7 +26,7 @@ from wmthesis.utils import check_choice, derive_seeds, fingerprint
 STORE, CHECKPOINT = "episodes.h5", "value.pt"
 
 
-def _dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int, cache: list[dict]) -> list[dict]:
+def value_dataset(model: RSSM, path: Path, config: LatentValueConfig, bits: int, cache: list[dict]) -> list[dict]:
     """Per episode of the store at ``path``: ``features`` (T, H + S), the (discounted, for
     ``td``) reward sums ``sums`` (T,), and each step's ``beliefs`` (T, H) and ``states`` (T, S)
     for the bootstrap. ``cache`` holds the episodes already read (the model is frozen), so each
@@ -98,7 +98,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     with bout_pool(model, make_env) as pool:
         for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
             episodes = _store_bouts(run_dir / STORE, env, model, value, bits, config, seed, round_, pool)
-            data = _dataset(model, run_dir / STORE, config, bits, cache)
+            data = value_dataset(model, run_dir / STORE, config, bits, cache)
             loss = _fit_round(value, model, data, config, int(derive_seeds(seed, 5, round_)[0]), fitted=round_ > 0)
             scores = _scores(env, model, value, bits, config, seed, first_steps, pool) if config.score_rounds else {}
             curve.append({"round": round_, "episodes": episodes, **scores, "loss": loss})
@@ -198,7 +198,7 @@ def round_values(model: RSSM, bits: int, run_dir, *, seed: int, progress: bool =
     if all(entry["round"] in rounds for entry in curve):
         return rounds
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, state["config"]))
-    value, data = _first_value(model, config, seed), _dataset(model, path.parent / STORE, config, bits, [])
+    value, data = _first_value(model, config, seed), value_dataset(model, path.parent / STORE, config, bits, [])
     last = max(entry["round"] for entry in curve if entry["round"] not in rounds)
     for entry in tqdm(curve[:last + 1], desc="refitting the rounds", disable=not progress):
         round_ = entry["round"]

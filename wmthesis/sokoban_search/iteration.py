@@ -227,7 +227,7 @@ def _round(run: Run, experience: Experience, cfg: SokobanSearchConfig, number: i
 
 # ---------------------------------------------------------------------------- training
 
-def _batches(groups: dict, batch_size: int, rng: np.random.Generator, special=()):
+def training_batches(groups: dict, batch_size: int, rng: np.random.Generator, special=()):
     """Endless batches (dicts of tensors) from ``groups`` ({"HxW": arrays}): a group picked in
     proportion to its rows, then rows uniformly, except that for each (fraction, marks) of
     ``special`` that fraction of the batch is drawn among the rows ``marks(group)`` marks."""
@@ -281,7 +281,7 @@ def fit_model(model: SokobanModel, experience: Experience, cfg: SokobanSearchCon
         model.see_ends(group["next_states"][group["dones"]])
     values, counts = np.unique(np.concatenate([g["rewards"] for g in groups.values()]), return_counts=True)
     commonest = values[counts.argmax()]  # the step penalty; the rest are events worth oversampling
-    batches = _batches(groups, cfg.batch_size, rng, [(cfg.event_fraction, lambda g: g["rewards"] != commonest),
+    batches = training_batches(groups, cfg.batch_size, rng, [(cfg.event_fraction, lambda g: g["rewards"] != commonest),
                                                      (cfg.agent_fraction, lambda g: g["rounds"] > 0)])
     return _optimise(model, model.losses, batches, updates, cfg.lr, desc, progress)
 
@@ -293,11 +293,11 @@ def fit_heuristic(heuristic: Heuristic, experience: Experience, cfg: SokobanSear
     batch (each batch in a random one of the board's symmetries if ``cfg.value_symmetries``);
     returns its mean absolute error (steps)."""
     groups = {k: {"states": g["states"], "to_go": g["labels"]} for k, g in experience.arrays("to_go").items()}
-    backed = _last_round(experience.arrays("backed_up")) if cfg.backups else {}
+    backed = last_round(experience.arrays("backed_up")) if cfg.backups else {}
     share = int(round(cfg.backup_fraction * cfg.batch_size)) if backed else 0
-    batches = _batches(groups, cfg.batch_size - share, rng)
+    batches = training_batches(groups, cfg.batch_size - share, rng)
     if share:
-        batches = _with_backed_up(batches, backed, share, rng)
+        batches = with_backed_up(batches, backed, share, rng)
     if cfg.value_symmetries:
         batches = ({**batch, "states": turned(batch["states"], int(rng.integers(4)), bool(rng.integers(2)))}
                    for batch in batches)
@@ -312,7 +312,7 @@ def fit_policy(policy: Policy, experience: Experience, cfg: SokobanSearchConfig,
     together, if ``cfg.value_symmetries``); returns how often its likeliest action is the one
     taken, over the last tenth of the updates."""
     groups = experience.solutions()
-    batches = _batches(groups, cfg.batch_size, rng)
+    batches = training_batches(groups, cfg.batch_size, rng)
     if cfg.value_symmetries:
         batches = (_turned_batch(batch, int(rng.integers(4)), bool(rng.integers(2))) for batch in batches)
     return _optimise(policy, policy.losses, batches, cfg.value_updates, cfg.lr, desc, progress)["accuracy"]
@@ -339,14 +339,14 @@ def policy_afterwards(folder: str | Path, run: Run, cfg: SokobanSearchConfig, pr
     return policy
 
 
-def _last_round(groups: dict) -> dict:
+def last_round(groups: dict) -> dict:
     """``{"HxW": {"states", "to_go"}}``: the rows of the last round in ``groups`` (of ``backed_up``)."""
     last = max((int(g["rounds"].max()) for g in groups.values()), default=None)
     return {k: {"states": g["states"][g["rounds"] == last], "to_go": g["labels"][g["rounds"] == last]}
             for k, g in groups.items() if (g["rounds"] == last).any()}
 
 
-def _with_backed_up(batches, backed: dict, share: int, rng: np.random.Generator):
+def with_backed_up(batches, backed: dict, share: int, rng: np.random.Generator):
     """Each batch of ``batches`` with ``share`` rows of ``backed`` ({"HxW": {"states", "to_go"}})
     added, drawn uniformly among those of its board size (none where there are none)."""
     for batch in batches:
