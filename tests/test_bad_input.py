@@ -239,3 +239,42 @@ def test_a_store_open_for_writing_in_another_process_is_named_as_such(tmp_path):
     finally:
         other.kill()
         other.wait()
+
+
+# ----------------------------------------------------------------------------- found when tried as a new user would
+def test_a_levels_file_that_is_binary_or_a_folder_is_refused_naming_it(tmp_path, capsys):
+    from wmthesis.__main__ import main
+
+    binary = tmp_path / "levels.txt"
+    binary.write_bytes(bytes(range(256)) * 4)
+    assert main(["solve-sokoban", str(binary), "--profile", "smoke"]) == 2
+    assert f"{binary} is not a text file of levels" in capsys.readouterr().err
+    assert main(["solve-sokoban", str(tmp_path), "--profile", "smoke"]) == 2
+    assert f"{tmp_path} is a folder, not a levels file" in capsys.readouterr().err
+
+
+def test_a_store_that_cannot_be_created_or_read_says_which_and_what_to_do(tmp_path, capsys):
+    from wmthesis.__main__ import main
+    from wmthesis.data import EpisodeStore, StoreError
+    from wmthesis.rollouts import collect
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    assert main(["collect", "sokoban-small", "--episodes", "1", "--out", str(blocker / "s.h5"), "--profile", "smoke"]) == 2
+    err = capsys.readouterr().err
+    assert f"{blocker / 's.h5'}: cannot create its folder" in err and ".tmp" not in err
+    store = collect("sokoban-small", 1, tmp_path / "cut.h5", progress=False)
+    store.write_bytes(store.read_bytes()[:2000])  # truncated
+    with pytest.raises(StoreError, match=r"cut\.h5: .*delete it and run again"):
+        EpisodeStore(store)
+
+
+def test_the_command_line_checks_its_arguments_before_torch_ray_or_ale_py_load():
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom wmthesis.__main__ import main\n"
+            "try:\n    main(['reproduce', 'boxing-wm', '--seed', 'abc'])\nexcept SystemExit as e:\n    code = e.code\n"
+            "print(code, sorted(m for m in ('torch', 'ray', 'ale_py', 'gymnasium') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["2", "[]"]

@@ -37,8 +37,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from wmthesis.config import CollectConfig, PROFILES, for_profile
-from wmthesis.envs import ATARI_GAMES, ENV_NAMES
+from wmthesis.config import ATARI_ENVIRONMENTS, ENVIRONMENTS, EXPERIMENTS, PROFILES, CollectConfig, for_profile
 from wmthesis.runs import FolderHeld, write_json
 from wmthesis.utils import data_dir
 
@@ -71,7 +70,7 @@ def cmd_collect(args) -> int:
         print("--episodes 0: nothing to collect")
         return 0
     max_steps = args.max_steps if args.max_steps is not None else cfg.max_steps
-    preprocessing = args.preprocessing or ("world_models" if args.env in ATARI_GAMES else None)
+    preprocessing = args.preprocessing or ("world_models" if args.env in ATARI_ENVIRONMENTS else None)
     out = Path(args.out) if args.out else default_store_path(args.env, preprocessing)
     workers = cfg.workers if args.workers is None else args.workers
     path = collect(args.env, episodes, out, workers=workers, seed=args.seed,
@@ -257,7 +256,7 @@ def parser() -> argparse.ArgumentParser:
     commands = top.add_subparsers(dest="command", required=True)
 
     collect = commands.add_parser("collect", help="random rollouts into an HDF5 store")
-    collect.add_argument("env", choices=ENV_NAMES)
+    collect.add_argument("env", choices=ENVIRONMENTS)
     collect.add_argument("--episodes", type=at_least(0), help="episodes wanted in the store (default: profile's)")
     collect.add_argument("--workers", type=at_least(1))
     collect.add_argument("--out", help="store path (default: data/ENV-PREPROCESSING.h5)")
@@ -272,8 +271,6 @@ def parser() -> argparse.ArgumentParser:
     view.add_argument("--episode", type=at_least(0), default=0)
     view.add_argument("--out", help="folder for the PNG and .rrd (default: next to the store)")
     view.set_defaults(run=cmd_view)
-
-    from wmthesis.experiments import EXPERIMENTS
 
     reproduce = commands.add_parser("reproduce", help="run a thesis experiment end to end (resumable)")
     reproduce.add_argument("experiment", choices=EXPERIMENTS)

@@ -25,6 +25,13 @@ from dataclasses import dataclass
 from wmthesis.utils import check_choice
 
 PROFILES = ("smoke", "quick", "thesis")
+# The names a command checks before anything heavy loads: the environments and the experiments
+# (:mod:`wmthesis.envs` and :mod:`wmthesis.experiments` are built on them).
+ATARI_ENVIRONMENTS = ("boxing", "freeway")
+SOKOBAN_ENVIRONMENTS = ("sokoban", "sokoban-small")
+ENVIRONMENTS = ATARI_ENVIRONMENTS + SOKOBAN_ENVIRONMENTS
+EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
+               "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value", "sokoban-search")
 DEFAULT_PROFILE = "quick"
 
 

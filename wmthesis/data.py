@@ -118,7 +118,8 @@ class EpisodeStore:
             if "unable to lock file" in str(error):
                 raise StoreError(f"{self.path} is open for writing in another process (HDF5's file lock: {error}); "
                                  "wait for that run to end, or use another file") from error
-            raise StoreError(f"{self.path}: cannot open as an HDF5 episode store ({error})") from error
+            raise StoreError(f"{self.path}: cannot open as an HDF5 episode store ({error}); if it is truncated "
+                             "or corrupt, delete it and run again to collect it anew") from error
 
     def _check_format(self) -> None:
         f = self._file
@@ -347,6 +348,12 @@ def _create_store(path: Path, wanted: dict, chunk_steps: int) -> None:
         raise ValueError(f"{path}: creating an episode store needs obs_shape")
     if chunk_steps < 1:
         raise ValueError(f"chunk_steps must be >= 1, got {chunk_steps}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise StoreError(f"{path}: cannot create its folder ({error.strerror}); choose a folder you can write") from None
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise StoreError(f"{path}: its folder {path.parent} cannot be written; choose a folder you can write")
     with atomic_path(path) as tmp, h5py.File(tmp, "w", libver=LIBVER) as f:
         f.create_dataset("observations", shape=(0, *obs_shape), maxshape=(None, *obs_shape),
                          dtype=np.uint8, chunks=(chunk_steps, *obs_shape), **hdf5plugin.LZ4())

@@ -22,7 +22,6 @@ from datetime import date, datetime, timezone
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from wmthesis.utils import data_dir, parallel_calls
 
@@ -133,6 +132,8 @@ def run_header(experiment: str, profile: str, seed: int, seconds: float, **run) 
     """The first entries of a ``metrics.json``: the experiment, ``run``'s own (its variant, ...),
     profile and seed, today's date, this machine, its torch threads (a seed repeats its curve on
     a CPU only with the same number: reductions split differently) and the wall time of ``seconds``."""
+    import torch  # heavy: loaded when a run writes its metrics, not when the command line starts
+
     return {"experiment": experiment, **run, "profile": profile, "seed": seed, "date": date.today().isoformat(),
             "machine": f"{platform.node()} ({platform.machine()}, {os.cpu_count()} cores)",
             "threads": torch.get_num_threads(), "wall_seconds": round(seconds, 1)}

@@ -13,14 +13,19 @@ import sys
 import time
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 from tqdm import tqdm
+
+if TYPE_CHECKING:
+    import torch
 
 
 def device() -> torch.device:
     """CUDA when present, the CPU otherwise."""
+    import torch  # heavy: loaded when first needed (the command line starts without it)
+
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
@@ -30,6 +35,8 @@ def half_precision(dev: torch.device):
     machine without it is not slowed by emulation. On this project's 2-core CPU it halves the
     Sokoban model's time per expansion (its predicted boards agreed with float32 on 8,191 of
     8,192 agent transitions) and makes its training 1.6x faster at the same exactness."""
+    import torch  # heavy: loaded when first needed (the command line starts without it)
+
     if dev.type == "cuda" and torch.cuda.is_bf16_supported():
         return torch.autocast("cuda", dtype=torch.bfloat16)
     native = (getattr(torch.cpu, name, lambda: False)() for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported"))
@@ -40,6 +47,8 @@ def half_precision(dev: torch.device):
 
 def seed_everything(seed: int) -> np.random.Generator:
     """Seed Python, NumPy and torch; return a fresh NumPy generator for explicit use."""
+    import torch  # heavy: loaded when first needed (the command line starts without it)
+
     random.seed(seed)
     np.random.seed(seed % 2**32)
     torch.manual_seed(seed)
@@ -116,6 +125,8 @@ def timed(timings: dict | None, key: str):
 
 def fingerprint(model) -> str | None:
     """A hash of a module's weights (None for anything else, e.g. a plain function)."""
+    import torch  # heavy: loaded when first needed (the command line starts without it)
+
     if not isinstance(model, torch.nn.Module):
         return None
     digest = hashlib.sha1()
@@ -167,6 +178,8 @@ def _gathered(executor, calls: list[tuple], progress: bool, on_done) -> list:
 
 def set_threads(threads: int) -> None:
     """torch's intra-op threads in this process."""
+    import torch  # heavy: loaded when first needed (the command line starts without it)
+
     torch.set_num_threads(threads)
 
 

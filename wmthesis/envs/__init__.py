@@ -8,12 +8,13 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
+from wmthesis.config import ATARI_ENVIRONMENTS, ENVIRONMENTS, SOKOBAN_ENVIRONMENTS
 from wmthesis.utils import check_choice
 
-ATARI_GAMES = {"boxing": "Boxing", "freeway": "Freeway"}
-SOKOBAN_VARIANTS = {"sokoban": dict(dim_room=(10, 10), num_boxes=4),
-                    "sokoban-small": dict(dim_room=(7, 7), num_boxes=2)}
-ENV_NAMES = tuple(ATARI_GAMES) + tuple(SOKOBAN_VARIANTS)
+ATARI_GAMES = {name: name.capitalize() for name in ATARI_ENVIRONMENTS}  # name -> ale-py's game
+SOKOBAN_VARIANTS = dict(zip(SOKOBAN_ENVIRONMENTS, (dict(dim_room=(10, 10), num_boxes=4),
+                                                   dict(dim_room=(7, 7), num_boxes=2))))
+ENV_NAMES = ENVIRONMENTS
 
 ATARI_OPTIONS = ("preprocessing", "action_repeat", "max_steps", "render_mode")
 SOKOBAN_OPTIONS = ("observation", "max_steps", "render_mode", "tile_size", "frame_size", "levels")

@@ -22,6 +22,7 @@ size (``SokobanEnv.reset(options={"board": ...})`` needs the env's ``dim_room``)
 """
 from __future__ import annotations
 
+import gzip
 from pathlib import Path
 
 import numpy as np
@@ -84,14 +85,18 @@ def parse_levels(text: str, name: str = "levels") -> list[np.ndarray]:
 def read_levels(path) -> list[np.ndarray]:
     """The levels of a text file (:func:`parse_levels`), gzipped when its name ends in ``.gz``."""
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder, not a levels file: name a text file of levels in it")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such levels file")
-    if path.suffix == ".gz":
-        import gzip
-
-        with gzip.open(path, "rt") as f:
-            return parse_levels(f.read(), str(path))
-    return parse_levels(path.read_text(), str(path))
+    try:
+        if path.suffix == ".gz":
+            with gzip.open(path, "rt") as f:
+                return parse_levels(f.read(), str(path))
+        return parse_levels(path.read_text(), str(path))
+    except (UnicodeDecodeError, gzip.BadGzipFile, EOFError) as error:
+        raise LevelError(f"{path} is not a text file of levels (# wall, . target, $ box, @ player; "
+                         f"'; N' lines between levels): {error}") from None
 
 
 def board_to_text(board: np.ndarray) -> str:

@@ -24,7 +24,7 @@ import multiprocessing
 import os
 
 from wmthesis.alphazero.selfplay import VARIANTS as ALPHAZERO_VARIANTS
-from wmthesis.config import profile_name
+from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS, boxing_wm_alphazero,
                                             prerequisites as alphazero_prerequisites)
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,
@@ -49,7 +49,8 @@ RECIPES = {"sokoban-wm": sokoban_world_models, "boxing-wm": boxing_world_models,
            "planet-boxing-study": planet_boxing_study, "planet-boxing-agent": planet_boxing_agent,
            "planet-boxing-value": planet_boxing_value, "planet-freeway-value": planet_freeway_value,
            "sokoban-search": sokoban_search}
-EXPERIMENTS = tuple(RECIPES)
+if tuple(RECIPES) != EXPERIMENTS:
+    raise ImportError(f"the recipes {tuple(RECIPES)} are not wmthesis.config.EXPERIMENTS {EXPERIMENTS}")
 # Experiment -> its registry of variants (:mod:`wmthesis.variants`), for those that have them.
 VARIANTS = {**PLANET_REGISTRIES, "boxing-wm-alphazero": ALPHAZERO_VARIANTS, "planet-boxing-value": BOXING_VALUE_VARIANTS,
             "planet-freeway-value": FREEWAY_VALUE_VARIANTS}
