@@ -353,11 +353,11 @@ def run_python(code: str, **popen) -> subprocess.Popen:
                             **{"stdout": subprocess.PIPE, **popen})
 
 
-def wait_for_size(path: Path, size: int, timeout: float = 60) -> None:
-    """Wait until the file at `path` is larger than `size` bytes (episodes are being written)."""
-    deadline = time.time() + timeout
+def wait_for_size(path: Path, size: int, child: subprocess.Popen) -> None:
+    """Wait until the file at `path` is larger than `size` bytes (episodes are being written) while
+    ``child``, which writes it, runs: on that event, not a clock (a busy machine is only slower)."""
     while not (path.exists() and path.stat().st_size > size):
-        assert time.time() < deadline, f"{path} did not grow past {size} bytes in {timeout} s"
+        assert child.poll() is None, f"the writer of {path} ended (status {child.returncode}) before it grew past {size} bytes"
         time.sleep(0.02)
 
 
@@ -374,7 +374,7 @@ def test_sigkill_while_collecting_keeps_complete_episodes_and_ends_the_workers(t
     path = tmp_path / "killed.h5"
     child = run_python(f"from wmthesis.rollouts import collect\n"
                        f"collect('boxing', 400, {str(path)!r}, workers=2, max_steps=15, progress=False)")
-    wait_for_size(path, 200_000)  # several episodes are written
+    wait_for_size(path, 200_000, child)  # several episodes are written
     time.sleep(np.random.default_rng().uniform(0, 0.2))
     workers = [int(pid) for pid in Path(f"/proc/{child.pid}/task/{child.pid}/children").read_text().split()]
     child.send_signal(signal.SIGKILL)
@@ -414,7 +414,7 @@ def test_ctrl_c_stops_the_workers_and_keeps_complete_episodes(reference, tmp_pat
     child = run_python(f"from wmthesis.rollouts import collect\n"
                        f"collect('boxing', 4000, {str(path)!r}, workers=2, max_steps=15, progress=False)",
                        stdout=None, stderr=subprocess.PIPE, start_new_session=True)
-    wait_for_size(path, 100_000)
+    wait_for_size(path, 100_000, child)
     os.killpg(child.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
     _, stderr = child.communicate(timeout=30)
     assert child.returncode != 0 and "KeyboardInterrupt" in stderr

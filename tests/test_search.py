@@ -113,8 +113,8 @@ def test_a_killed_worker_leaves_the_study_consistent_and_it_resumes(tmp_path):
                "--storage", storage, "--profile", "smoke"]
     worker = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:   # kill it mid-way through its second trial
+        states = []
+        while worker.poll() is None:   # kill it mid-way through its second trial: wait on that, not on a clock
             time.sleep(0.2)
             try:
                 trials = load_study("planet-boxing", "smoke", storage=storage).trials
@@ -125,7 +125,8 @@ def test_a_killed_worker_leaves_the_study_consistent_and_it_resumes(tmp_path):
                     and _has_heartbeat(tmp_path / "studies.db", trials[1]._trial_id)):
                 break
         else:
-            pytest.fail(f"the worker never reached its second trial (states {states})")
+            pytest.fail(f"the worker ended (status {worker.returncode}) before it was caught in its second trial "
+                        f"(states {states})")
         worker.send_signal(signal.SIGKILL)
         worker.wait(10)
     finally:
