@@ -1,4 +1,4 @@
-"""Bad input never acts silently: each row of the README's "what happens when ..." table is a
+"""Bad input never acts silently: each row of the "what happens when ..." table (docs/reference.md) is a
 test here (or names the test that covers it)."""
 import os
 import subprocess

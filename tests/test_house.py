@@ -116,3 +116,19 @@ def test_the_committed_results_of_kept_variants_still_read():
         runs = read_runs(results)
     summary = json.loads((results / "summary.json").read_text())["rows"]
     assert {(r.experiment, r.variant) for r in runs} >= {(row["experiment"], row["variant"]) for row in summary}
+
+
+def test_the_readme_holds_the_table_the_summary_writes_within_its_first_60_lines(tmp_path):
+    from wmthesis.headline import BEGIN, END, headline_table, readme_with_table
+    from wmthesis.summary import summarise
+
+    readme = (PACKAGE.parent / "README.md").read_text()
+    table = headline_table(summarise(read_runs(PACKAGE.parent / "data" / "results")))
+    assert f"{BEGIN}\n{table}\n{END}" in readme  # run `python -m wmthesis summary` after new results
+    assert readme.splitlines().index(END) < 60 and len(readme.splitlines()) <= 200
+    boxing = next(r for r in summarise(read_runs(PACKAGE.parent / "data" / "results"))
+                  if (r["experiment"], r["variant"], r["profile"]) == ("boxing-wm", None, "quick"))
+    assert f"{boxing['mean']:.1f} [{boxing['ci_low']:.1f}, {boxing['ci_high']:.1f}] ({boxing['n']} seeds)" in \
+        table.splitlines()[3]  # World Models on Boxing: the summary's own row, to the digit
+    with pytest.raises(ValueError, match="no results block"):
+        readme_with_table("# a README without markers\n", table)

@@ -240,13 +240,18 @@ def cmd_summary(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    from wmthesis.headline import BEGIN
     from wmthesis.summary import markdown_table, write_summary
 
     folder = Path(args.results) if args.results else None
     if folder is not None and not folder.is_dir():
         raise ValueError(f"--results {args.results}: no such folder")
-    rows = write_summary(folder)
+    readme = Path(__file__).resolve().parents[1] / "README.md"  # the checkout's front door, where its results block is
+    with_table = folder is None and readme.is_file() and BEGIN in readme.read_text()
+    rows = write_summary(folder, readme if with_table else None)
     print(markdown_table(rows))
+    if with_table:
+        print(f"the results table in {readme} is written anew")
     return 0
 
 

@@ -42,15 +42,29 @@ THESIS_SOKOBAN_WM = {
     "5.3.3 auxiliary heads": "reward and value not learned (sparse rewards); no improvement",
 }
 
-ATARI_100K = {
-    "boxing": (Reference("SimPLe (Atari 100k)", 7.8, f"{IRIS}/SIMPLE.json"),
+ATARI_100K = {  # agents trained on 100k agent steps, on GPUs
+    "boxing": (Reference("SimPLe (Atari 100k)", 7.8, f"{IRIS}/SimPLe.json"),
+               Reference("EfficientZero (Atari 100k)", 52.7, f"{IRIS}/EfficientZero.json"),
                Reference("IRIS (Atari 100k)", 70.1, f"{IRIS}/IRIS.json"),
-               Reference("DreamerV3 (Atari 100k)", 78.0, "danijar/dreamerv3 scores")),
-    "freeway": (Reference("SimPLe (Atari 100k)", 16.7, f"{IRIS}/SIMPLE.json"),
+               Reference("DreamerV3 (Atari 100k)", 78.0, "danijar/dreamerv3 scores"),
+               Reference("STORM (Atari 100k)", 79.7, "weipu-zhang/STORM results/storm.json"),
+               Reference("DIAMOND (Atari 100k)", 86.9, "eloialonso/diamond results/data/DIAMOND.json"),
+               Reference("REM (Atari 100k)", 87.5, "leor-c/REM results/data/REM.json"),
+               Reference("Simulus (Atari 100k)", 93.5, "leor-c/Simulus results/data/atari/Simulus.json")),
+    "freeway": (Reference("SimPLe (Atari 100k)", 16.7, f"{IRIS}/SimPLe.json"),
+                Reference("EfficientZero (Atari 100k)", 21.8, f"{IRIS}/EfficientZero.json"),
                 Reference("IRIS (Atari 100k)", 31.1, f"{IRIS}/IRIS.json"),
+                Reference("Simulus (Atari 100k)", 31.9, "leor-c/Simulus results/data/atari/Simulus.json"),
+                Reference("REM (Atari 100k)", 32.3, "leor-c/REM results/data/REM.json"),
                 Reference("DIAMOND (Atari 100k)", 33.3, "eloialonso/diamond results/data/DIAMOND.json"),
                 Reference("DreamerV3 (Atari 100k)", 0.0, "danijar/dreamerv3 scores")),
 }
+
+
+def best_atari_100k(game: str) -> Reference:
+    """The highest published Atari-100k score on ``game`` (:data:`ATARI_100K`)."""
+    return max(ATARI_100K[game], key=lambda ref: float(ref.value))
+
 
 DRC = "AlignmentResearch/learned-planner plot/data/drc33_*_success_across_thinking_steps.csv"
 BOXOBAN = {  # the best published agent on each kind of Boxoban level, 120-step episodes
@@ -103,4 +117,4 @@ def random_play(game: str) -> float:
 
 __all__ = ["Reference", "RANDOM", "HUMAN", "ATARI_100K", "BOXOBAN", "BOXOBAN_PUBLISHED", "THINKER", "PUBLISHED",
            "THESIS_WORLD_MODELS", "THESIS_ALPHAZERO", "THESIS_PLANET_BOXING", "THESIS_PLANET_BOXING_SCORE",
-           "THESIS_PLANET_FREEWAY", "THESIS_SOKOBAN", "THESIS_SOKOBAN_WM", "published", "human", "random_play"]
+           "THESIS_PLANET_FREEWAY", "THESIS_SOKOBAN", "THESIS_SOKOBAN_WM", "published", "human", "random_play", "best_atari_100k"]

@@ -5,8 +5,8 @@ or a ``sweep``), takes each run's headline score, and for every experiment, vari
 reports the number of seeds, their mean and sample standard deviation, and a 95% confidence
 interval of the mean over seeds: Student's t interval, ``mean +- t_{0.975, n-1} s / sqrt(n)``
 (``scipy.stats.t``), exact for normally distributed seed scores and the honest width for the few
-seeds a CPU affords (a bootstrap over 3 seeds would be far too narrow). Beside each row: the
-thesis's figure and published baselines, each with its source. Writes
+seeds a CPU affords (a bootstrap over 3 seeds would be far too narrow). The headline rows stand
+beside the thesis's figure and the best published one (:mod:`wmthesis.headline`). Writes
 ``data/results/summary.{md,json,csv}`` and ``summary.png`` (every seed as a point, the mean and
 its interval).
 """
@@ -22,10 +22,12 @@ from typing import NamedTuple
 import numpy as np
 
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
+from wmthesis.headline import headline_table, readme_with_table
 from wmthesis.metrics import aggregate
 from wmthesis.references import PUBLISHED
 from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir
+from wmthesis.viz import save_figure
 
 INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
 
@@ -49,6 +51,7 @@ class Run(NamedTuple):
     score: float
     wall_seconds: float | None
     path: str
+    machine: str | None = None
 
 
 def run_scores(metrics: dict) -> dict[str | None, float]:
@@ -100,8 +103,10 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             warnings.warn(f"{path.parent}: skipped, written by variant {gone[0]!r}, no longer in the code (its numbers: "
                           f"{registry.findings})", stacklevel=2)
             continue
+        machine = metrics.get("machine")
+        machine = machine[machine.find("(") + 1:-1] if isinstance(machine, str) and "(" in machine else machine
         for variant, score in scores.items():
-            run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path))
+            run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine)
             runs[run[:4]] = run
     for run in report_runs(folder):
         runs[run[:4]] = run
@@ -128,7 +133,8 @@ def report_runs(folder: Path) -> list[Run]:
 
 def summarise(runs: list[Run]) -> list[dict]:
     """One row per experiment, variant and profile: the aggregate over its seeds, the seeds'
-    scores and wall times, what the score measures and the published numbers beside it."""
+    scores, wall times and machines, and what the score measures (the published figures beside
+    them: :mod:`wmthesis.headline`)."""
     groups: dict[tuple, list[Run]] = {}
     for run in runs:
         groups.setdefault((run.experiment, run.variant, run.profile), []).append(run)
@@ -136,8 +142,7 @@ def summarise(runs: list[Run]) -> list[dict]:
              "measure": MEASURE.get(experiment, DEFAULT_MEASURE),
              **aggregate([r.score for r in group], BOUNDS.get(experiment)),
              "seeds": [r.seed for r in group], "scores": [r.score for r in group],
-             "wall_seconds": [r.wall_seconds for r in group],
-             "published": [{"name": n, "value": v, "source": s} for n, v, s in PUBLISHED.get(experiment, [])]}
+             "wall_seconds": [r.wall_seconds for r in group], "machines": [r.machine for r in group]}
             for (experiment, variant, profile), group in groups.items()]
 
 
@@ -146,16 +151,16 @@ def _number(value, digits: int = 1) -> str:
 
 
 def markdown_table(rows: list[dict]) -> str:
-    """The summary as a markdown table, the interval named under it."""
-    lines = ["| experiment | variant | profile | n | mean | std | 95% CI | seeds: scores | wall min per seed | "
-             "published (source) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    """Every row of the summary (each experiment's variants and ablations) as a markdown table, the
+    interval named under it."""
+    lines = ["| experiment | variant | profile | n | mean | std | 95% CI | seeds: scores | wall min per seed |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         interval = "one seed" if row["ci_low"] is None else f"[{row['ci_low']:.1f}, {row['ci_high']:.1f}]"
         seeds = ", ".join(f"{s}: {v:.1f}" for s, v in zip(row["seeds"], row["scores"]))
-        published = "; ".join(f"{p['name']} {p['value']} ({p['source']})" for p in row["published"])
         walls = ", ".join("?" if w is None else f"{w / 60:.0f}" for w in row["wall_seconds"])
         lines.append(f"| {row['experiment']} | {row['variant'] or ''} | {row['profile']} | {row['n']} | "
-                     f"{row['mean']:.1f} | {_number(row['std'])} | {interval} | {seeds} | {walls} | {published} |")
+                     f"{row['mean']:.1f} | {_number(row['std'])} | {interval} | {seeds} | {walls} |")
     clipped = "; ".join(f"{name} to [{low:g}, {high:g}]" for name, (low, high) in BOUNDS.items())
     return "\n".join(lines + ["", f"Interval: {INTERVAL}, clipped to the score's range ({clipped}). A row with "
                                   "n = 1 stands on one seed. Wall time: the run that computed it, in minutes."])
@@ -202,14 +207,15 @@ def summary_figure(rows: list[dict]):
     return fig
 
 
-def write_summary(folder: str | Path | None = None) -> list[dict]:
-    """Read every run under ``folder`` (default ``data/results``), write ``summary.md``,
-    ``summary.json``, ``summary.csv`` and ``summary.png`` there, and return the rows."""
-    from wmthesis.viz import save_figure
-
+def write_summary(folder: str | Path | None = None, readme: str | Path | None = None) -> list[dict]:
+    """Read every run under ``folder`` (default ``data/results``), write ``summary.md`` (the
+    headline table, :mod:`wmthesis.headline`, then every row), ``summary.json``, ``summary.csv``
+    and ``summary.png`` there, and the headline table into ``readme`` between its markers where
+    given; return the rows."""
     folder = Path(folder) if folder is not None else data_dir("results")
     rows = summarise(read_runs(folder))
-    outputs = {"md": markdown_table(rows) + "\n",
+    headline = headline_table(rows)
+    outputs = {"md": f"## Headline\n\n{headline}\n\n## Every variant\n\n{markdown_table(rows)}\n",
                "json": json.dumps({"interval": INTERVAL, "rows": rows}, indent=1),
                "csv": _csv(rows)}
     for suffix, text in outputs.items():
@@ -217,8 +223,12 @@ def write_summary(folder: str | Path | None = None) -> list[dict]:
             tmp.write_text(text)
     if rows:
         save_figure(summary_figure(rows), folder / "summary.png")
+    if readme is not None:
+        readme = Path(readme)
+        with atomic_path(readme) as tmp:
+            tmp.write_text(readme_with_table(readme.read_text(), headline))
     return rows
 
 
 __all__ = ["Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
-           "write_summary", "PUBLISHED", "INTERVAL"]
+           "write_summary", "INTERVAL"]

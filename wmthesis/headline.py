@@ -1,0 +1,113 @@
+"""The front door's table: each thesis experiment, and each agent beyond the thesis, over its seeds
+beside the thesis's own figure and the best published figure at the budget it was reached with.
+
+Rows come from the summary's rows (:func:`wmthesis.summary.summarise`): a :class:`Headline`
+names the row (experiment, variant) that stands for an experiment; every figure it prints is the
+summary's, every published one is :mod:`wmthesis.references`'s. ``python -m wmthesis summary``
+writes the table into ``data/results/summary.md`` and between the markers of the README
+(:func:`readme_with_table`).
+"""
+from __future__ import annotations
+
+import re
+from typing import NamedTuple
+
+from wmthesis.references import (BOXOBAN, THESIS_ALPHAZERO, THESIS_PLANET_BOXING, THESIS_PLANET_FREEWAY,
+                                 THESIS_SOKOBAN, THESIS_WORLD_MODELS, Reference, best_atari_100k)
+
+BEGIN, END = "<!-- results: written by `python -m wmthesis summary` -->", "<!-- end of results -->"
+
+
+class Headline(NamedTuple):
+    """A row of the front door: the summary row of ``experiment``'s ``variant`` (its key in the
+    summary), what it is, the thesis section (or where beyond it), the notebook, the thesis's
+    figure and the best published one."""
+    experiment: str
+    variant: str | None
+    title: str
+    section: str
+    notebook: str
+    thesis: Reference | None
+    published: Reference | None
+
+
+HEADLINES = (
+    Headline("sokoban-wm", None, "World Models on Sokoban (controller's return)", "5.3", "01", THESIS_SOKOBAN, None),
+    Headline("boxing-wm", None, "World Models on Boxing", "5.4.1", "02", THESIS_WORLD_MODELS, best_atari_100k("boxing")),
+    Headline("boxing-wm-alphazero", "imitation", "World Models + AlphaZero on Boxing", "5.4.2", "03", THESIS_ALPHAZERO,
+             best_atari_100k("boxing")),
+    Headline("planet-boxing-agent", None, "PlaNet on Boxing (KL scale 0.03, free nats 12)", "5.6.4", "05",
+             THESIS_PLANET_BOXING, best_atari_100k("boxing")),
+    Headline("planet-freeway", "freeway-tuned", "PlaNet on Freeway", "5.6.5", "08", THESIS_PLANET_FREEWAY,
+             best_atari_100k("freeway")),
+    Headline("planet-boxing-value", "lean-value-rewards-0.7, cem-with-value",
+             "Boxing: CEM with a learned value on PlaNet's model", "beyond", "10", THESIS_PLANET_BOXING,
+             best_atari_100k("boxing")),
+    Headline("planet-freeway-value", "cem-with-value", "Freeway: CEM with a learned value on PlaNet's model", "beyond",
+             "08", THESIS_PLANET_FREEWAY, best_atari_100k("freeway")),
+    Headline("sokoban-search", "boxoban-unfiltered, 1000 report levels",
+             "Sokoban by search in a learned model: Boxoban unfiltered, % solved", "beyond (ch. 1)", "07",
+             THESIS_SOKOBAN, BOXOBAN["unfiltered"]),
+    Headline("sokoban-search", "boxoban-medium, 1000 report levels",
+             "Sokoban by search in a learned model: Boxoban medium, % solved", "beyond (ch. 1)", "07", THESIS_SOKOBAN,
+             BOXOBAN["medium"]),
+)
+
+
+def _ours(row: dict | None) -> str:
+    if row is None:
+        return "not run yet"
+    interval = "" if row["ci_low"] is None else f" [{row['ci_low']:.1f}, {row['ci_high']:.1f}]"
+    return f"{row['mean']:.1f}{interval} ({row['n']} seed{'s' if row['n'] > 1 else ''})"
+
+
+def _minutes(row: dict | None) -> str:
+    if row is None:
+        return ""
+    walls = [w for w in row["wall_seconds"] if w is not None]
+    machines = sorted(set(row.get("machines", [])) - {None})
+    if not walls:
+        return "not recorded"
+    time = f"{min(walls) / 60:.0f}-{max(walls) / 60:.0f}" if len(walls) > 1 else f"{walls[0] / 60:.0f}"
+    return f"{time}" + (f" ({'; '.join(machines)})" if machines else "")
+
+
+def headline_rows(rows: list[dict], profile: str = "quick") -> list[dict]:
+    """The :data:`HEADLINES` with their summary rows of ``profile`` (None where not run yet)."""
+    found = {(r["experiment"], r["variant"]): r for r in rows if r["profile"] == profile}
+    return [{"headline": h, "row": found.get((h.experiment, h.variant))} for h in HEADLINES]
+
+
+def headline_table(rows: list[dict], profile: str = "quick") -> str:
+    """The front door's table (markdown) from the summary's ``rows``, the published figures'
+    sources as footnotes under it."""
+    notes: list[str] = []
+
+    def cite(ref: Reference | None) -> str:
+        if ref is None:
+            return ""
+        if ref.source not in notes:
+            notes.append(ref.source)
+        return f"{ref.value} ({ref.name})[^{notes.index(ref.source) + 1}]"
+
+    lines = [f"| experiment | thesis | the thesis's figure | ours, `{profile}`: mean [95% interval] (seeds) "
+             "| best published | notebook | minutes a seed (machine) |", "|---|---|---|---|---|---|---|"]
+    for entry in headline_rows(rows, profile):
+        h, row = entry["headline"], entry["row"]
+        thesis = "" if h.thesis is None else str(h.thesis.value)
+        lines.append(f"| {h.title} | {h.section} | {thesis} | {_ours(row)} | {cite(h.published)} | {h.notebook} "
+                     f"| {_minutes(row)} |")
+    lines += ["", *(f"[^{i + 1}]: {source}" for i, source in enumerate(notes))]
+    return "\n".join(lines)
+
+
+def readme_with_table(readme: str, table: str) -> str:
+    """``readme`` with the text between :data:`BEGIN` and :data:`END` replaced by ``table``; a
+    README without both markers raises ValueError naming them."""
+    pattern = re.compile(re.escape(BEGIN) + r".*?" + re.escape(END), re.S)
+    if not pattern.search(readme):
+        raise ValueError(f"the README has no results block: put {BEGIN} and {END} where the table goes")
+    return pattern.sub(lambda _: f"{BEGIN}\n{table}\n{END}", readme, count=1)
+
+
+__all__ = ["Headline", "HEADLINES", "BEGIN", "END", "headline_rows", "headline_table", "readme_with_table"]
