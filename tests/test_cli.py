@@ -137,7 +137,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     fresh = json.loads(metrics.read_text())
     assert fresh == {**again, "wall_seconds": fresh["wall_seconds"], "date": fresh["date"]}
 
-    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke"]) == 0  # the agent's model, frozen
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "scored-rounds"]) == 0  # the agent's model, frozen
     assert "PlaNet's CEM" in capsys.readouterr().out
     value = json.loads((tmp_path / "data/results/planet-boxing-value/smoke-seed0/metrics.json").read_text())
     assert [c["round"] for c in value["curve"]] == [0, 1] and value["curve"][1]["episodes"] == 1
@@ -187,7 +187,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     for removed in ("nope", "td"):  # unknown, or gone to the findings
         assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", removed]) == 2
         err = capsys.readouterr().err
-        assert "valid: default, rounds-10" in err and "docs/findings/planet-boxing-value.md" in err
+        assert "valid: scored-rounds, rounds-10" in err and "docs/findings/planet-boxing-value.md" in err
     # the mean of the last rounds' values: from a copy of rounds-10's run, its rounds not fitted again
     results = tmp_path / "data/results/planet-boxing-value/smoke-seed0"
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "rounds-10"]) == 0

@@ -33,7 +33,7 @@ def test_seeds_and_runs_are_parsed_and_bad_ones_refused():
     with pytest.raises(ValueError, match="has no variants"):
         parse_runs(["boxing-wm:x"], [0])
     assert parse_runs(["planet-boxing-value:lean"], [2]) == [SweepRun("planet-boxing-value", "lean", 2)]
-    with pytest.raises(ValueError, match="valid: default, rounds-10"):
+    with pytest.raises(ValueError, match="valid: scored-rounds, rounds-10"):
         parse_runs(["planet-boxing-value:nope"], [0])
     assert parse_runs(["planet-freeway-value:horizon-12"], [0]) == [SweepRun("planet-freeway-value", "horizon-12", 0)]
     with pytest.raises(ValueError, match="valid: default, td, horizon-12"):

@@ -29,7 +29,7 @@ from typing import Callable, NamedTuple
 from tqdm import tqdm
 
 from wmthesis.config import profile_name
-from wmthesis.experiments import EXPERIMENTS, PLANET_GAMES, VARIANTS, reproduce
+from wmthesis.experiments import DEFAULT_RESULTS, EXPERIMENTS, VARIANTS, reproduce
 from wmthesis.runs import atomic_path
 from wmthesis.summary import run_scores
 from wmthesis.utils import check_choice, data_dir
@@ -105,8 +105,8 @@ def _wanted_variants(run: SweepRun) -> set:
 
     if run.variant is not None:
         return {run.variant}
-    if run.experiment in PLANET_GAMES:
-        return {PLANET_GAMES[run.experiment][2]}
+    if run.experiment in DEFAULT_RESULTS:
+        return {DEFAULT_RESULTS[run.experiment]}
     if run.experiment == "boxing-wm-alphazero":
         return set(variants_of(run.experiment))
     return {None} if run.experiment != "planet-boxing-study" else set()

@@ -30,7 +30,8 @@ from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,
                                          planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
-from wmthesis.experiments.planet_boxing_value import VALUE_VARIANTS as BOXING_VALUE_VARIANTS, planet_boxing_value
+from wmthesis.experiments.planet_boxing_value import (VALUE_VARIANTS as BOXING_VALUE_VARIANTS,
+                                                      folder_variant as boxing_folder_variant, planet_boxing_value)
 from wmthesis.experiments.planet_freeway_value import (VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value,
                                                        prerequisites as freeway_value_prerequisites)
 from wmthesis.experiments.sokoban_search import sokoban_search
@@ -55,6 +56,10 @@ if tuple(RECIPES) != EXPERIMENTS:
 VARIANTS = {**PLANET_REGISTRIES, "boxing-wm-alphazero": ALPHAZERO_VARIANTS, "planet-boxing-value": BOXING_VALUE_VARIANTS,
             "planet-freeway-value": FREEWAY_VALUE_VARIANTS}
 NO_VARIANTS = tuple(name for name in EXPERIMENTS if name not in VARIANTS)
+# Experiment -> the variant its default run's metrics name (None: it names none, its runs keep the
+# experiment's own folders), for the experiments whose default has a name in its metrics.
+DEFAULT_RESULTS = {**{name: registry.default.name for name, registry in PLANET_REGISTRIES.items()},
+                   "planet-boxing-value": boxing_folder_variant(None), "planet-freeway-value": None}
 
 
 # Experiment -> the runs (experiment, variant) a variant of it builds on, for the same profile and seed.
@@ -110,7 +115,7 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
         return {run: future.result() for run, future in futures.items()}
 
 
-__all__ = ["EXPERIMENTS", "VARIANTS", "PREREQUISITES", "prerequisites", "reproduce", "reproduce_all", "sokoban_search", 
+__all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "PREREQUISITES", "prerequisites", "reproduce", "reproduce_all", "sokoban_search", 
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES",

@@ -31,22 +31,22 @@ GAME = "boxing"
 LEAN = dict(rounds=10, agent_rounds=3, score_rounds=False)
 VALUE_VARIANTS = Variants(
     "planet-boxing-value",
-    Variant("default", "the value of the round chosen on validation bouts, every round scored (notebook 09)",
-            default=True),
-    Variant("rounds-10", "ten rounds, each scored", dict(value=dict(rounds=10)), builds_on="default"),
+    Variant("scored-rounds", "the value of the round chosen on validation bouts, every round scored (notebook 09)"),
+    Variant("rounds-10", "ten rounds, each scored", dict(value=dict(rounds=10)), builds_on="scored-rounds"),
     Variant("rounds-10-mean-3", "rounds-10's agent as the mean of its last 3 rounds' values (chosen by validate_agents)",
             dict(value=dict(agent_rounds=3)), builds_on="rounds-10"),
     Variant("lean", "that agent from scratch, no greedy bouts after each round: issue 31's hour", dict(value=LEAN)),
     Variant("lean-value-rewards-0.7", "lean's value; CEM scores every imagined step by the value's Q, discount 0.7 "
             "(chosen on two seeds' validation bouts)", dict(planner=dict(rewards="value", discount=0.7)),
-            builds_on="lean"),
+            builds_on="lean", default=True),
 )
+ROOT = "scored-rounds"  # the first recipe: its runs keep the experiment's own folders (``seedS``, ``PROFILE-seedS``)
 
 
 def folder_variant(variant: str | None) -> str | None:
-    """A variant's name in its folders: None for the one named ``default`` (checked first)."""
+    """A variant's name in its folders and metrics (None for :data:`ROOT`'s); ``variant`` None is the default."""
     name = VALUE_VARIANTS.check(variant).name
-    return None if name == "default" else name
+    return None if name == ROOT else name
 
 
 def value_run(variant: str | None) -> str | None:
