@@ -26,7 +26,7 @@ from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 import numpy as np
 from tqdm import tqdm
 
-from wmthesis.utils import check_choice, derive_seeds
+from wmthesis.utils import check_choice, derive_seeds, seed_everything
 
 
 @dataclass(frozen=True)
@@ -370,8 +370,6 @@ def _init_worker(spec: dict) -> None:
 
 
 def _run_job(job: int) -> list[dict]:
-    from wmthesis.utils import seed_everything
-
     spec = _POOL_JOB
     job_seed = _job_seed(spec["seed"], job)
     seed_everything(job_seed)

@@ -11,9 +11,9 @@ import signal
 import sys
 import threading
 from collections import deque
-from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from itertools import islice
 from pathlib import Path
 
@@ -21,9 +21,9 @@ import numpy as np
 from tqdm import tqdm
 
 from wmthesis.core import Callback, RandomMind, loop
-from wmthesis.utils import derive_seeds
-
 from wmthesis.data import EpisodeStore
+from wmthesis.envs import ATARI_GAMES, make_env
+from wmthesis.utils import derive_seeds
 
 _WORKER: dict = {}
 
@@ -152,8 +152,6 @@ def _interrupt_between_episodes():
 def _collect_options(env_name: str, preprocessing: str | None, max_steps: int | None,
                      env_options: dict) -> dict:
     """The keyword arguments of :func:`~wmthesis.envs.make_env` for a collection."""
-    from wmthesis.envs import ATARI_GAMES
-
     options = dict(env_options)
     if env_name in ATARI_GAMES:
         options["preprocessing"] = preprocessing or "world_models"
@@ -166,8 +164,6 @@ def _collect_options(env_name: str, preprocessing: str | None, max_steps: int | 
 
 def _observation_shape(env_name: str, options: dict) -> tuple[int, ...]:
     """Make the environment once (checking the options) and return its observation shape."""
-    from wmthesis.envs import make_env
-
     env = make_env(env_name, **options)
     try:
         return tuple(env.observation_space.shape)
@@ -217,8 +213,6 @@ def _parallel_rollouts(env_name: str, options: dict, seed: int, indices: range, 
 def _init_worker(env_name: str, options: dict, seed: int) -> None:
     """Make the worker's environment once. Ctrl-C is left to the parent, and the worker exits
     when the parent dies (even by SIGKILL) instead of waiting for work forever."""
-    from wmthesis.envs import make_env
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent = mp.parent_process()
     if parent is not None:

@@ -19,6 +19,8 @@ Greedy test and evaluation episodes plan on the imagined rewards alone (the thes
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -129,8 +131,6 @@ def bonus_by_action(model: RSSM, ensemble: Disagreement, observations, actions, 
 
 def load_explorer(run_dir, model: RSSM) -> Disagreement:
     """The disagreement ensemble of a PlaNet run trained with ``explore_scale`` > 0."""
-    from pathlib import Path
-
     path = Path(run_dir) / "checkpoint.pt"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no PlaNet checkpoint here; train the run first "

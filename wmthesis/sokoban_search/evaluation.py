@@ -12,7 +12,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from wmthesis.envs.sokoban import solve
+from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, SokobanEnv, solve
 from wmthesis.sokoban_search.agent import Play, grid_env, grid_state, random_play
 from wmthesis.utils import derive_seeds
 
@@ -144,8 +144,6 @@ def _solves(env, actions) -> bool:
 
 
 def _board_env(board: np.ndarray, max_steps: int, **options):
-    from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, SokobanEnv
-
     boxes = int(np.isin(board, (BOX, BOX_ON_TARGET)).sum())
     return SokobanEnv(board.shape, max(boxes, 1), max_steps=max_steps, **options)
 

@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
+import cma
 import numpy as np
 import torch
 from tqdm import tqdm
@@ -184,8 +185,6 @@ class SeededNormal:
 
 def new_strategy(dimension: int, cfg):
     """A ``cma.CMAEvolutionStrategy`` from zero with step size ``cfg.sigma``, quiet, no files."""
-    import cma
-
     options = {"popsize": cfg.population, "seed": np.nan, "randn": SeededNormal(cfg.seed),
                "verbose": -9, "verb_disp": 0, "verb_log": 0, "maxiter": np.inf, "CMA_diagonal": cfg.diagonal}
     return cma.CMAEvolutionStrategy(np.zeros(dimension), cfg.sigma, options)

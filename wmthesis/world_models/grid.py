@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from wmthesis.data import EpisodeStore
+from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, PLAYER, PLAYER_ON_TARGET
 from wmthesis.runs import atomic_path
 from wmthesis.world_models.train import LatentStore, store_identity
 
@@ -81,8 +82,6 @@ def grid_accuracy(predicted: np.ndarray, truth: np.ndarray, last_seen: np.ndarra
     ``last_seen``: the dynamics; NaN where none changed), ``one_player`` (rollouts showing exactly
     one player: "the agent disappears") and ``boxes_kept`` (exactly ``num_boxes`` boxes).
     """
-    from wmthesis.envs.sokoban import BOX, BOX_ON_TARGET, PLAYER, PLAYER_ON_TARGET
-
     predicted, truth = np.asarray(predicted), np.asarray(truth)
     right = predicted == truth
     changed = truth != np.asarray(last_seen)[:, None]

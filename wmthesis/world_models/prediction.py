@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from wmthesis.envs.sokoban import grid_frames
 from wmthesis.metrics import horizon_errors
 from wmthesis.world_models.grid import decode_grid
 from wmthesis.world_models.memory import Memory, Mixture
@@ -80,8 +81,6 @@ def open_loop_grid(memory: Memory, grids: np.ndarray, actions: np.ndarray, conte
     ``prediction_grid`` codes (horizon, 64), ``pixel_error`` and ``latent_error`` (squared
     error of the unrounded latents, in code units) curves (horizon,).
     """
-    from wmthesis.envs.sokoban import grid_frames
-
     if len(grids) < context + horizon:
         raise ValueError(f"the episode has {len(grids)} steps; open loop needs context + horizon = {context + horizon}")
     dev = next(memory.parameters()).device

@@ -17,8 +17,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 import torch
+from tqdm import tqdm
 
-from wmthesis.data import EpisodeStore
+from wmthesis.data import EpisodeStore, chunk_starts
 from wmthesis.runs import atomic_path
 from wmthesis.training import train
 from wmthesis.utils import device
@@ -96,8 +97,6 @@ def encode_store(store_path: str | Path, vae: VAE, out_path: str | Path, *, batc
     ``terminals`` (N,) and ``episode_ends`` (E,), episodes back to back. An existing file
     made from the same store (same episode count and latent size) is kept.
     """
-    from tqdm import tqdm
-
     out_path = Path(out_path)
     dev = next(vae.parameters()).device
     with EpisodeStore(store_path) as store:
@@ -163,7 +162,6 @@ class LatentStore:
 
     def sample_chunks(self, batch: int, length: int, rng: np.random.Generator, episodes=None,
                       returns: torch.Tensor | None = None) -> dict:
-        from wmthesis.data import chunk_starts
 
         rows = chunk_starts(self.starts, self.ends, batch, length, rng, episodes, where=self.path)
         steps = torch.from_numpy(rows[:, None] + np.arange(length))
