@@ -49,13 +49,13 @@ def folder_variant(variant: str | None) -> str | None:
     return None if name == ROOT else name
 
 
-def value_run(variant: str | None) -> str | None:
+def value_run(variant: str | None) -> str:
     """The variant whose run fitted ``variant``'s value: itself, or for one that changes the planner
-    alone, the run it builds on (as :func:`folder_variant` names it)."""
+    alone, the run it builds on (its name)."""
     chain = VALUE_VARIANTS.lineage(variant)
     while "value" not in chain[-1].changes and chain[-1].builds_on is not None and len(chain) > 1:
         chain.pop()
-    return folder_variant(chain[-1].name)
+    return chain[-1].name
 
 
 def value_folder(profile: str, seed: int, variant: str | None = None):
@@ -83,23 +83,23 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
     round) and ``files``. A ``variant`` of :data:`VALUE_VARIANTS` fits its value in a folder of
     its own, on the same model and bouts (a ``td`` value is discounted in the planner as in its
     targets; one may change the planner alone)."""
-    chosen, variant = VALUE_VARIANTS.check(variant), folder_variant(variant)
+    chosen = VALUE_VARIANTS.check(variant)  # its folders: value_folder, results_folder (None: the default)
     profile = profile_name(profile)
     started = time.time()
     agent = run_store.built_on("planet-boxing-agent", profile, seed, progress=progress)
     planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
-    work = hold(value_folder(profile, seed, variant))
-    out = results_folder(profile, seed, variant)
+    work = hold(value_folder(profile, seed, chosen.name))
+    out = results_folder(profile, seed, chosen.name)
     config = for_profile(LatentValueConfig, profile, test_bouts=len(agent["bouts"]),
                          **VALUE_VARIANTS.changes(chosen.name, "value"))
     if chosen.builds_on is not None:
-        start_from(work, value_folder(profile, seed, folder_variant(chosen.builds_on)))
+        start_from(work, value_folder(profile, seed, chosen.builds_on))
     discount = {"discount": config.discount} if config.target != "reward-sum" else {}
     planner = for_profile(ValuePlannerConfig, profile, **{**discount, **VALUE_VARIANTS.changes(chosen.name, "planner")})
     references = {"human": human(GAME), "thesis PlaNet (around 30)": THESIS_PLANET_BOXING_SCORE}
     return fit_and_compare("planet-boxing-value", GAME, planet_run, work, out, config, planner,
                            {"random": agent["random"], "planet": agent["agent"]}, agent["bouts"], profile=profile,
-                           seed=seed, progress=progress, references=references, variant=variant, started=started)
+                           seed=seed, progress=progress, references=references, variant=folder_variant(chosen.name), started=started)
 
 
 def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True,
@@ -169,7 +169,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, variant, progress)
     planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
-    work = value_folder(profile, seed, folder_variant(variant))
+    work = value_folder(profile, seed, variant)
     model, planet, _ = load_planet(planet_run)
     round_values(model, planet.bits, work, seed=seed, progress=progress)
     config = LatentValueConfig(**metrics["config"])
