@@ -11,6 +11,9 @@
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
         writes a JSON list of {level, solved, steps, actions}.
+    play EXPERIMENT [--profile P] [--seed S] [--bouts N] [--record FILE.rrd] [--video FILE.mp4]
+        A trained agent plays its experiment's evaluation levels or bouts, with no training
+        (sokoban-search's shipped agents today); prints each play and the score.
     validate EXPERIMENT LEVER ... [--variant V] [--seeds 0,1] [--count N] [--workers K] [--profile P]
         Levers of sokoban-search (its agent's config), planet-boxing-value or planet-freeway-value
         (the planner ending in the value of --variant's run) on the validation split only
@@ -154,6 +157,14 @@ def cmd_solve_sokoban(args) -> int:
     return 0
 
 
+def cmd_play(args) -> int:
+    from wmthesis.play import check_output, play
+
+    check_output(args.record, ".rrd"), check_output(args.video, ".mp4")  # before anything loads or plays
+    play(args.experiment, profile=args.profile, seed=args.seed, bouts=args.bouts, record=args.record, video=args.video)
+    return 0
+
+
 def cmd_validate(args) -> int:
     from wmthesis.sweep import parse_seeds
     from wmthesis.validation import check_levers, lever_lines, validate
@@ -292,6 +303,15 @@ def parser() -> argparse.ArgumentParser:
     solve.add_argument("--out", help="JSON results (default: LEVELS.solutions.json)")
     solve.add_argument("--max-steps", type=at_least(1), default=120, help="steps allowed per level")
     solve.set_defaults(run=cmd_solve_sokoban)
+
+    player = commands.add_parser("play", help="a trained agent plays, with no training")
+    player.add_argument("experiment", choices=EXPERIMENTS)
+    player.add_argument("--profile", choices=PROFILES)
+    player.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
+    player.add_argument("--bouts", type=at_least(1), default=10, help="bouts or levels to play (default 10)")
+    player.add_argument("--record", help="a rerun recording of the plays (.rrd)")
+    player.add_argument("--video", help="an mp4 of the plays' frames")
+    player.set_defaults(run=cmd_play)
 
     validate = commands.add_parser("validate", help="levers of an experiment on its validation split only")
     validate.add_argument("experiment", choices=("sokoban-search", "planet-boxing-value", "planet-freeway-value"))

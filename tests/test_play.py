@@ -1,0 +1,44 @@
+"""`play`: a shipped agent plays its experiment's own evaluation levels with no training, and
+refuses what it cannot do before anything loads or plays."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import pytest
+
+import wmthesis.play as play_module
+from wmthesis.__main__ import main
+from wmthesis.experiments.sokoban_search import EVAL_PURPOSE
+from wmthesis.sokoban_search.agent import level_seeds
+from wmthesis.sokoban_search.evaluation import check_solutions
+
+
+def test_the_shipped_sokoban_agent_plays_the_experiments_first_evaluation_levels(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(Path(__file__).resolve().parents[1] / "data"))  # what the repository ships
+    result = play_module.play("sokoban-search", profile="quick", seed=0, bouts=2, record=tmp_path / "plays.rrd",
+                              video=tmp_path / "plays.mp4", on_play=lambda line: None)
+    assert [p["seed"] for p in result["plays"]] == level_seeds(0, EVAL_PURPOSE, 500)[:2]  # the summary's levels
+    solved = [p for p in result["plays"] if p["solved"]]
+    assert all(check_solutions("sokoban", solved)) and result["score"] == len(solved) / 2  # replayed in the real game
+    video = cv2.VideoCapture(str(tmp_path / "plays.mp4"))
+    frames = int(video.get(cv2.CAP_PROP_FRAME_COUNT))
+    video.release()
+    assert frames == sum(p["steps"] + 1 for p in result["plays"]) and (tmp_path / "plays.rrd").stat().st_size > 0
+
+
+def test_play_refuses_what_it_cannot_do_before_anything_plays(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(play_module, "_play_sokoban", lambda *a: pytest.fail("it played"))
+    assert main(["play", "sokoban-search", "--video", str(tmp_path / "missing" / "x.mp4")]) == 2
+    assert "x.mp4 cannot be written: its folder" in capsys.readouterr().err
+    assert main(["play", "sokoban-search", "--record", str(tmp_path / "x.mp4")]) == 2
+    assert "name a .rrd file" in capsys.readouterr().err
+    assert main(["play", "boxing-wm"]) == 2
+    assert "python -m wmthesis reproduce boxing-wm" in capsys.readouterr().err
+
+
+def test_play_names_a_missing_agent_and_the_command_that_trains_it(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    assert main(["play", "sokoban-search", "--profile", "smoke", "--seed", "3", "--bouts", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "no trained sokoban-search agent in" in err and "reproduce sokoban-search --profile smoke --seed 3`" in err

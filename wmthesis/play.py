@@ -1,0 +1,114 @@
+"""Watch a trained agent play, without training: ``python -m wmthesis play EXPERIMENT ...``.
+
+The agent is the one a ``quick`` run shipped in the repository (or one trained here), on the
+experiment's own evaluation levels or bouts, so its results are the summary's seed row. Each
+play's result is printed as it ends; ``record`` writes a rerun recording of the plays, ``video``
+an mp4 of their frames (opencv). Paths are checked before anything plays; an agent that is not
+there is one line naming what is missing and the command that trains it.
+
+Agents that play today: ``sokoban-search`` (its shipped pixel agents, seeds 0-2 of ``quick``).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from wmthesis.config import EXPERIMENTS, profile_name
+from wmthesis.utils import check_choice
+
+PLAYABLE = ("sokoban-search",)
+
+
+def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
+    """``path`` for a recording or video if it can be written (a file ending in ``suffix`` in a
+    folder that exists and is writable); ValueError naming it otherwise, before anything plays."""
+    if path is None:
+        return None
+    path = Path(path)
+    if path.suffix != suffix:
+        raise ValueError(f"{path}: name a {suffix} file")
+    if path.is_dir() or not path.parent.is_dir() or not os.access(path.parent, os.W_OK):
+        raise ValueError(f"{path} cannot be written: its folder {path.parent} is missing or not writable")
+    return path
+
+
+def play(experiment: str, *, profile: str | None = None, seed: int = 0, bouts: int = 10, record=None, video=None,
+         on_play=print) -> dict:
+    """``bouts`` plays of ``experiment``'s trained agent (``seed``'s run of ``profile``); returns
+    ``plays`` (one dict each) and ``score`` (their mean: the solve rate for Sokoban)."""
+    check_choice("experiment", experiment, EXPERIMENTS)
+    if experiment not in PLAYABLE:
+        raise ValueError(f"play shows {', '.join(PLAYABLE)} today; {experiment}'s agents do not ship yet "
+                         f"(train one: python -m wmthesis reproduce {experiment})")
+    if bouts < 1:
+        raise ValueError(f"--bouts must be 1 or more, got {bouts}")
+    record, video = check_output(record, ".rrd"), check_output(video, ".mp4")
+    return _play_sokoban(profile_name(profile), seed, bouts, record, video, on_play)
+
+
+def _play_sokoban(profile: str, seed: int, levels: int, record: Path | None, video: Path | None, on_play) -> dict:
+    """The pixel agent of ``sokoban-search`` on the first ``levels`` of its unseen 10x10 evaluation levels."""
+    from wmthesis.experiments.sokoban_search import EVAL_PURPOSE, work_folder
+    from wmthesis.sokoban_search.agent import level_seeds
+    from wmthesis.sokoban_search.config import SokobanSearchConfig
+    from wmthesis.config import for_profile
+    from wmthesis.sokoban_search.iteration import evaluation_search, load_run
+
+    folder = work_folder(profile, seed) / "pixels"
+    cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
+    run = load_run(folder, cfg)
+    if run is None:
+        raise FileNotFoundError(f"no trained sokoban-search agent in {folder}: train it with `python -m wmthesis "
+                                f"reproduce sokoban-search --profile {profile} --seed {seed}`")
+    agent = run.agent(evaluation_search(cfg))
+    env = agent.env("sokoban")
+    plays = []
+    for k, level in enumerate(level_seeds(seed, EVAL_PURPOSE, levels)):
+        played = agent.play(env, level).record()
+        plays.append(played)
+        on_play(f"level {k} (seed {level}): {'solved' if played['solved'] else 'not solved'} in {played['steps']} steps")
+    score = float(np.mean([p["solved"] for p in plays]))
+    on_play(f"{sum(p['solved'] for p in plays)} of {levels} solved ({100 * score:.1f}%)")
+    if record is not None or video is not None:
+        frames = _sokoban_frames(plays)
+        if record is not None:
+            from wmthesis.viz import record_frames
+
+            record_frames(record, {"board": frames})
+        if video is not None:
+            _write_video(video, frames)
+    return {"experiment": "sokoban-search", "profile": profile, "seed": seed, "plays": plays, "score": score}
+
+
+def _sokoban_frames(plays: list[dict]) -> np.ndarray:
+    """Every play replayed in the real game, its boards rendered: (T, H, W, 3) uint8."""
+    from wmthesis.sokoban_search.agent import grid_env
+
+    env, frames = grid_env("sokoban"), []
+    for played in plays:
+        env.reset(seed=int(played["seed"]))
+        frames.append(env.render())
+        for action in played["actions"]:
+            *_, terminated, truncated, _ = env.step(int(action))
+            frames.append(env.render())
+            if terminated or truncated:
+                break
+    return np.stack(frames)
+
+
+def _write_video(path: Path, frames: np.ndarray, fps: int = 8) -> None:
+    """``frames`` (T, H, W, 3) RGB as an mp4 at ``path``."""
+    import cv2
+
+    height, width = frames.shape[1:3]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    try:
+        for frame in frames:
+            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    finally:
+        writer.release()
+
+
+__all__ = ["PLAYABLE", "check_output", "play"]
