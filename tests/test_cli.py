@@ -154,20 +154,21 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
 
     from wmthesis.experiments.planet_boxing_value import value_plan_choices
 
-    compared = value_plan_choices("smoke", 0, progress=False)  # the last own bout's first 5 steps
+    compared = value_plan_choices("smoke", 0, progress=False, variant="scored-rounds")  # the last own bout's first 5 steps
     assert compared["steps"] == 5 and set(compared["choices"]) == {"CEM (thesis)", "CEM with value", "value alone"}
     assert all(len(c) == 5 and max(c) < 18 for c in compared["choices"].values()) and len(compared["action_names"]) == 18
     same = compared["agreement"]["CEM (thesis) = CEM with value"]
     thesis, ours = compared["choices"]["CEM (thesis)"], compared["choices"]["CEM with value"]
     assert same == sum(a == b for a, b in zip(thesis, ours)) / 5
-    assert value_plan_choices("smoke", 0, progress=False)["choices"] == compared["choices"]  # cached, or the same again
+    assert value_plan_choices("smoke", 0, progress=False, variant="scored-rounds")["choices"] == compared["choices"]  # cached, or the same again
 
     from wmthesis.experiments.planet_boxing_value import validate_agents
     from wmthesis.planet.train import load_planet, make_planet_env
     from wmthesis.planet.value_rounds import load_value
     from wmthesis.planet.value_play import play_value, validation_seeds
 
-    agents = validate_agents("smoke", 0, None, ("round chosen on validation", "mean of the last 3"), 1, progress=False)
+    agents = validate_agents("smoke", 0, "scored-rounds", ("round chosen on validation", "mean of the last 3"), 1,
+                             progress=False)
     assert agents["round chosen on validation"]["rounds"] == [value["best_round"]]
     assert agents["mean of the last 3"]["rounds"] == [0, 1]  # only 2 rounds in smoke
     model, planet, _ = load_planet(tmp_path / "data/smoke/planet-boxing-agent/seed0")
