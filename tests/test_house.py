@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from wmthesis.experiments import EXPERIMENTS, NO_VARIANTS, RECIPES, VARIANTS, prerequisites, reproduce
+from wmthesis.experiments import EXPERIMENTS, NO_VARIANTS, RECIPES, VARIANTS, reproduce
 from wmthesis.references import PUBLISHED, human, published
-from wmthesis.runs import finished_metrics, read_json, results_folder, work_folder, write_json
+from wmthesis.runs import built_on, read_json, results_folder, work_folder, write_json
 from wmthesis.summary import read_runs
 from wmthesis.variants import Variant, Variants
 
@@ -48,19 +48,21 @@ def test_every_experiment_has_one_recipe_signature_and_refuses_a_variant_it_lack
             RECIPES[name]("smoke", 0, "anything", False)
     with pytest.raises(ValueError, match="docs/findings/planet-boxing-value.md"):
         reproduce("planet-boxing-value", "smoke", 0, "td")  # removed: its numbers went to the findings
-    assert prerequisites("planet-freeway-value", "adam-log") == [("planet-freeway", "freeway-adam"),
-                                                                  ("planet-freeway", "freeway-tuned")]
-    assert prerequisites("boxing-wm-alphazero", "improved") == [] and prerequisites("boxing-wm") == []
 
 
 def test_the_run_store_names_folders_one_way_and_says_what_a_missing_run_needs(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     assert work_folder("quick", "planet-freeway", 3, "freeway-adam") == tmp_path / "quick/planet-freeway/freeway-adam-seed3"
     assert results_folder("boxing-wm", "quick", 3) == tmp_path / "results/boxing-wm/quick-seed3"
-    with pytest.raises(FileNotFoundError, match="reproduce planet-boxing-agent --profile quick --seed 3` first"):
-        finished_metrics("planet-boxing-agent", "quick", 3)
+    import wmthesis.experiments as experiments
+
+    asked = []
+    monkeypatch.setattr(experiments, "RECIPES", {**experiments.RECIPES, "planet-boxing-agent":
+                                                 lambda *args: asked.append(args) or {"score": 1.5}})
+    assert built_on("planet-boxing-agent", "quick", 3) == {"score": 1.5}  # made through the package's reproduce
+    assert asked == [("quick", 3, None, True)]
     path = write_json(results_folder("planet-boxing-agent", "quick", 3) / "metrics.json", {"score": 1.5})
-    assert finished_metrics("planet-boxing-agent", "quick", 3) == {"score": 1.5}
+    assert read_json(path) == {"score": 1.5}
     path.write_text("{not json")
     assert read_json(path) is None  # corrupt: computed again, never a traceback
 

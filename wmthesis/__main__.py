@@ -40,7 +40,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from wmthesis.config import ATARI_ENVIRONMENTS, ENVIRONMENTS, EXPERIMENTS, PROFILES, CollectConfig, for_profile
+from wmthesis.config import ATARI_ENVIRONMENTS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, for_profile
 from wmthesis.runs import FolderHeld, write_json
 from wmthesis.utils import data_dir
 
@@ -158,9 +158,8 @@ def cmd_solve_sokoban(args) -> int:
 
 
 def cmd_play(args) -> int:
-    from wmthesis.play import check_output, play
+    from wmthesis.play import play  # light: it checks the paths before anything heavy loads or plays
 
-    check_output(args.record, ".rrd"), check_output(args.video, ".mp4")  # before anything loads or plays
     play(args.experiment, profile=args.profile, seed=args.seed, bouts=args.bouts, record=args.record, video=args.video)
     return 0
 
@@ -181,18 +180,11 @@ def cmd_validate(args) -> int:
 
 def cmd_evaluate_sokoban(args) -> int:
     from wmthesis.experiments.sokoban_search import evaluate_report
+    from wmthesis.sokoban_search.tables import solved_line
 
     result = evaluate_report(args.profile, args.seed, args.levels)
-    print(_solved_line(f"pixel agent (seed {args.seed}), report files", result["rows"]))
+    print(solved_line(f"pixel agent (seed {args.seed}), report files", result["rows"]))
     return 0
-
-
-def _solved_line(name: str, rows: dict) -> str:
-    """``name: kind solved/levels (rate%), nodes and seconds a level; ...``"""
-    return f"{name}: " + "; ".join(
-        f"{kind} {row['solved']}/{row['levels']} ({100 * row['solve_rate']:.1f}%), "
-        f"{row['nodes_per_level']:,.0f} nodes and {row['seconds_per_level']:.1f} s a level"
-        for kind, row in rows.items())
 
 
 def cmd_search(args) -> int:

@@ -55,19 +55,6 @@ def built_on(experiment: str, profile: str, seed: int, variant: str | None = Non
     return _RUNNER[0](experiment, profile, seed, variant, progress)
 
 
-def finished_metrics(experiment: str, profile: str, seed: int, variant: str | None = None) -> dict:
-    """The ``metrics.json`` of a finished run, which another experiment builds on; a missing or
-    unreadable one raises FileNotFoundError naming the command that makes it (``reproduce`` runs
-    an experiment's prerequisites first)."""
-    path = results_folder(experiment, profile, seed, variant) / "metrics.json"
-    metrics = read_json(path)
-    if metrics is None:
-        command = f"python -m wmthesis reproduce {experiment} --profile {profile} --seed {seed}"
-        raise FileNotFoundError(f"{path}: no finished run to build on; run `{command}"
-                                f"{'' if variant is None else ' --variant ' + variant}` first")
-    return metrics
-
-
 # ----------------------------------------------------------------------------- files written whole
 @contextmanager
 def atomic_path(path: str | os.PathLike):
@@ -304,6 +291,6 @@ def _alive(pid) -> bool:
     return True
 
 
-__all__ = ["work_folder", "results_folder", "register_runner", "built_on", "finished_metrics", "atomic_path", "write_json", "read_json", "jsonable", "cached",
+__all__ = ["work_folder", "results_folder", "register_runner", "built_on", "atomic_path", "write_json", "read_json", "jsonable", "cached",
            "run_header", "first_run_seconds", "cached_for", "played_bouts", "played_groups", "partial_path",
            "run_jobs", "LOCK_NAME", "FolderHeld", "hold", "release", "releasing_holds"]

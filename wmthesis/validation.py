@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import concurrent.futures
 
-from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS as BOXING_LEVERS
-from wmthesis.experiments.planet_boxing_value import validate_planners as validate_boxing
-from wmthesis.experiments.planet_freeway_value import PLANNER_LEVERS as FREEWAY_LEVERS
-from wmthesis.experiments.planet_freeway_value import validate_planners as validate_freeway
-from wmthesis.experiments.sokoban_search import LEVERS as SOKOBAN_LEVERS
-from wmthesis.experiments.sokoban_search import validate as validate_sokoban
+from wmthesis.experiments.planet_boxing_value import (PLANNER_LEVERS as BOXING_LEVERS,
+                                                      validate_planners as validate_boxing)
+from wmthesis.experiments.planet_freeway_value import (PLANNER_LEVERS as FREEWAY_LEVERS,
+                                                       validate_planners as validate_freeway)
+from wmthesis.experiments.sokoban_search import LEVERS as SOKOBAN_LEVERS, validate as validate_sokoban
 from wmthesis.planet.value_tables import planner_lever_rows
+from wmthesis.sokoban_search.tables import solved_line
 from wmthesis.utils import check_choice, process_pool
 from wmthesis.variants import FINDINGS
 
@@ -62,10 +62,7 @@ def lever_lines(experiment: str, results: dict[str, dict]) -> list[str]:
     """One seed's results as lines: each lever's solve rates and costs (Sokoban), or the planner
     levers' table rows paired against the first (a value)."""
     if experiment == "sokoban-search":
-        return [f"{lever}: " + "; ".join(
-            f"{kind} {row['solved']}/{row['levels']} ({100 * row['solve_rate']:.1f}%), "
-            f"{row['nodes_per_level']:,.0f} nodes and {row['seconds_per_level']:.1f} s a level"
-            for kind, row in result["rows"].items()) for lever, result in results.items()]
+        return [solved_line(lever, result["rows"]) for lever, result in results.items()]
     return [" | ".join(row) for row in planner_lever_rows(results, LEVERS[experiment])]
 
 

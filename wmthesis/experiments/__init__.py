@@ -25,15 +25,13 @@ import os
 
 from wmthesis.alphazero.selfplay import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.config import EXPERIMENTS, profile_name
-from wmthesis.experiments.alphazero import (ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS, boxing_wm_alphazero,
-                                            prerequisites as alphazero_prerequisites)
+from wmthesis.experiments.alphazero import ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS, boxing_wm_alphazero
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,
                                          planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
 from wmthesis.experiments.planet_boxing_value import (VALUE_VARIANTS as BOXING_VALUE_VARIANTS,
                                                       folder_variant as boxing_folder_variant, planet_boxing_value)
-from wmthesis.experiments.planet_freeway_value import (VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value,
-                                                       prerequisites as freeway_value_prerequisites)
+from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value
 from wmthesis.experiments.sokoban_search import sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
@@ -62,21 +60,10 @@ DEFAULT_RESULTS = {**{name: registry.default.name for name, registry in PLANET_R
                    "planet-boxing-value": boxing_folder_variant(None), "planet-freeway-value": None}
 
 
-# Experiment -> the runs (experiment, variant) a variant of it builds on, for the same profile and seed.
-PREREQUISITES = {"boxing-wm-alphazero": alphazero_prerequisites,
-                 "planet-boxing-value": lambda variant: [("planet-boxing-agent", None)],
-                 "planet-freeway-value": freeway_value_prerequisites}
-
-
-def prerequisites(name: str, variant: str | None = None) -> list[tuple[str, str | None]]:
-    """The runs ``(experiment, variant)`` that experiment ``name``'s ``variant`` builds on."""
-    return PREREQUISITES.get(name, lambda variant: [])(variant)
-
-
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,
               progress: bool = True) -> dict:
     """Run experiment ``name`` (one of :data:`EXPERIMENTS`) and return its metrics; a recipe has
-    the runs it builds on (:func:`prerequisites`, same profile and seed) made first through
+    the runs it builds on (same profile and seed) made first through
     :func:`~wmthesis.runs.built_on`, which calls this function.
 
     ``variant`` selects a variant of experiments that have them (PlaNet's, AlphaZero's, the
@@ -115,7 +102,7 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
         return {run: future.result() for run, future in futures.items()}
 
 
-__all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "PREREQUISITES", "prerequisites", "reproduce", "reproduce_all", "sokoban_search", 
+__all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "reproduce", "reproduce_all", "sokoban_search", 
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES",

@@ -150,10 +150,3 @@ def _expert(profile: str, seed: int, wm: Path, vision, progress: bool):
     return make_mind
 
 
-def prerequisites(variant: str | None = None) -> list[tuple[str, None]]:
-    """The runs ``variant`` (None: all side by side) builds on, run first by ``reproduce``: boxing-wm,
-    whose controller is the expert of the variants that imitate one."""
-    names = tuple(VARIANTS) if variant is None else (VARIANTS.check(variant).name,)
-    return [("boxing-wm", None)] if any(VARIANTS.changes(name).get("expert_games", 0) for name in names) else []
-
-

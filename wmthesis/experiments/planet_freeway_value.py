@@ -104,13 +104,6 @@ def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool =
     return work_folder(profile, "planet-freeway", seed, model)
 
 
-def prerequisites(variant: str | None = None) -> list[tuple[str, str]]:
-    """The runs a value ``variant`` builds on, run first by ``reproduce`` (same profile and seed):
-    ``planet-freeway``'s variant whose model it is fitted on, and the one whose episodes are its first data."""
-    changes = VALUE_VARIANTS.changes(variant)
-    return list(dict.fromkeys([("planet-freeway", model_variant(variant)), ("planet-freeway", changes.get("data", model_variant(variant)))]))
-
-
 def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -> dict:
     """The thesis's CEM (the model of ``planet_run``), random play and UP at every step on the
     same ``bouts``: :data:`BASELINES`, each ``full`` and ``first``-500-step scores with their

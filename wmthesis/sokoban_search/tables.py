@@ -166,5 +166,14 @@ def _seed_rows(name: str, profile: str | None, accept) -> list[list]:
     return rows
 
 
-__all__ = ["SOKOBAN_SEARCH_TARGETS", "MAX_ENV_STEPS", "MODEL_TARGETS", "BOXOBAN_TARGETS", "target_rows",
+def solved_line(name: str, rows: dict) -> str:
+    """Evaluation rows (kind -> solved, levels, rate, nodes and seconds a level) as one line:
+    ``name: kind solved/levels (rate%), nodes and seconds a level; ...``."""
+    return f"{name}: " + "; ".join(
+        f"{kind} {row['solved']}/{row['levels']} ({100 * row['solve_rate']:.1f}%), "
+        f"{row['nodes_per_level']:,.0f} nodes and {row['seconds_per_level']:.1f} s a level"
+        for kind, row in rows.items())
+
+
+__all__ = ["solved_line", "SOKOBAN_SEARCH_TARGETS", "MAX_ENV_STEPS", "MODEL_TARGETS", "BOXOBAN_TARGETS", "target_rows",
            "boxoban_target_rows", "boxoban_rows", "lever_rows", "lever_seed_rows", "report_seed_rows"]
