@@ -8,8 +8,8 @@ One module per experiment: :mod:`~wmthesis.experiments.sokoban_world_models` (5.
 same recipe, :mod:`~wmthesis.planet.value_runs`, on Freeway in
 :mod:`~wmthesis.experiments.planet_freeway_value`) and
 :mod:`~wmthesis.experiments.sokoban_search` (beyond the thesis: Sokoban solved by search in a
-learned model); :mod:`~wmthesis.experiments.results`
-holds what they share to write their results.
+learned model). :mod:`wmthesis.runs` holds what they share to write their results; each
+experiment's variants are a registry of :mod:`wmthesis.variants`.
 
 Each experiment writes its artifacts (stores, checkpoints) under ``data/<profile>/<name>/``
 and its results (figures, ``metrics.json``, rerun recordings) under
@@ -41,6 +41,7 @@ from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.runs import register_runner
 from wmthesis.utils import check_choice, worker_init
+from wmthesis.variants import no_variant
 
 # Experiment -> its recipe, each called ``recipe(profile, seed, variant, progress)``.
 RECIPES = {"sokoban-wm": sokoban_world_models, "boxing-wm": boxing_world_models, "boxing-wm-alphazero": boxing_wm_alphazero,
@@ -70,10 +71,10 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     PlaNet value's); others refuse one.
     """
     check_choice("experiment", name, EXPERIMENTS)
-    if name in NO_VARIANTS and variant is not None:
-        raise ValueError(f"experiment {name!r} has no variants, got {variant!r}")
-    if name in VARIANTS and variant is not None:
+    if name in VARIANTS:
         VARIANTS[name].check(variant)
+    else:
+        no_variant(name, variant)
     return RECIPES[name](profile_name(profile), seed, variant, progress)  # its prerequisites first (built_on)
 
 
