@@ -37,6 +37,7 @@ from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOB
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
                                                        sokoban_world_models)
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
+from wmthesis.world_models.variants import BOXING_WM, folder_variant as boxing_wm_folder_variant
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.runs import register_runner
@@ -52,13 +53,14 @@ RECIPES = {"sokoban-wm": sokoban_world_models, "boxing-wm": boxing_world_models,
 if tuple(RECIPES) != EXPERIMENTS:
     raise ImportError(f"the recipes {tuple(RECIPES)} are not wmthesis.config.EXPERIMENTS {EXPERIMENTS}")
 # Experiment -> its registry of variants (:mod:`wmthesis.variants`), for those that have them.
-VARIANTS = {**PLANET_REGISTRIES, "boxing-wm-alphazero": ALPHAZERO_VARIANTS, "planet-boxing-value": BOXING_VALUE_VARIANTS,
+VARIANTS = {**PLANET_REGISTRIES, "boxing-wm": BOXING_WM, "boxing-wm-alphazero": ALPHAZERO_VARIANTS, "planet-boxing-value": BOXING_VALUE_VARIANTS,
             "planet-freeway-value": FREEWAY_VALUE_VARIANTS}
 NO_VARIANTS = tuple(name for name in EXPERIMENTS if name not in VARIANTS)
 # Experiment -> the variant its default run's metrics name (None: it names none, its runs keep the
 # experiment's own folders), for the experiments whose default has a name in its metrics.
 DEFAULT_RESULTS = {**{name: registry.default.name for name, registry in PLANET_REGISTRIES.items()},
-                   "planet-boxing-value": boxing_folder_variant(None), "planet-freeway-value": None}
+                   "planet-boxing-value": boxing_folder_variant(None), "planet-freeway-value": None,
+                   "boxing-wm": boxing_wm_folder_variant(None)}
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,

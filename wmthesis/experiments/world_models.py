@@ -17,13 +17,13 @@ from wmthesis.references import published
 from wmthesis.rollouts import collect
 from wmthesis.runs import (first_run_seconds, hold, read_json, releasing_holds, results_folder, run_header, work_folder,
                            write_json)
-from wmthesis.variants import no_variant
 from wmthesis.viz import image_rows, record_frames, save_figure
 from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.evolution import evaluate_population, train_controller
 from wmthesis.world_models.figures import plot_learning_curve
 from wmthesis.world_models.prediction import open_loop, open_loop_errors
 from wmthesis.world_models.train import encode_store, reconstruct, train_memory, train_vision
+from wmthesis.world_models.variants import BOXING_WM, controller_config, controller_folder, folder_variant
 from wmthesis.world_models.vision import VAEVision
 
 
@@ -35,13 +35,15 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     Returns the metrics dict (also written to ``metrics.json``): the controller's score over
     10 full evaluation episodes with varied starts, the learning curves, the open-loop error.
     """
-    no_variant("boxing-wm", variant)
+    chosen = BOXING_WM.check(variant)
     profile = profile_name(profile)
     started = time.time()
     wm = _world_model(profile, seed, progress)
-    work, out, store, vae, vision, memory = wm.work, wm.out, wm.store, wm.vae, wm.vision, wm.memory
-    controller_cfg = for_profile(ControllerConfig, profile, seed=seed)
-    run = train_controller("boxing", vision, memory, controller_cfg, out_dir=work / "controller", progress=progress)
+    work, store, vae, vision, memory = wm.work, wm.store, wm.vae, wm.vision, wm.memory
+    out = results_folder("boxing-wm", profile, seed, folder_variant(chosen.name))
+    controller_cfg = controller_config(profile, seed, chosen.name)
+    run = train_controller("boxing", vision, memory, controller_cfg, out_dir=controller_folder(work, chosen.name),
+                           progress=progress)
     cached = read_json(out / "metrics.json")
     if (cached is not None and cached.get("controller_curve") == json.loads(json.dumps(run.curve, default=float))
             and all(Path(f).is_file() for f in [*cached["files"]["figures"], cached["files"]["recording"]])):
@@ -60,7 +62,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     recording = record_frames(out / "open_loop.rrd", {"truth": rollout["truth"], "prediction": rollout["prediction"]},
                               {"pixel_error": rollout["pixel_error"]})
     metrics = {
-        **run_header("boxing-wm", profile, seed, time.time() - started),
+        **run_header("boxing-wm", profile, seed, time.time() - started,
+                     **({} if folder_variant(chosen.name) is None else {"variant": chosen.name})),
         "score": score_summary(returns),
         "random_play_in_store": score_summary(random_returns),
         "reference": published("boxing-wm"),

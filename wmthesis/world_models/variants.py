@@ -1,0 +1,53 @@
+"""The controller recipes of World Models on Boxing (thesis 5.4.1) as variants: changes to
+:class:`~wmthesis.world_models.config.ControllerConfig` on top of the profile's. Every variant
+evolves its controller on the same seed's world model (rollouts, vision, memory): only the
+controller's folder is its own (:func:`controller_folder`).
+
+Why a variant beyond the first: with a population of 16 over D = 4,914 parameters, CMA-ES learns
+next to nothing of its covariance or step size in 45 generations (its learning rates scale as
+1/D: sigma moved 0.10 -> 0.11-0.13 on every committed seed), and since the controller is an argmax,
+which no positive scale changes, the search is a fixed-radius random search whose early luck
+decides the seed (docs/findings/boxing-wm.md).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from wmthesis.config import OVERRIDES, for_profile
+from wmthesis.variants import Variant, Variants
+from wmthesis.world_models.config import ControllerConfig
+
+BOXING_WM = Variants(
+    "boxing-wm",
+    Variant("population-16", "the first quick recipe: CMA-ES with a population of 16, 2 bouts a candidate, "
+            "45 generations", default=True),
+    Variant("separable-64", "separable CMA-ES with the thesis's population of 64, 1 bout a candidate "
+            "(all on the same start), 40 generations",
+            dict(population=64, episodes=1, diagonal=True, generations=40, eval_every=10)))
+
+ROOT = "population-16"  # the first recipe: its runs keep the experiment's own folders
+
+
+def folder_variant(variant: str | None) -> str | None:
+    """A variant's name in its folders and metrics (None for :data:`ROOT`'s); None is the default."""
+    name = BOXING_WM.check(variant).name
+    return None if name == ROOT else name
+
+
+def controller_config(profile: str, seed: int, variant: str | None = None) -> ControllerConfig:
+    """The controller config of ``variant`` (None: the default) in ``profile``: the variant's
+    changes on top of the profile's, except the sizes ``smoke`` sets (a smoke run stays small)."""
+    changes = BOXING_WM.changes(BOXING_WM.check(variant).name)
+    if profile == "smoke":
+        changes = {k: v for k, v in changes.items() if k not in OVERRIDES["smoke"]["ControllerConfig"]}
+    return for_profile(ControllerConfig, profile, seed=seed, **changes)
+
+
+def controller_folder(work: Path, variant: str | None = None) -> Path:
+    """Where the controller of ``variant`` (None: the default) evolves, in the world model's folder
+    ``work``: ``controller`` for :data:`ROOT`, ``controller-<variant>`` for the others."""
+    name = folder_variant(variant)
+    return Path(work) / ("controller" if name is None else f"controller-{name}")
+
+
+__all__ = ["BOXING_WM", "ROOT", "folder_variant", "controller_config", "controller_folder"]
