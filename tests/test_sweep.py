@@ -31,6 +31,8 @@ def test_seeds_and_runs_are_parsed_and_bad_ones_refused():
     with pytest.raises(ValueError, match="valid: freeway-tuned, long-horizon"):
         parse_runs(["planet-freeway:nope"], [0])
     with pytest.raises(ValueError, match="has no variants"):
+        parse_runs(["planet-boxing-agent:x"], [0])
+    with pytest.raises(ValueError, match="unknown variant 'x' of boxing-wm; valid: population-16"):
         parse_runs(["boxing-wm:x"], [0])
     assert parse_runs(["planet-boxing-value:lean"], [2]) == [SweepRun("planet-boxing-value", "lean", 2)]
     with pytest.raises(ValueError, match="valid: scored-rounds, rounds-10"):

@@ -110,3 +110,20 @@ def test_boxing_dream_refuses_a_non_positive_temperature():
 
     with pytest.raises(ValueError, match="temperature must be positive, got 0"):
         boxing_dream("smoke", temperature=0)
+
+
+def test_boxing_wm_variants_share_the_world_model_and_each_evolves_in_a_folder_of_its_own(tmp_path):
+    from wmthesis.experiments import reproduce
+    from wmthesis.world_models.variants import BOXING_WM, ROOT, controller_config, controller_folder
+
+    assert BOXING_WM.default.name in BOXING_WM and ROOT in BOXING_WM
+    assert controller_folder(tmp_path, ROOT) == tmp_path / "controller"
+    others = [name for name in BOXING_WM if name != ROOT]
+    assert {controller_folder(tmp_path, name).name for name in others} == {f"controller-{name}" for name in others}
+    for name in BOXING_WM:
+        quick, smoke = controller_config("quick", 7, name), controller_config("smoke", 7, name)
+        assert quick.seed == smoke.seed == 7
+        assert all(getattr(quick, k) == v for k, v in BOXING_WM.changes(name).items())
+        assert (smoke.population, smoke.generations) == (8, 2)  # a smoke run stays small
+    with pytest.raises(ValueError, match=f"unknown variant 'nope' of boxing-wm; valid: {ROOT}"):
+        reproduce("boxing-wm", "smoke", variant="nope")
