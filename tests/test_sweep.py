@@ -13,6 +13,7 @@ import pytest
 
 from wmthesis.__main__ import main
 from wmthesis.experiments import reproduce
+from wmthesis.headline import ablation_rows
 from wmthesis.runs import first_run_seconds
 from wmthesis.summary import aggregate, read_runs, write_summary
 from wmthesis.sweep import SweepRun, finished, parse_runs, parse_seeds, start_ray, sweep
@@ -132,6 +133,24 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert aggregate([2.0, 2.0])["ci_low"] == 2.0  # no spread, no width
     near = aggregate([96.1, 90.3, 97.8], (0.0, 100.0))  # Boxoban medium's seeds: t reaches 104.5
     assert near["ci_high"] == 100.0 and near["ci_low"] == pytest.approx(aggregate([96.1, 90.3, 97.8])["ci_low"])
+
+
+def test_the_ablations_are_paired_by_seed_against_the_headline_row(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    for seed, score in enumerate([10.0, 14.0, 21.0]):
+        _write_run(tmp_path, "boxing-wm", seed, score)
+    for seed, score in [(1, 20.0), (2, 24.0), (3, 99.0)]:  # seed 3: no partner, left out
+        _write_run(tmp_path, "boxing-wm", seed, score, variant="separable-64")
+    rows = write_summary()
+    (ablation,) = ablation_rows(rows)
+    assert (ablation["experiment"], ablation["variant"], ablation["against"]) == ("boxing-wm", "separable-64", None)
+    assert (ablation["seeds"], ablation["mean"], ablation["default_mean"]) == ([1, 2], 22.0, 17.5)
+    # by hand: differences 6 and 3, mean 4.5, sample std 2.1213, t_{0.975, 1} = 12.706204736
+    half = 12.706204736174707 * math.sqrt(4.5) / math.sqrt(2)
+    assert ablation["difference"] == 4.5
+    assert (ablation["ci_low"], ablation["ci_high"]) == (pytest.approx(4.5 - half), pytest.approx(4.5 + half))
+    table = (tmp_path / "results" / "summary.md").read_text()
+    assert "| boxing-wm | separable-64 | first recipe | score | 1 2 | 22.0 | 17.5 | +4.5 [-14.6, +23.6] |" in table
 
 
 def test_the_summary_aggregates_the_sokoban_agents_report_evaluations_over_seeds(tmp_path):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import re
 from typing import NamedTuple
 
+import numpy as np
+
 from wmthesis.references import (BOXOBAN, THESIS_ALPHAZERO, THESIS_PLANET_BOXING, THESIS_PLANET_FREEWAY,
                                  THESIS_SOKOBAN, THESIS_WORLD_MODELS, Reference, best_atari_100k)
 
@@ -101,6 +103,62 @@ def headline_table(rows: list[dict], profile: str = "quick") -> str:
     return "\n".join(lines)
 
 
+def _measure(variant: str | None) -> tuple[str | None, str | None]:
+    """A summary key's variant and what of it was measured: ``"rounds-10, cem-with-value"`` ->
+    ``("rounds-10", "cem-with-value")``; ``"cem-with-value"`` -> ``(None, "cem-with-value")``."""
+    if variant is None:
+        return None, None
+    name, _, part = variant.partition(", ")
+    if not part and name in ("cem-with-value",):
+        return None, name
+    return name, part or None
+
+
+def ablation_rows(rows: list[dict], profile: str = "quick") -> list[dict]:
+    """Each variant of a headline's experiment, measured the same way, against the headline's row,
+    paired by seed (a seed plays the same evaluation bouts or levels under every variant): the
+    seeds both ran, both means over them, and the mean difference with its 95% t interval (None
+    for one seed)."""
+    from wmthesis.metrics import aggregate  # scipy: loaded when a table is written
+
+    by_key = {(r["experiment"], r["variant"]): r for r in rows if r["profile"] == profile}
+    headline_keys = {(h.experiment, h.variant) for h in HEADLINES}
+    out = []
+    for h in HEADLINES:
+        default = by_key.get((h.experiment, h.variant))
+        if default is None:
+            continue
+        for (experiment, variant), row in by_key.items():
+            if (experiment != h.experiment or (experiment, variant) in headline_keys
+                    or _measure(variant)[1] != _measure(h.variant)[1]):
+                continue
+            ours, theirs = dict(zip(row["seeds"], row["scores"])), dict(zip(default["seeds"], default["scores"]))
+            seeds = sorted(set(ours) & set(theirs))
+            if not seeds:
+                continue
+            difference = aggregate([ours[s] - theirs[s] for s in seeds])
+            out.append({"experiment": experiment, "variant": _measure(variant)[0], "against": _measure(h.variant)[0],
+                        "measured": _measure(variant)[1], "seeds": seeds,
+                        "mean": float(np.mean([ours[s] for s in seeds])),
+                        "default_mean": float(np.mean([theirs[s] for s in seeds])),
+                        "difference": difference["mean"], "ci_low": difference["ci_low"],
+                        "ci_high": difference["ci_high"]})
+    return out
+
+
+def ablation_table(rows: list[dict], profile: str = "quick") -> str:
+    """The ablations as markdown: each variant against its experiment's headline row, paired by
+    seed; "first recipe" is the variant whose runs keep the experiment's own folders."""
+    lines = ["| experiment | variant | against (headline) | measured | paired seeds | variant | headline "
+             "| difference [95% interval] |", "|---|---|---|---|---|---|---|---|"]
+    for a in ablation_rows(rows, profile):
+        interval = "" if a["ci_low"] is None else f" [{a['ci_low']:+.1f}, {a['ci_high']:+.1f}]"
+        lines.append(f"| {a['experiment']} | {a['variant'] or 'first recipe'} | {a['against'] or 'first recipe'} "
+                     f"| {a['measured'] or 'score'} | {' '.join(map(str, a['seeds']))} | {a['mean']:.1f} "
+                     f"| {a['default_mean']:.1f} | {a['difference']:+.1f}{interval} |")
+    return "\n".join(lines)
+
+
 def readme_with_table(readme: str, table: str) -> str:
     """``readme`` with the text between :data:`BEGIN` and :data:`END` replaced by ``table``; a
     README without both markers raises ValueError naming them."""
@@ -110,4 +168,5 @@ def readme_with_table(readme: str, table: str) -> str:
     return pattern.sub(lambda _: f"{BEGIN}\n{table}\n{END}", readme, count=1)
 
 
-__all__ = ["Headline", "HEADLINES", "BEGIN", "END", "headline_rows", "headline_table", "readme_with_table"]
+__all__ = ["Headline", "HEADLINES", "BEGIN", "END", "headline_rows", "headline_table", "ablation_rows",
+           "ablation_table", "readme_with_table"]

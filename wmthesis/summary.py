@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 import warnings
 from pathlib import Path
 from typing import NamedTuple
@@ -22,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
-from wmthesis.headline import headline_table, readme_with_table
+from wmthesis.headline import ablation_table, headline_table, readme_with_table
 from wmthesis.metrics import aggregate
 from wmthesis.references import PUBLISHED
 from wmthesis.runs import atomic_path
@@ -207,6 +208,26 @@ def summary_figure(rows: list[dict]):
     return fig
 
 
+HEADLINE_LINE = re.compile(r"headline · (?P<experiment>[\w-]+) · (?P<variant>.+?) · (?P<profile>\w+): "
+                           r"(?P<mean>-?[\d.]+) .*?over (?P<n>\d+) seeds? \((?P<seeds>[\d ]+)\)")
+
+
+def headline_line(experiment: str, variant: str | None = None, profile: str = "quick",
+                  folder: str | Path | None = None) -> str:
+    """The line a notebook prints for a headline number: the summary's row of ``experiment``'s
+    ``variant`` (None: its own folders' runs) over every seed under ``folder`` (default
+    ``data/results``), read the way ``summary`` reads it, so the two agree (tested)."""
+    rows = [r for r in summarise(read_runs(folder))
+            if (r["experiment"], r["variant"], r["profile"]) == (experiment, variant, profile)]
+    if not rows:
+        raise ValueError(f"no {profile} run of {experiment} ({variant or 'its own folders'}) under "
+                         f"{folder or data_dir('results')}: run `python -m wmthesis reproduce {experiment}` first")
+    row = rows[0]
+    interval = "" if row["ci_low"] is None else f" [{row['ci_low']:.1f}, {row['ci_high']:.1f}]"
+    return (f"headline · {experiment} · {variant or 'default'} · {profile}: {row['mean']:.1f}{interval} "
+            f"over {row['n']} seed{'s' if row['n'] > 1 else ''} ({' '.join(map(str, row['seeds']))})")
+
+
 def write_summary(folder: str | Path | None = None, readme: str | Path | None = None) -> list[dict]:
     """Read every run under ``folder`` (default ``data/results``), write ``summary.md`` (the
     headline table, :mod:`wmthesis.headline`, then every row), ``summary.json``, ``summary.csv``
@@ -215,7 +236,8 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
     folder = Path(folder) if folder is not None else data_dir("results")
     rows = summarise(read_runs(folder))
     headline = headline_table(rows)
-    outputs = {"md": f"## Headline\n\n{headline}\n\n## Every variant\n\n{markdown_table(rows)}\n",
+    outputs = {"md": f"## Headline\n\n{headline}\n\n## Ablations: each variant against its headline row, paired by seed"
+                     f"\n\n{ablation_table(rows)}\n\n## Every variant\n\n{markdown_table(rows)}\n",
                "json": json.dumps({"interval": INTERVAL, "rows": rows}, indent=1),
                "csv": _csv(rows)}
     for suffix, text in outputs.items():
@@ -231,4 +253,4 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
 
 
 __all__ = ["Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
-           "write_summary", "INTERVAL"]
+           "write_summary", "headline_line", "HEADLINE_LINE", "INTERVAL"]

@@ -1,0 +1,111 @@
+"""The committed notebooks as a reader meets them: run top to bottom, on code that is in the
+history, stamped, each headline number the summary's. (Every notebook also runs in ``smoke`` in the
+suite, through nbval: ``testpaths`` in pyproject.toml.)"""
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from wmthesis.stamp import git_commit, read_stamp, stamp
+from wmthesis.summary import HEADLINE_LINE
+
+ROOT = Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+# Committed outputs from before the stamp (issue 56): each leaves this set when it is re-run.
+AWAITING_RERUN = {"00_environments", "01_sokoban_world_models", "02_boxing_world_models",
+                  "03_boxing_world_models_alphazero", "04_planet_sokoban", "05_planet_boxing",
+                  "06_kl_scale_free_nats_search", "07_sokoban_search", "08_planet_freeway", "09_planet_boxing_value",
+                  "10_planet_value_planner"}
+
+
+def code_cells(path: Path) -> list[dict]:
+    return [c for c in json.loads(path.read_text())["cells"] if c["cell_type"] == "code"]
+
+
+def output_text(cell: dict) -> str:
+    parts = []
+    for output in cell.get("outputs", []):
+        parts.append("".join(output.get("text", "")))
+        data = output.get("data", {})
+        parts += ["".join(data.get(kind, "")) for kind in ("text/plain", "text/markdown")]
+    return "\n".join(parts)
+
+
+def in_history(commit: str) -> bool:
+    """Whether ``commit`` is HEAD or one of its ancestors in this checkout."""
+    return subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", commit, "HEAD"],
+                          capture_output=True).returncode == 0
+
+
+def check_notebook(path: Path) -> None:
+    """Raise AssertionError unless ``path``'s code cells ran in order, without an error, and the
+    last one carries a stamp of a committed, unchanged checkout in ``quick``."""
+    cells = code_cells(path)
+    assert [c.get("execution_count") for c in cells] == list(range(1, len(cells) + 1)), \
+        f"{path.name}: its code cells did not run once each, top to bottom"
+    errors = [o.get("ename") for c in cells for o in c.get("outputs", []) if o.get("output_type") == "error"]
+    assert not errors, f"{path.name}: error outputs {errors}"
+    found = read_stamp(output_text(cells[-1]))
+    assert found is not None, f"{path.name}: its last cell prints no run stamp (wmthesis.stamp.stamp)"
+    assert not found["changes"], f"{path.name}: run on code that differed from commit {found['commit']}"
+    assert in_history(found["commit"]), f"{path.name}: its stamp's commit {found['commit']} is not in the history"
+    assert found["profile"] == "quick", f"{path.name}: committed outputs are quick's, not {found['profile']}'s"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_a_committed_notebook_ran_top_to_bottom_on_committed_code(path):
+    if git_commit() is None:
+        pytest.skip("not a git checkout: the stamps' commits cannot be looked up")
+    if path.stem in AWAITING_RERUN:
+        pytest.skip(f"{path.name}: committed outputs from before the run stamp, awaiting a re-run (issue 56)")
+    check_notebook(path)
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_a_committed_notebook_s_headline_numbers_are_the_summary_s(path):
+    summary = json.loads((ROOT / "data" / "results" / "summary.json").read_text())["rows"]
+    rows = {(r["experiment"], r["variant"] or "default", r["profile"]): r for r in summary}
+    for cell in code_cells(path):
+        for line in HEADLINE_LINE.finditer(output_text(cell)):
+            key = (line["experiment"], line["variant"], line["profile"])
+            assert key in rows, f"{path.name}: {line[0]!r} has no row in summary.json"
+            row = rows[key]
+            assert (float(line["mean"]), int(line["n"]), list(map(int, line["seeds"].split()))) == \
+                (round(row["mean"], 1), row["n"], row["seeds"]), f"{path.name}: {line[0]!r} is not the summary's row"
+
+
+def test_the_check_refuses_a_notebook_run_out_of_order_on_changed_code_or_unstamped(tmp_path):
+    def notebook(counts, last_output):
+        cells = [{"cell_type": "code", "execution_count": n, "source": "", "metadata": {},
+                  "outputs": [{"output_type": "stream", "name": "stdout", "text": last_output if i == len(counts) - 1
+                               else ""}]} for i, n in enumerate(counts)]
+        path = tmp_path / "n.ipynb"
+        path.write_text(json.dumps({"cells": cells}))
+        return path
+
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True).stdout.strip()
+    if not head:
+        pytest.skip("not a git checkout")
+    good = stamp("quick", time.time() - 3).replace(git_commit(), head)
+    check_notebook(notebook([1, 2], good))
+    with pytest.raises(AssertionError, match="top to bottom"):
+        check_notebook(notebook([2, 1], good))
+    with pytest.raises(AssertionError, match="no run stamp"):
+        check_notebook(notebook([1, 2], "wall time 3 s"))
+    with pytest.raises(AssertionError, match="differed from commit"):
+        check_notebook(notebook([1, 2], good.replace(head, head + "+changes")))
+    with pytest.raises(AssertionError, match="not in the history"):
+        check_notebook(notebook([1, 2], good.replace(head, "0000000")))
+    with pytest.raises(AssertionError, match="quick's, not smoke's"):
+        check_notebook(notebook([1, 2], good.replace("profile quick", "profile smoke")))
+
+
+def test_a_stamp_reads_back():
+    line = stamp("smoke", time.time() - 4)
+    found = read_stamp("noise\n" + line + "\n")
+    assert found["profile"] == "smoke" and found["commit"] + ("+changes" if found["changes"] else "") == git_commit()
+    assert 4 <= found["seconds"] <= 60 and found["threads"] >= 1 and "cores" in found["cpu"]
+    assert read_stamp("nothing here") is None
