@@ -91,3 +91,18 @@ def test_mdn_rnn_fits_a_known_mixture():
     # The true conditional density: two equal Gaussians of std 0.1 in 2-D, well separated.
     true_nll = -math.log(0.5) + 2 * (math.log(0.1) + 0.5 * math.log(2 * math.pi)) + 1.0
     assert nll < true_nll + 0.3, (nll, true_nll)
+
+
+def test_the_seed_curves_figure_draws_every_seed_by_agent_steps():
+    import matplotlib
+    matplotlib.use("Agg")
+    from wmthesis.world_models.figures import plot_seed_curves
+
+    curve = lambda shift: [{"generation": g, "mean": g + shift, "best": g + shift + 5, "agent_steps": 1000 * g,  # noqa: E731
+                            **({"eval_return": g + shift, "eval_std": 1.0} if g % 2 == 0 else {})}
+                           for g in range(1, 5)]
+    fig = plot_seed_curves({0: curve(0), 1: curve(-10)}, human=12.1, thesis=18)
+    left, right = fig.axes
+    assert len(left.lines) == 2 * 2 + 2  # mean and best per seed, two reference lines
+    assert list(left.lines[0].get_xdata()) == [0.001, 0.002, 0.003, 0.004]
+    assert [list(line.get_ydata()) for line in right.lines[:2]] == [[2, 4], [-8, -6]]

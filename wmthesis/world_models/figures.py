@@ -36,6 +36,35 @@ def plot_learning_curve(curve: list[dict], ax=None, title: str | None = None):
     return ax.figure
 
 
+def plot_seed_curves(curves: dict, human: float | None = None, thesis: float | None = None):
+    """Every seed's evolution at a glance, so a stalled seed shows: per seed (one colour), the
+    population's mean (solid) and best (dotted) fitness by real agent steps (x 1e6, so recipes of
+    other populations compare), and the real-game returns of the CMA-ES mean (points) on the
+    right. ``curves``: ``{label: controller curve}``; ``human``/``thesis``: reference lines.
+    Returns the figure."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    for i, (label, curve) in enumerate(curves.items()):
+        colour = f"C{i % 10}"
+        steps = [e["agent_steps"] / 1e6 for e in curve]
+        left.plot(steps, [e["mean"] for e in curve], color=colour, lw=1.4, label=str(label))
+        left.plot(steps, [e["best"] for e in curve], color=colour, lw=0.8, ls=":")
+        evals = [(e["agent_steps"] / 1e6, e["eval_return"]) for e in curve if "eval_return" in e]
+        if evals:
+            right.plot(*zip(*evals), "o-", color=colour, ms=4, lw=1, label=str(label))
+    for ax in (left, right):
+        for value, name, style in ((human, "human", "--"), (thesis, "thesis", "-.")):
+            if value is not None:
+                ax.axhline(value, color="grey", ls=style, lw=0.8, label=name)
+        ax.set_xlabel("real agent steps (millions)")
+    left.set_ylabel("return")
+    left.set_title("population fitness: mean (solid), best (dotted)")
+    right.set_title("CMA-ES mean in the real game")
+    left.legend(fontsize=7, ncol=2)
+    right.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    return fig
+
+
 def plot_dream(curves: dict, ax=None):
     """Dream fitness (CMA-ES mean of the population, line) and the real-game return of the
     CMA-ES mean (points, mean +- std) per generation, one colour per temperature.
