@@ -32,6 +32,7 @@ from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxin
 from wmthesis.experiments.planet_boxing_value import (VALUE_VARIANTS as BOXING_VALUE_VARIANTS,
                                                       folder_variant as boxing_folder_variant, planet_boxing_value)
 from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value
+from wmthesis.experiments.planning_budget import planning_budget
 from wmthesis.experiments.sokoban_search import sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
@@ -49,7 +50,7 @@ RECIPES = {"sokoban-wm": sokoban_world_models, "boxing-wm": boxing_world_models,
            **{name: functools.partial(planet_experiment, name) for name in PLANET_GAMES},
            "planet-boxing-study": planet_boxing_study, "planet-boxing-agent": planet_boxing_agent,
            "planet-boxing-value": planet_boxing_value, "planet-freeway-value": planet_freeway_value,
-           "sokoban-search": sokoban_search}
+           "sokoban-search": sokoban_search, "planning-budget": planning_budget}
 if tuple(RECIPES) != EXPERIMENTS:
     raise ImportError(f"the recipes {tuple(RECIPES)} are not wmthesis.config.EXPERIMENTS {EXPERIMENTS}")
 # Experiment -> its registry of variants (:mod:`wmthesis.variants`), for those that have them.

@@ -72,7 +72,7 @@ def random_board_row(boards, seed: int = 0, max_steps: int = 120) -> dict:
     actions seeded from ``(seed, i)``)."""
     start, solved = time.perf_counter(), 0
     for i, board in enumerate(boards):
-        env = _board_env(board, max_steps, observation="grid")
+        env = board_env(board, max_steps, observation="grid")
         env.reset(options={"board": board})
         rng = np.random.default_rng(derive_seeds(seed, i)[0])
         solved += _solves(env, rng.integers(8, size=max_steps))
@@ -113,7 +113,7 @@ def solve_boards(agent, boards, max_steps: int = 120, progress: bool = True, lev
     results = []
     levels = range(len(boards)) if levels is None else levels
     for index, board in zip(levels, tqdm(boards, desc="levels", disable=not progress)):
-        play = agent.play(_board_env(board, max_steps, **agent.inputs.env_options), board=board)
+        play = agent.play(board_env(board, max_steps, **agent.inputs.env_options), board=board)
         record = play.record()
         del record["seed"]
         results.append({"level": int(index), **record})
@@ -127,7 +127,7 @@ def check_board_solutions(boards, records: list[dict], max_steps: int = 120) -> 
     in a fresh environment; whether it ends with every box on a target within ``max_steps``."""
     verdicts = []
     for record in records:
-        env = _board_env(boards[record["level"]], max_steps, observation="grid")
+        env = board_env(boards[record["level"]], max_steps, observation="grid")
         env.reset(options={"board": boards[record["level"]]})
         verdicts.append(_solves(env, record["actions"]))
     return verdicts
@@ -143,7 +143,8 @@ def _solves(env, actions) -> bool:
     return bool(terminated)
 
 
-def _board_env(board: np.ndarray, max_steps: int, **options):
+def board_env(board: np.ndarray, max_steps: int, **options):
+    """A real environment for ``board`` (codes (h, w)): its size and box count, ending after ``max_steps``."""
     boxes = int(np.isin(board, (BOX, BOX_ON_TARGET)).sum())
     return SokobanEnv(board.shape, max(boxes, 1), max_steps=max_steps, **options)
 
@@ -161,4 +162,4 @@ def check_solutions(variant: str, records: list[dict]) -> list[bool]:
 
 __all__ = ["play_levels", "solve_boards", "check_board_solutions", "agent_row", "random_row", "astar_row",
            "random_board_row", "astar_board_row", "replay_states", "check_solutions",
-           "THESIS_SOLVED", "random_play"]
+           "THESIS_SOLVED", "random_play", "board_env"]

@@ -1,0 +1,59 @@
+"""Planning that pays (issue 57): the same agent with and without search, budget by budget."""
+import csv
+
+import numpy as np
+
+from wmthesis.envs.levels import parse_levels
+from wmthesis.sokoban_search.agent import SearchAgent
+from wmthesis.sokoban_search.budget import greedy_play
+from wmthesis.sokoban_search.search import Simulator, best_first
+
+LEVEL = parse_levels("""; 1
+####
+# .#
+#  ###
+#*@  #
+#  $ #
+#  ###
+####
+""")[0]
+
+
+def steps_to_go(states: np.ndarray) -> np.ndarray:
+    """A test-only oracle: each state's shortest solution in the true rules (0 when solved)."""
+    plans = [best_first(Simulator().expand, s, budget=20_000).actions for s in states]
+    return np.array([99 if plan is None else len(plan) for plan in plans])
+
+
+def test_without_search_the_agent_follows_its_value_one_step_at_a_time():
+    oracle = SearchAgent(Simulator(), heuristic=steps_to_go)
+    shortest = len(best_first(Simulator().expand, LEVEL[1:-1, 1:-1], budget=20_000).actions)
+    play = greedy_play(oracle, LEVEL)
+    assert play["solved"] and play["steps"] == shortest and play["expanded"] == 0
+    blind = greedy_play(SearchAgent(Simulator()), LEVEL, max_steps=30)  # no value: the first new state each step
+    assert not blind["solved"] and blind["steps"] == 30
+
+
+def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_nothing_to_do(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    from wmthesis.experiments import reproduce
+    from wmthesis.experiments.planning_budget import COLUMNS, SOKOBAN_BUDGETS, SOKOBAN_LEVELS
+
+    metrics = reproduce("planning-budget", "smoke", 0, progress=False)
+    rows = metrics["rows"]
+    assert [r["budget"] for r in rows] == [0, *SOKOBAN_BUDGETS["smoke"]]
+    assert all(r["levels"] == SOKOBAN_LEVELS["smoke"] and 0 <= r["score"] <= 100 and r["ms_per_action"] > 0
+               for r in rows)
+    assert all(r["no_search_score"] == rows[0]["score"] and r["gain"] == r["score"] - r["no_search_score"]
+               for r in rows)
+    with open(tmp_path / "results" / "planning_budget-smoke.csv") as f:
+        table = list(csv.DictReader(f))
+    assert tuple(table[0]) == COLUMNS == ("planner", "game", "budget", "seed", "score", "no_search_score",
+                                          "ms_per_action")
+    assert [(r["planner"], r["game"], int(r["budget"])) for r in table] == \
+        [("sokoban-search", "boxoban-medium", b) for b in (0, *SOKOBAN_BUDGETS["smoke"])]
+    saved = sorted((tmp_path / "smoke" / "planning-budget" / "seed0").glob("budget-*.json"))
+    assert len(saved) == 2 * len(rows)  # each budget in two parts
+    stamps = [p.stat().st_mtime_ns for p in saved]
+    again = reproduce("planning-budget", "smoke", 0, progress=False)
+    assert again["rows"] == rows and [p.stat().st_mtime_ns for p in saved] == stamps

@@ -1,0 +1,126 @@
+"""Planning that pays (issue 57; the thesis's promise, chapter 1): each planner's score against its
+search budget, on a seed's trained models, the same levels for every budget. Measured so far: the
+Sokoban agent (``sokoban-search``) on the first Boxoban medium report levels, without search and
+under each node budget of :data:`SOKOBAN_BUDGETS`. Writes the run's ``metrics.json`` and, over every
+seed run in the profile, ``data/results/planning_budget.csv`` (``quick``; other profiles
+``planning_budget-PROFILE.csv``)."""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import time
+
+import numpy as np
+
+from wmthesis.config import for_profile, profile_name
+from wmthesis.envs.boxoban import BOXOBAN_SPLITS
+from wmthesis.metrics import aggregate
+from wmthesis.runs import (atomic_path, built_on, hold, releasing_holds, results_folder, run_header, run_jobs,
+                           work_folder, write_json)
+from wmthesis.sokoban_search.budget import NO_SEARCH, budget_jobs, budget_plays, ms_per_action
+from wmthesis.sokoban_search.config import SokobanSearchConfig
+from wmthesis.sokoban_search.iteration import load_run
+from wmthesis.utils import data_dir
+from wmthesis.variants import no_variant
+from wmthesis.viz import save_figure
+
+SOKOBAN_BUDGETS = {"smoke": (50, 300), "quick": (1_000, 5_000, 20_000, 40_000, 160_000),
+                   "thesis": (1_000, 5_000, 20_000, 40_000, 160_000)}  # nodes a search may expand
+SOKOBAN_LEVELS = {"smoke": 4, "quick": 500, "thesis": 1000}  # the first Boxoban medium report levels
+COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action")
+
+
+@releasing_holds
+def planning_budget(profile: str | None = None, seed: int = 0, variant: str | None = None,
+                    progress: bool = True) -> dict:
+    """The budget curve of every planner measured so far on ``seed``'s trained models (see the
+    module docstring); resumable level by level. Returns the metrics: one row per planner and
+    budget (score, the same agent without search on the same levels, the paired gain over it with
+    its 95% t interval over levels, milliseconds per action)."""
+    no_variant("planning-budget", variant)
+    profile = profile_name(profile)
+    started = time.time()
+    rows = sokoban_curve(profile, seed, progress)
+    out = results_folder("planning-budget", profile, seed)
+    figure = save_figure(plot_budget_curves(rows), out / "budget_curve.png")
+    curve = ", ".join(f"{r['budget']:,}: {r['score']:.1f}%" for r in rows)
+    metrics = {**run_header("planning-budget", profile, seed, time.time() - started),
+               "summary": f"Sokoban by search, % of {rows[0]['levels']} Boxoban medium levels by node budget: {curve}",
+               "rows": rows, "files": {"figures": [str(figure)]}}
+    write_json(out / "metrics.json", metrics)
+    write_budget_table(profile)
+    return metrics
+
+
+def plot_budget_curves(rows: list[dict]):
+    """Score against budget (log scale; no search at the left edge), one panel per planner and
+    game, each seed a line, the mean over seeds in black. Returns the figure."""
+    import matplotlib.pyplot as plt
+
+    panels = sorted({(r["planner"], r["game"]) for r in rows})
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.4), squeeze=False)
+    for ax, (planner, game) in zip(axes[0], panels):
+        mine = [r for r in rows if (r["planner"], r["game"]) == (planner, game)]
+        searched = sorted({r["budget"] for r in mine if r["budget"] != NO_SEARCH})
+        x = {NO_SEARCH: searched[0] / 4 if searched else 1, **{b: b for b in searched}}
+        for seed in sorted({r["seed"] for r in mine}):
+            line = sorted((r for r in mine if r["seed"] == seed), key=lambda r: r["budget"])
+            ax.plot([x[r["budget"]] for r in line], [r["score"] for r in line], "o-", lw=1, ms=3, alpha=0.6,
+                    label=f"seed {seed}")
+        means = [np.mean([r["score"] for r in mine if r["budget"] == b]) for b in x]
+        ax.plot(list(x.values()), means, "k-", lw=2, label="mean")
+        ax.set_xscale("log")
+        ax.set_xticks(list(x.values()), ["none", *(f"{b:,}" for b in searched)], rotation=30, fontsize=7)
+        ax.set_xlabel("search budget")
+        ax.set_ylabel("score")
+        ax.set_title(f"{planner} on {game}", fontsize=9)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def sokoban_curve(profile: str, seed: int, progress: bool) -> list[dict]:
+    """The Sokoban agent's rows: without search (budget 0) and under each of :data:`SOKOBAN_BUDGETS`."""
+    cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
+    folder = work_folder(profile, "sokoban-search", seed) / "pixels"
+    if load_run(folder, cfg) is None:
+        built_on("sokoban-search", profile, seed, progress=progress)
+    work = hold(work_folder(profile, "planning-budget", seed))
+    budgets = (NO_SEARCH, *SOKOBAN_BUDGETS[profile])
+    jobs = budget_jobs(work, folder, cfg, BOXOBAN_SPLITS["report"]["medium"], SOKOBAN_LEVELS[profile], budgets)
+    run_jobs(jobs, progress)
+    plays = {budget: budget_plays(jobs, budget) for budget in budgets}
+    without = np.array([p["solved"] for p in plays[NO_SEARCH]], np.float64)
+    rows = []
+    for budget in budgets:
+        solved = np.array([p["solved"] for p in plays[budget]], np.float64)
+        gain = aggregate(100.0 * (solved - without))
+        rows.append({"planner": "sokoban-search", "game": "boxoban-medium", "budget": budget, "seed": seed,
+                     "score": 100.0 * solved.mean(), "no_search_score": 100.0 * without.mean(),
+                     "ms_per_action": ms_per_action(plays[budget]), "gain": gain["mean"],
+                     "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(solved)})
+    return rows
+
+
+def write_budget_table(profile: str) -> str:
+    """Every seed's rows of ``profile`` (each run's ``metrics.json``) as one CSV of :data:`COLUMNS`,
+    ``data/results/planning_budget.csv`` (``planning_budget-PROFILE.csv`` outside ``quick``);
+    returns its text."""
+    results = data_dir("results")
+    rows = []
+    for path in sorted(results.glob(f"planning-budget/{profile}-seed*/metrics.json")):
+        rows += json.loads(path.read_text())["rows"]
+    rows.sort(key=lambda r: (r["planner"], r["game"], r["seed"], r["budget"]))
+    text = io.StringIO()
+    writer = csv.DictWriter(text, COLUMNS, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    writer.writerows({**r, **{k: round(r[k], 3) for k in ("score", "no_search_score", "ms_per_action")}}
+                     for r in rows)
+    name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
+    with atomic_path(results / name) as tmp:
+        tmp.write_text(text.getvalue())
+    return text.getvalue()
+
+
+__all__ = ["planning_budget", "sokoban_curve", "write_budget_table", "plot_budget_curves", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS", "COLUMNS"]
