@@ -33,8 +33,12 @@ def test_play_refuses_what_it_cannot_do_before_anything_plays(tmp_path, capsys, 
     assert "x.mp4 cannot be written: its folder" in capsys.readouterr().err
     assert main(["play", "sokoban-search", "--record", str(tmp_path / "x.mp4")]) == 2
     assert "name a .rrd file" in capsys.readouterr().err
-    assert main(["play", "boxing-wm"]) == 2
-    assert "python -m wmthesis reproduce boxing-wm" in capsys.readouterr().err
+    assert main(["play", "planet-boxing-agent"]) == 2
+    assert "python -m wmthesis reproduce planet-boxing-agent" in capsys.readouterr().err
+    assert main(["play", "sokoban-search", "--variant", "x"]) == 2
+    assert "has no variants" in capsys.readouterr().err
+    assert main(["play", "boxing-wm", "--variant", "x"]) == 2
+    assert "unknown variant 'x' of boxing-wm" in capsys.readouterr().err
 
 
 def test_play_names_a_missing_agent_and_the_command_that_trains_it(tmp_path, capsys, monkeypatch):
@@ -42,3 +46,28 @@ def test_play_names_a_missing_agent_and_the_command_that_trains_it(tmp_path, cap
     assert main(["play", "sokoban-search", "--profile", "smoke", "--seed", "3", "--bouts", "1"]) == 2
     err = capsys.readouterr().err
     assert "no trained sokoban-search agent in" in err and "reproduce sokoban-search --profile smoke --seed 3`" in err
+
+
+def test_a_boxing_agent_plays_the_bouts_its_score_was_measured_on(tmp_path, monkeypatch, capsys):
+    """A smoke run's agent file (vision's encoder, memory, controller: about 3 MB here) plays its
+    evaluation bouts to the same returns; its video has every bout's frames."""
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    from wmthesis.experiments import reproduce
+    from wmthesis.world_models.agent import load_agent
+
+    metrics = reproduce("boxing-wm", "smoke", 0, progress=False)
+    agent = load_agent(metrics["files"]["agent"])
+    assert agent.params.shape == (18 * (16 + 32 + 1),) and agent.info["commit"] and agent.info["generation"] == 2
+    result = play_module.play("boxing-wm", profile="smoke", bouts=2, video=tmp_path / "bouts.mp4",
+                              record=tmp_path / "bouts.rrd", on_play=lambda line: None)
+    assert [p["return"] for p in result["plays"]] == metrics["returns"]
+    assert result["score"] == metrics["score"]["mean"] and result["variant"] == "population-16"
+    video = cv2.VideoCapture(str(tmp_path / "bouts.mp4"))
+    frames, width = int(video.get(cv2.CAP_PROP_FRAME_COUNT)), int(video.get(cv2.CAP_PROP_FRAME_WIDTH))
+    video.release()
+    assert frames == sum(p["steps"] + 1 for p in result["plays"]) and width == 256
+    assert main(["play", "boxing-wm", "--profile", "smoke", "--seed", "4"]) == 2
+    assert "reproduce boxing-wm --profile smoke --seed 4`" in capsys.readouterr().err
+    Path(metrics["files"]["agent"]).write_bytes(b"not an agent")
+    with pytest.raises(ValueError, match="cannot read .*agent.pt"):
+        load_agent(metrics["files"]["agent"])

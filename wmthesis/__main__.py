@@ -160,7 +160,8 @@ def cmd_solve_sokoban(args) -> int:
 def cmd_play(args) -> int:
     from wmthesis.play import play  # light: it checks the paths before anything heavy loads or plays
 
-    play(args.experiment, profile=args.profile, seed=args.seed, bouts=args.bouts, record=args.record, video=args.video)
+    play(args.experiment, profile=args.profile, seed=args.seed, variant=args.variant, bouts=args.bouts,
+         record=args.record, video=args.video)
     return 0
 
 
@@ -300,6 +301,7 @@ def parser() -> argparse.ArgumentParser:
     player.add_argument("experiment", choices=EXPERIMENTS)
     player.add_argument("--profile", choices=PROFILES)
     player.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
+    player.add_argument("--variant", help="a variant of the experiment (default: its default)")
     player.add_argument("--bouts", type=at_least(1), default=10, help="bouts or levels to play (default 10)")
     player.add_argument("--record", help="a rerun recording of the plays (.rrd)")
     player.add_argument("--video", help="an mp4 of the plays' frames")

@@ -6,7 +6,9 @@ play's result is printed as it ends; ``record`` writes a rerun recording of the 
 an mp4 of their frames (opencv). Paths are checked before anything plays; an agent that is not
 there is one line naming what is missing and the command that trains it.
 
-Agents that play today: ``sokoban-search`` (its shipped pixel agents, seeds 0-2 of ``quick``).
+Agents that play today: ``sokoban-search`` (its shipped pixel agents, seeds 0-2 of ``quick``) and
+``boxing-wm`` (a run's ``agent.pt``: vision, memory and controller, :mod:`wmthesis.world_models.agent`),
+on the bouts its summary row was scored on.
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ import numpy as np
 from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.utils import check_choice
 
-PLAYABLE = ("sokoban-search",)
+PLAYABLE = ("sokoban-search", "boxing-wm")
 
 
 def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
@@ -34,10 +36,11 @@ def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
     return path
 
 
-def play(experiment: str, *, profile: str | None = None, seed: int = 0, bouts: int = 10, record=None, video=None,
-         on_play=print) -> dict:
-    """``bouts`` plays of ``experiment``'s trained agent (``seed``'s run of ``profile``); returns
-    ``plays`` (one dict each) and ``score`` (their mean: the solve rate for Sokoban)."""
+def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant: str | None = None, bouts: int = 10,
+         record=None, video=None, on_play=print) -> dict:
+    """``bouts`` plays of ``experiment``'s trained agent (``seed``'s run of ``profile``; ``variant``:
+    one of its variants, None the default); returns ``plays`` (one dict each) and ``score`` (their
+    mean: the solve rate for Sokoban)."""
     check_choice("experiment", experiment, EXPERIMENTS)
     if experiment not in PLAYABLE:
         raise ValueError(f"play shows {', '.join(PLAYABLE)} today; {experiment}'s agents do not ship yet "
@@ -45,7 +48,51 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, bouts: i
     if bouts < 1:
         raise ValueError(f"--bouts must be 1 or more, got {bouts}")
     record, video = check_output(record, ".rrd"), check_output(video, ".mp4")
+    if experiment == "boxing-wm":
+        return _play_boxing(profile_name(profile), seed, variant, bouts, record, video, on_play)
+    if variant is not None:
+        raise ValueError(f"experiment {experiment!r} has no variants, got {variant!r}")
     return _play_sokoban(profile_name(profile), seed, bouts, record, video, on_play)
+
+
+def _play_boxing(profile: str, seed: int, variant: str | None, bouts: int, record: Path | None, video: Path | None,
+                 on_play) -> dict:
+    """The World Models agent of ``boxing-wm`` on the first ``bouts`` of the bouts its score was
+    measured on (:func:`~wmthesis.world_models.evolution.final_bout_seeds`), all at once."""
+    from wmthesis.envs.vector import make_game
+    from wmthesis.runs import work_folder
+    from wmthesis.world_models.agent import load_agent
+    from wmthesis.world_models.evolution import evaluate_population, final_bout_seeds
+    from wmthesis.world_models.variants import BOXING_WM, agent_path
+
+    name = BOXING_WM.check(variant).name
+    path = agent_path(work_folder(profile, "boxing-wm", seed), name)
+    if not path.is_file():
+        raise FileNotFoundError(f"no trained boxing-wm agent at {path}: train it with `python -m wmthesis reproduce "
+                                f"boxing-wm --profile {profile} --seed {seed}" + (f" --variant {variant}`" if variant else "`"))
+    agent = load_agent(path)
+    cfg = agent.info["controller_config"]
+    game, shown = make_game("boxing", bouts, noop_max=cfg["noop_max"]), [] if record or video else None
+    try:
+        returns, steps = evaluate_population(agent.params[None], game, agent.vision, agent.memory,
+                                             seeds=final_bout_seeds(bouts), max_steps=cfg["max_steps"], frames=shown)
+    finally:
+        game.close()
+    plays = [{"bout": k, "return": float(r), "steps": int(n)} for k, (r, n) in enumerate(zip(returns[0], steps[0]))]
+    for p in plays:
+        on_play(f"bout {p['bout']}: {p['return']:+.0f} in {p['steps']} steps")
+    score = float(np.mean(returns))
+    on_play(f"mean {score:.1f} over {bouts} bout{'s' if bouts > 1 else ''} ({name}, {profile}, seed {seed})")
+    if shown:
+        frames = np.concatenate([np.stack([f[k] for f in shown[:p["steps"] + 1]]) for k, p in enumerate(plays)])
+        if record is not None:
+            from wmthesis.viz import record_frames
+
+            record_frames(record, {"frame": frames})
+        if video is not None:
+            _write_video(video, np.repeat(np.repeat(frames, 4, axis=1), 4, axis=2), fps=15)
+    return {"experiment": "boxing-wm", "variant": name, "profile": profile, "seed": seed, "plays": plays,
+            "score": score}
 
 
 def _play_sokoban(profile: str, seed: int, levels: int, record: Path | None, video: Path | None, on_play) -> dict:

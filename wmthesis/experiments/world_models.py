@@ -15,15 +15,18 @@ from wmthesis.envs.vector import make_game
 from wmthesis.metrics import score_summary
 from wmthesis.references import published
 from wmthesis.rollouts import collect
+from wmthesis.stamp import git_commit
 from wmthesis.runs import (first_run_seconds, hold, read_json, releasing_holds, results_folder, run_header, work_folder,
                            write_json)
 from wmthesis.viz import image_rows, record_frames, save_figure
 from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
-from wmthesis.world_models.evolution import evaluate_population, train_controller
+from wmthesis.world_models.agent import save_agent
+from wmthesis.world_models.evolution import evaluate_population, final_bout_seeds, train_controller
 from wmthesis.world_models.figures import plot_learning_curve
 from wmthesis.world_models.prediction import open_loop, open_loop_errors
 from wmthesis.world_models.train import encode_store, reconstruct, train_memory, train_vision
-from wmthesis.world_models.variants import BOXING_WM, controller_config, controller_folder, folder_variant
+from wmthesis.world_models.variants import (BOXING_WM, agent_path, controller_config, controller_folder,
+                                            folder_variant)
 from wmthesis.world_models.vision import VAEVision
 
 
@@ -46,10 +49,12 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
                            progress=progress)
     cached = read_json(out / "metrics.json")
     if (cached is not None and cached.get("controller_curve") == json.loads(json.dumps(run.curve, default=float))
-            and all(Path(f).is_file() for f in [*cached["files"]["figures"], cached["files"]["recording"]])):
+            and all(Path(f).is_file() for f in [*cached["files"]["figures"], cached["files"]["recording"],
+                                                cached["files"].get("agent", "")])):
         return cached  # this controller's evaluation, figures and recording, made before
 
     returns = _final_score(run, vision, memory, controller_cfg, profile)
+    agent = save_agent(agent_path(work, chosen.name), vae, memory, run, for_profile(MemoryConfig, profile), git_commit())
 
     with EpisodeStore(store) as episodes:
         episode = episodes.episode(len(episodes) - 1)  # a validation episode
@@ -69,7 +74,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
         "reference": published("boxing-wm"),
         "controller_curve": run.curve, "vision_history": wm.vision_history, "memory_history": wm.memory_history,
         **{f"open_loop_{k}": v.tolist() if isinstance(v, np.ndarray) else v for k, v in errors.items()},
-        "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
+        "returns": returns.tolist(),
+        "files": {"figures": [str(f) for f in figures], "recording": str(recording), "agent": str(agent)},
     }
     metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
     write_json(out / "metrics.json", metrics, default=float)
@@ -82,8 +88,7 @@ def _final_score(run, vision, memory, cfg, profile: str) -> np.ndarray:
     n_eval = 2 if profile == "smoke" else 10
     game = make_game("boxing", n_eval, noop_max=cfg.noop_max)
     try:
-        returns, _ = evaluate_population(run.mean_params[None], game, vision, memory,
-                                         seeds=np.arange(n_eval) + 1_000_000,
+        returns, _ = evaluate_population(run.mean_params[None], game, vision, memory, seeds=final_bout_seeds(n_eval),
                                          max_steps=cfg.max_steps if profile == "smoke" else None)
     finally:
         game.close()

@@ -67,7 +67,7 @@ def _population(params, in_features: int, n_actions: int, device) -> tuple[torch
 
 @torch.inference_mode()
 def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, max_steps: int | None = None,
-                        timings: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                        timings: dict | None = None, frames: list | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Play every candidate on the same E seeded episodes in the real game, all at once.
 
     ``params``: (P, D) flat controllers; ``game``: N = P * E envs (:func:`make_game`), env
@@ -76,14 +76,18 @@ def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, m
     during an episode's leading ``game.noops``), the memory steps on ``(z, a)`` to give the
     next h (N, H), the game steps. Stops when every episode ended or after ``max_steps``
     steps. Returns returns and steps, each (P, E). ``timings`` (a dict of floats) accumulates
-    seconds under ``vision``, ``memory`` and ``controller``.
+    seconds under ``vision``, ``memory`` and ``controller``; ``frames`` (a list) gets every
+    step's frames, (N, 64, 64, 3) uint8 each, the first the starts' (env n's episode ends at
+    its ``steps``).
     """
     P, E = len(params), len(seeds)
     if game.num_envs != P * E:
         raise ValueError(f"the game has {game.num_envs} envs; {P} candidates x {E} episodes need {P * E}")
-    frames = game.reset(np.tile(np.asarray(seeds), P))
+    shown = game.reset(np.tile(np.asarray(seeds), P))
+    if frames is not None:
+        frames.append(shown.copy())
     with timed(timings, "vision"):
-        z = vision(torch.from_numpy(frames))
+        z = vision(torch.from_numpy(shown))
     H = 0 if memory is None else memory.hidden_size
     weight, bias = _population(params, z.shape[-1] + H, game.n_actions, z.device)
     state = None if memory is None else memory.initial_state(P * E, z.device)
@@ -98,14 +102,25 @@ def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, m
                 out = memory.step(z, actions, state)
                 h, state = out.hidden, out.state
         alive = ~game.done
-        frames, rewards, done = game.step(actions.cpu().numpy())
+        shown, rewards, done = game.step(actions.cpu().numpy())
+        if frames is not None:
+            frames.append(shown.copy())
         returns += rewards
         steps += alive
         if done.all():
             break
         with timed(timings, "vision"):
-            z = vision(torch.from_numpy(frames))
+            z = vision(torch.from_numpy(shown))
     return returns.reshape(P, E), steps.reshape(P, E)
+
+
+FINAL_SEEDS = 1_000_000  # the first seed of the bouts a finished controller is scored on
+
+
+def final_bout_seeds(n: int) -> np.ndarray:
+    """The seeds of the ``n`` bouts a finished controller is scored on (the same for every
+    controller and seed, apart from every generation's): (n,)."""
+    return np.arange(n) + FINAL_SEEDS
 
 
 def random_play(game, seeds, *, seed: int = 0, max_steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:

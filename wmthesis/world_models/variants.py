@@ -50,4 +50,12 @@ def controller_folder(work: Path, variant: str | None = None) -> Path:
     return Path(work) / ("controller" if name is None else f"controller-{name}")
 
 
-__all__ = ["BOXING_WM", "ROOT", "folder_variant", "controller_config", "controller_folder"]
+def agent_path(work: Path, variant: str | None = None) -> Path:
+    """The shippable agent of ``variant`` (None: the default) in the world model's folder ``work``
+    (:mod:`~wmthesis.world_models.agent`): ``agent.pt`` for :data:`ROOT`, ``agent-<variant>.pt``
+    for the others."""
+    name = folder_variant(variant)
+    return Path(work) / ("agent.pt" if name is None else f"agent-{name}.pt")
+
+
+__all__ = ["BOXING_WM", "ROOT", "agent_path", "folder_variant", "controller_config", "controller_folder"]
