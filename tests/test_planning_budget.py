@@ -37,23 +37,29 @@ def test_without_search_the_agent_follows_its_value_one_step_at_a_time():
 def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_nothing_to_do(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     from wmthesis.experiments import reproduce
-    from wmthesis.experiments.planning_budget import COLUMNS, SOKOBAN_BUDGETS, SOKOBAN_LEVELS
+    from wmthesis.experiments.planning_budget import (BOXING_BOUTS, COLUMNS, MCTS_BUDGETS, SOKOBAN_BUDGETS,
+                                                      SOKOBAN_LEVELS)
 
     metrics = reproduce("planning-budget", "smoke", 0, progress=False)
     rows = metrics["rows"]
-    assert [r["budget"] for r in rows] == [0, *SOKOBAN_BUDGETS["smoke"]]
-    assert all(r["levels"] == SOKOBAN_LEVELS["smoke"] and 0 <= r["score"] <= 100 and r["ms_per_action"] > 0
-               for r in rows)
-    assert all(r["no_search_score"] == rows[0]["score"] and r["gain"] == r["score"] - r["no_search_score"]
-               for r in rows)
+    sokoban, mcts = rows[:1 + len(SOKOBAN_BUDGETS["smoke"])], rows[1 + len(SOKOBAN_BUDGETS["smoke"]):]
+    assert [r["budget"] for r in sokoban] == [0, *SOKOBAN_BUDGETS["smoke"]]
+    assert [r["budget"] for r in mcts] == [0, *MCTS_BUDGETS["smoke"]]
+    assert all(r["levels"] == SOKOBAN_LEVELS["smoke"] and 0 <= r["score"] <= 100 for r in sokoban)
+    assert all(r["levels"] == BOXING_BOUTS["smoke"] for r in mcts)
+    for curve in (sokoban, mcts):  # every budget on the same bouts or levels as the row without search
+        assert all(r["no_search_score"] == curve[0]["score"] and r["ms_per_action"] > 0 for r in curve)
+        assert all(abs(r["gain"] - (r["score"] - r["no_search_score"])) < 1e-9 for r in curve)
     with open(tmp_path / "results" / "planning_budget-smoke.csv") as f:
         table = list(csv.DictReader(f))
     assert tuple(table[0]) == COLUMNS == ("planner", "game", "budget", "seed", "score", "no_search_score",
                                           "ms_per_action")
     assert [(r["planner"], r["game"], int(r["budget"])) for r in table] == \
+        [("mcts", "boxing", b) for b in (0, *MCTS_BUDGETS["smoke"])] + \
         [("sokoban-search", "boxoban-medium", b) for b in (0, *SOKOBAN_BUDGETS["smoke"])]
     saved = sorted((tmp_path / "smoke" / "planning-budget" / "seed0").glob("budget-*.json"))
-    assert len(saved) == 2 * len(rows)  # each budget in two parts
+    saved += sorted((tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / "imitation").glob("*-simulations-*.pkl"))
+    assert len(saved) == 2 * len(sokoban) + len(MCTS_BUDGETS["smoke"])  # Sokoban's budgets in two parts each
     stamps = [p.stat().st_mtime_ns for p in saved]
     again = reproduce("planning-budget", "smoke", 0, progress=False)
     assert again["rows"] == rows and [p.stat().st_mtime_ns for p in saved] == stamps

@@ -3,7 +3,9 @@ no-op starts for each, greedy play, returns; the trained heads with and without 
 play and the World Models controller on them, each cached; the scores as a figure."""
 from __future__ import annotations
 
+import dataclasses
 import pickle
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -43,10 +45,11 @@ def evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]:
 
 
 def greedy_returns(env, make_mind: Callable[[int], Mind], seeds, *, max_steps: int | None,
-                   as_callback: bool = True) -> list[float]:
+                   as_callback: bool = True, steps: list | None = None) -> list[float]:
     """The return of one greedy game per seed in ``seeds``: the env is reset with the first of
     :func:`~wmthesis.alphazero.replay.game_seeds` and ``make_mind`` gets the second (the
-    agent's own seed). ``as_callback``: the mind also follows each step (a mind with a memory)."""
+    agent's own seed). ``as_callback``: the mind also follows each step (a mind with a memory);
+    ``steps`` (a list) gets each game's number of steps."""
     returns = []
     for game_seed in seeds:
         env_seed, agent_seed = game_seeds(game_seed)
@@ -54,19 +57,28 @@ def greedy_returns(env, make_mind: Callable[[int], Mind], seeds, *, max_steps: i
         history = loop(env, mind, policy="deterministic", callbacks=[mind] if as_callback else None,
                        max_steps=max_steps, seed=env_seed, train_mode=False)
         returns.append(float(history[0]["return"]))
+        if steps is not None:
+            steps.append(int(history[0]["steps"]))
     return returns
 
 
 RECORDING_STEPS = 400  # the rerun recording shows the first steps of one evaluation game
 
 
-def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False) -> list:
+def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False,
+                     simulations: int | None = None) -> list:
     """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
     cached in ``evaluation.pkl`` for the run's number of games. ``pretrained``: the heads
-    after imitation, before self-play (``evaluation-pretrained.pkl``)."""
-    path = work / ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl")
+    after imitation, before self-play (``evaluation-pretrained.pkl``); ``simulations``: the
+    search's budget in place of ``cfg.simulations`` (``evaluation-S-simulations-N.pkl`` for N games)."""
+    if simulations is not None:
+        cfg = dataclasses.replace(cfg, simulations=int(simulations))
+    name = ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl" if simulations is None
+            else f"evaluation-{simulations}-simulations-{cfg.eval_episodes}.pkl")
+    path = work / name
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
+           **({} if simulations is None else {"simulations": cfg.simulations})}
     try:  # a missing or corrupt cache is played again
         cached = read_pickle(path)
         if cached["key"] == key:
@@ -91,21 +103,51 @@ def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained
     return games
 
 
-def policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list[float]:
-    """The evaluation games' returns of the trained policy head played greedily without search
-    (how much the search adds to what the heads learned); cached in ``policy_head.json``."""
+def policy_head_games(run, vision, memory, cfg, work: Path, seed: int) -> dict:
+    """The trained policy head played greedily without search on ``cfg.eval_episodes`` evaluation
+    games: ``returns`` and ``ms_per_action`` (the head's thinking, the game's stepping and the
+    vision's encoding together); cached in ``policy-head-N.json`` for N games."""
     key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
-    cached = read_json(work / "policy_head.json")
+    path = work / f"policy-head-{cfg.eval_episodes}.json"
+    cached = read_json(path)
     if cached is not None and cached["key"] == key:
-        return cached["returns"]
-    mind, env = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max)
+        return cached
+    mind, env, steps = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max), []
+    start = time.perf_counter()
     try:
-        returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=cfg.eval_max_steps)
+        returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=cfg.eval_max_steps,
+                                 steps=steps)
     finally:
         env.close()
-    write_json(work / "policy_head.json", {"key": key, "returns": returns})
-    return returns
+    result = {"key": key, "returns": returns, "ms_per_action": 1000 * (time.perf_counter() - start) / max(1, sum(steps))}
+    write_json(path, result)
+    return result
+
+
+def trained_run(wm: Path, work: Path, variant: str):
+    """The trained self-play run of ``variant`` under ``work`` (``boxing-wm-alphazero``'s folder)
+    with what it searches: ``(run, vision, memory, config)``; the vision from the World Models
+    folder ``wm``, the deterministic memory beside the run. FileNotFoundError names a missing file."""
+    from wmthesis.alphazero.config import AlphaZeroConfig
+    from wmthesis.alphazero.selfplay import load_run as load_alphazero
+    from wmthesis.world_models.vision import VAE, VAEVision
+
+    paths = {"vision": wm / "vision.best.pt", "memory": work / "memory-deterministic.best.pt", "run": work / variant}
+    missing = [str(p) for p in paths.values() if not p.exists()]
+    if missing:
+        raise FileNotFoundError(f"no trained boxing-wm-alphazero {variant} run: missing {', '.join(missing)}")
+    run = load_alphazero(paths["run"])
+    cfg = AlphaZeroConfig(**run.config)
+    memory = load_weights(paths["memory"], make_memory(run.task["latent_size"], run.task["n_actions"],
+                                                       MemoryConfig(kind="deterministic", hidden_size=run.task["hidden_size"])))
+    return run, VAEVision(load_weights(paths["vision"], VAE(run.task["latent_size"]))), memory.eval(), cfg
+
+
+def policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list[float]:
+    """The evaluation games' returns of the trained policy head played greedily without search
+    (how much the search adds to what the heads learned): :func:`policy_head_games`' returns."""
+    return policy_head_games(run, vision, memory, cfg, work, seed)["returns"]
 
 
 def controller_minds(profile: str, wm: Path, vision) -> tuple:

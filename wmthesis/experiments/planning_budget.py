@@ -1,18 +1,22 @@
 """Planning that pays (issue 57; the thesis's promise, chapter 1): each planner's score against its
 search budget, on a seed's trained models, the same levels for every budget. Measured so far: the
 Sokoban agent (``sokoban-search``) on the first Boxoban medium report levels, without search and
-under each node budget of :data:`SOKOBAN_BUDGETS`. Writes the run's ``metrics.json`` and, over every
+under each node budget of :data:`SOKOBAN_BUDGETS`; and MCTS in the World Models memory
+(``boxing-wm-alphazero``'s ``imitation`` run) on Boxing: its policy head alone, then each number of
+simulations of :data:`MCTS_BUDGETS`, on the same evaluation bouts. Writes the run's ``metrics.json`` and, over every
 seed run in the profile, ``data/results/planning_budget.csv`` (``quick``; other profiles
 ``planning_budget-PROFILE.csv``)."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import time
 
 import numpy as np
 
+from wmthesis.alphazero.evaluation import evaluation_games, policy_head_games, trained_run
 from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
@@ -28,6 +32,8 @@ from wmthesis.viz import save_figure
 SOKOBAN_BUDGETS = {"smoke": (50, 300), "quick": (1_000, 5_000, 20_000, 40_000, 160_000),
                    "thesis": (1_000, 5_000, 20_000, 40_000, 160_000)}  # nodes a search may expand
 SOKOBAN_LEVELS = {"smoke": 4, "quick": 500, "thesis": 1000}  # the first Boxoban medium report levels
+MCTS_BUDGETS = {"smoke": (2, 4), "quick": (16, 64, 256), "thesis": (16, 64, 256)}  # simulations an action
+BOXING_BOUTS = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation bouts a seed, the same for every budget
 COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action")
 
 
@@ -41,12 +47,14 @@ def planning_budget(profile: str | None = None, seed: int = 0, variant: str | No
     no_variant("planning-budget", variant)
     profile = profile_name(profile)
     started = time.time()
-    rows = sokoban_curve(profile, seed, progress)
+    rows = sokoban_curve(profile, seed, progress) + mcts_curve(profile, seed, progress)
     out = results_folder("planning-budget", profile, seed)
     figure = save_figure(plot_budget_curves(rows), out / "budget_curve.png")
-    curve = ", ".join(f"{r['budget']:,}: {r['score']:.1f}%" for r in rows)
+    curves = "; ".join(f"{planner} on {game}: " + ", ".join(f"{r['budget']:,}: {r['score']:.1f}" for r in rows
+                                                         if (r["planner"], r["game"]) == (planner, game))
+                       for planner, game in dict.fromkeys((r["planner"], r["game"]) for r in rows))
     metrics = {**run_header("planning-budget", profile, seed, time.time() - started),
-               "summary": f"Sokoban by search, % of {rows[0]['levels']} Boxoban medium levels by node budget: {curve}",
+               "summary": f"score by search budget (0: no search): {curves}",
                "rows": rows, "files": {"figures": [str(figure)]}}
     write_json(out / "metrics.json", metrics)
     write_budget_table(profile)
@@ -91,16 +99,36 @@ def sokoban_curve(profile: str, seed: int, progress: bool) -> list[dict]:
     jobs = budget_jobs(work, folder, cfg, BOXOBAN_SPLITS["report"]["medium"], SOKOBAN_LEVELS[profile], budgets)
     run_jobs(jobs, progress)
     plays = {budget: budget_plays(jobs, budget) for budget in budgets}
-    without = np.array([p["solved"] for p in plays[NO_SEARCH]], np.float64)
-    rows = []
-    for budget in budgets:
-        solved = np.array([p["solved"] for p in plays[budget]], np.float64)
-        gain = aggregate(100.0 * (solved - without))
-        rows.append({"planner": "sokoban-search", "game": "boxoban-medium", "budget": budget, "seed": seed,
-                     "score": 100.0 * solved.mean(), "no_search_score": 100.0 * without.mean(),
-                     "ms_per_action": ms_per_action(plays[budget]), "gain": gain["mean"],
-                     "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(solved)})
+    solved = {budget: 100.0 * np.array([p["solved"] for p in plays[budget]], np.float64) for budget in budgets}
+    return [_row("sokoban-search", "boxoban-medium", budget, seed, solved[budget], solved[NO_SEARCH],
+                 ms_per_action(plays[budget])) for budget in budgets]
+
+
+def mcts_curve(profile: str, seed: int, progress: bool) -> list[dict]:
+    """MCTS in the World Models memory on Boxing: the ``imitation`` run's policy head alone (budget
+    0), then its search under each of :data:`MCTS_BUDGETS`, on the same :data:`BOXING_BOUTS` bouts."""
+    built_on("boxing-wm-alphazero", profile, seed, "imitation", progress)
+    work = work_folder(profile, "boxing-wm-alphazero", seed)
+    run, vision, memory, cfg = trained_run(work_folder(profile, "boxing-wm", seed), work, "imitation")
+    cfg = dataclasses.replace(cfg, eval_episodes=BOXING_BOUTS[profile])
+    head = policy_head_games(run, vision, memory, cfg, work / "imitation", seed)
+    without = np.array(head["returns"])
+    rows = [_row("mcts", "boxing", NO_SEARCH, seed, without, without, head["ms_per_action"])]
+    for budget in MCTS_BUDGETS[profile]:
+        games = evaluation_games(run, vision, memory, cfg, work / "imitation", seed, simulations=budget)
+        ms = 1000 * sum(g.seconds for g in games) / max(1, sum(len(g.actions) for g in games))
+        rows.append(_row("mcts", "boxing", budget, seed, np.array([g.score for g in games]), without, ms))
     return rows
+
+
+def _row(planner: str, game: str, budget: int, seed: int, scores: np.ndarray, without: np.ndarray,
+         ms: float) -> dict:
+    """A budget's row: the mean of ``scores`` (one per bout or level), the same agent's without
+    search on the same bouts or levels, and the paired gain with its 95% t interval."""
+    gain = aggregate(scores - without)
+    return {"planner": planner, "game": game, "budget": budget, "seed": seed, "score": float(scores.mean()),
+            "no_search_score": float(without.mean()), "ms_per_action": ms, "gain": gain["mean"],
+            "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(scores)}
 
 
 def write_budget_table(profile: str) -> str:
@@ -123,4 +151,4 @@ def write_budget_table(profile: str) -> str:
     return text.getvalue()
 
 
-__all__ = ["planning_budget", "sokoban_curve", "write_budget_table", "plot_budget_curves", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS", "COLUMNS"]
+__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "MCTS_BUDGETS", "BOXING_BOUTS", "write_budget_table", "plot_budget_curves", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS", "COLUMNS"]
