@@ -56,8 +56,9 @@ def stamp(profile: str, started: float) -> str:
     time since ``started`` (a ``time.time()``)."""
     import torch  # heavy: loaded when a notebook ends, not when the package is imported
 
+    threads = torch.get_num_threads()
     return (f"run stamp · commit {git_commit() or 'unknown'} · {date.today().isoformat()} · profile {profile} · "
-            f"{cpu_model()} · {torch.get_num_threads()} torch threads · wall time {time.time() - started:.0f} s")
+            f"{cpu_model()} · {threads} torch thread{'s' if threads > 1 else ''} · wall time {time.time() - started:.0f} s")
 
 
 def read_stamp(text: str) -> dict | None:

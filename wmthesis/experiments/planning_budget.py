@@ -63,7 +63,7 @@ def planning_budget(profile: str | None = None, seed: int = 0, variant: str | No
 
 def plot_budget_curves(rows: list[dict]):
     """Score against budget (log scale; no search at the left edge), one panel per planner and
-    game, each seed a line, the mean over seeds in black. Returns the figure."""
+    game, each seed a line, the mean over seeds in black with its 95% t interval. Returns the figure."""
     import matplotlib.pyplot as plt
 
     panels = sorted({(r["planner"], r["game"]) for r in rows})
@@ -76,8 +76,11 @@ def plot_budget_curves(rows: list[dict]):
             line = sorted((r for r in mine if r["seed"] == seed), key=lambda r: r["budget"])
             ax.plot([x[r["budget"]] for r in line], [r["score"] for r in line], "o-", lw=1, ms=3, alpha=0.6,
                     label=f"seed {seed}")
-        means = [np.mean([r["score"] for r in mine if r["budget"] == b]) for b in x]
-        ax.plot(list(x.values()), means, "k-", lw=2, label="mean")
+        over = [aggregate([r["score"] for r in mine if r["budget"] == b]) for b in x]
+        ax.plot(list(x.values()), [a["mean"] for a in over], "k-", lw=2, label="mean")
+        if all(a["ci_low"] is not None for a in over):
+            ax.fill_between(list(x.values()), [a["ci_low"] for a in over], [a["ci_high"] for a in over], color="k",
+                            alpha=0.12, label="95% interval")
         ax.set_xscale("log")
         ax.set_xticks(list(x.values()), ["none", *(f"{b:,}" for b in searched)], rotation=30, fontsize=7)
         ax.set_xlabel("search budget")
@@ -131,6 +134,29 @@ def _row(planner: str, game: str, budget: int, seed: int, scores: np.ndarray, wi
             "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(scores)}
 
 
+def budget_table(rows: list[dict]) -> list[dict]:
+    """Per planner, game and budget over its seeds: the mean score, the paired gain over no search
+    with its 95% t interval over seeds (each seed's bouts or levels paired), and ms per action."""
+    keys = dict.fromkeys((r["planner"], r["game"], r["budget"]) for r in rows)
+    out = []
+    for planner, game, budget in keys:
+        mine = [r for r in rows if (r["planner"], r["game"], r["budget"]) == (planner, game, budget)]
+        gain = aggregate([r["score"] - r["no_search_score"] for r in mine])
+        out.append({"planner": planner, "game": game, "budget": budget, "seeds": len(mine),
+                    "score": float(np.mean([r["score"] for r in mine])), "gain": gain["mean"],
+                    "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"],
+                    "ms_per_action": float(np.mean([r["ms_per_action"] for r in mine]))})
+    return out
+
+
+def read_budget_rows(profile: str) -> list[dict]:
+    """The rows :func:`write_budget_table` wrote for ``profile`` (numbers as numbers)."""
+    name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
+    with open(data_dir("results") / name) as f:
+        return [{**r, "budget": int(r["budget"]), "seed": int(r["seed"]),
+                 **{k: float(r[k]) for k in ("score", "no_search_score", "ms_per_action")}} for r in csv.DictReader(f)]
+
+
 def write_budget_table(profile: str) -> str:
     """Every seed's rows of ``profile`` (each run's ``metrics.json``) as one CSV of :data:`COLUMNS`,
     ``data/results/planning_budget.csv`` (``planning_budget-PROFILE.csv`` outside ``quick``);
@@ -151,4 +177,5 @@ def write_budget_table(profile: str) -> str:
     return text.getvalue()
 
 
-__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "MCTS_BUDGETS", "BOXING_BOUTS", "write_budget_table", "plot_budget_curves", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS", "COLUMNS"]
+__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "MCTS_BUDGETS", "BOXING_BOUTS", "budget_table",
+           "read_budget_rows", "write_budget_table", "plot_budget_curves", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS", "COLUMNS"]
