@@ -139,9 +139,11 @@ def test_the_ablations_are_paired_by_seed_against_the_headline_row(tmp_path, mon
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     for seed, score in enumerate([10.0, 14.0, 21.0]):
         _write_run(tmp_path, "boxing-wm", seed, score)
-    for seed, score in [(1, 20.0), (2, 24.0), (3, 99.0)]:  # seed 3: no partner, left out
+    for seed, score in [(1, 20.0), (2, 24.0), (3, 99.0), (10, 50.0)]:  # seed 3: no partner; 10 chose the recipe
         _write_run(tmp_path, "boxing-wm", seed, score, variant="separable-64")
     rows = write_summary()
+    apart = [r for r in rows if r["variant"] == "separable-64, validation seeds"]
+    assert [(r["seeds"], r["mean"]) for r in apart] == [([10], 50.0)]  # a row of its own, never a reported one
     (ablation,) = ablation_rows(rows)
     assert (ablation["experiment"], ablation["variant"], ablation["against"]) == ("boxing-wm", "separable-64", None)
     assert (ablation["seeds"], ablation["mean"], ablation["default_mean"]) == ([1, 2], 22.0, 17.5)

@@ -29,6 +29,7 @@ from wmthesis.references import PUBLISHED
 from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir
 from wmthesis.viz import save_figure
+from wmthesis.world_models.variants import VALIDATION_SEEDS as BOXING_WM_VALIDATION_SEEDS
 
 INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
 
@@ -38,6 +39,9 @@ MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels (gener
            "planet-freeway-value": "full-episode score, the value's chosen round",
            "planet-boxing-agent": "full-bout score, CEM planner"}
 DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
+# Experiment -> the seeds its recipe was chosen on: their runs form rows of their own ("VARIANT,
+# validation seeds"), never the reported ones.
+VALIDATION_SEEDS = {"boxing-wm": BOXING_WM_VALIDATION_SEEDS}
 # Experiment -> the range its score cannot leave; its interval is clipped to it.
 BOUNDS = {"sokoban-search": (0.0, 100.0)}
 
@@ -106,6 +110,8 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             continue
         machine = metrics.get("machine")
         machine = machine[machine.find("(") + 1:-1] if isinstance(machine, str) and "(" in machine else machine
+        if header[1] in VALIDATION_SEEDS.get(metrics["experiment"], ()):  # the choice's evidence: a row apart
+            scores = {f"{variant or 'first recipe'}, validation seeds": score for variant, score in scores.items()}
         for variant, score in scores.items():
             run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine)
             runs[run[:4]] = run
