@@ -49,8 +49,15 @@ def test_validate_refuses_an_unknown_lever_before_any_runs_and_reports_each_leve
     out = capsys.readouterr().out
     assert "sokoban-search, seed 1" in out and "baseline: unfiltered 92/100 (92.0%), 7,229 nodes and 6.0 s a level" in out
     with pytest.raises(SystemExit) as refused:  # no levers: refused by the argument check
-        main(["validate", "boxing-wm", "x"])
+        main(["validate", "planet-boxing-agent", "x"])
     assert refused.value.code == 2
+    monkeypatch.setattr(validation, "reproduce", lambda *args: called.append(args) or {
+        "score": {"mean": 31.0, "std": 4.0, "episodes": 10}, "wall_seconds": 3000.0})
+    assert main(["validate", "boxing-wm", "separable-64", "--seeds", "0", "--profile", "smoke"]) == 2
+    assert "chosen on seeds 10, 11, 12, not 0" in capsys.readouterr().err  # a reported seed never chooses
+    assert main(["validate", "boxing-wm", "separable-64", "--seeds", "10-11", "--profile", "smoke"]) == 0
+    assert called[-2:] == [("boxing-wm", "smoke", 10, "separable-64", True), ("boxing-wm", "smoke", 11, "separable-64", True)]
+    assert "separable-64: 31.0 ± 4.0 over 10 bouts, 50 min" in capsys.readouterr().out
 
 
 def test_alphazero_experiment_is_on_the_command_line(capsys):

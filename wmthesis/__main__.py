@@ -308,7 +308,8 @@ def parser() -> argparse.ArgumentParser:
     player.set_defaults(run=cmd_play)
 
     validate = commands.add_parser("validate", help="levers of an experiment on its validation split only")
-    validate.add_argument("experiment", choices=("sokoban-search", "planet-boxing-value", "planet-freeway-value"))
+    validate.add_argument("experiment", choices=("sokoban-search", "planet-boxing-value", "planet-freeway-value",
+                                                 "boxing-wm"))
     validate.add_argument("levers", nargs="+", metavar="LEVER", help="the levers to play (a wrong one lists the valid)")
     validate.add_argument("--variant", help="a PlaNet value's run whose agent the planners end in (default: its default)")
     validate.add_argument("--seeds", default="0", help="the trained runs' seeds: a range 0-2, a list 0,2, or one seed")

@@ -2,9 +2,11 @@
 ``python -m wmthesis validate EXPERIMENT LEVER ... [--variant V] [--seeds 0,1] [--count N]``.
 
 A lever is a change that a choice may adopt: the Sokoban agent's config (trained in a folder of its
-own unless it changes the search alone), or the planner that ends in a fitted PlaNet value. Each is
-played on the experiment's validation split only (Boxoban's valid 000-001, the value's validation
-bouts), never on what the results report, and saved as it goes: a run cut off plays only the rest.
+own unless it changes the search alone), the planner that ends in a fitted PlaNet value, or the
+World Models controller's recipe (a variant of ``boxing-wm``). Each is played on the experiment's
+validation split only (Boxoban's valid 000-001, the value's validation bouts, ``boxing-wm``'s
+validation seeds 10-12), never on what the results report, and saved as it goes: a run cut off
+plays only the rest.
 The levers that lost, with their numbers, are in ``docs/findings/EXPERIMENT.md``.
 """
 from __future__ import annotations
@@ -15,15 +17,18 @@ from wmthesis.experiments.planet_boxing_value import (PLANNER_LEVERS as BOXING_L
                                                       validate_planners as validate_boxing)
 from wmthesis.experiments.planet_freeway_value import (PLANNER_LEVERS as FREEWAY_LEVERS,
                                                        validate_planners as validate_freeway)
+from wmthesis.experiments import reproduce
 from wmthesis.experiments.sokoban_search import LEVERS as SOKOBAN_LEVERS, validate as validate_sokoban
 from wmthesis.planet.value_tables import planner_lever_rows
 from wmthesis.sokoban_search.tables import solved_line
 from wmthesis.utils import check_choice, process_pool
 from wmthesis.variants import FINDINGS
+from wmthesis.world_models.variants import BOXING_WM, VALIDATION_SEEDS as BOXING_WM_SEEDS
 
 # Experiment -> its levers (name -> changes).
 LEVERS = {"sokoban-search": {name: SOKOBAN_LEVERS.changes(name) for name in SOKOBAN_LEVERS},
-          "planet-boxing-value": BOXING_LEVERS, "planet-freeway-value": FREEWAY_LEVERS}
+          "planet-boxing-value": BOXING_LEVERS, "planet-freeway-value": FREEWAY_LEVERS,
+          "boxing-wm": {name: BOXING_WM.changes(name) for name in BOXING_WM}}
 
 
 def check_levers(experiment: str, levers: list[str]) -> None:
@@ -46,6 +51,13 @@ def validate(experiment: str, levers: list[str], *, profile: str | None = None, 
     planners end in. A value's bouts of every seed share one pool of ``workers`` processes (two by
     default), seed after seed: on a machine with more cores, pass its count."""
     check_levers(experiment, levers)
+    if experiment == "boxing-wm":
+        wrong = [seed for seed in seeds if seed not in BOXING_WM_SEEDS]
+        if wrong:  # the seeds a recipe is reported on never choose one
+            raise ValueError(f"boxing-wm's recipes are chosen on seeds {', '.join(map(str, BOXING_WM_SEEDS))}, "
+                             f"not {', '.join(map(str, wrong))}")
+        return {seed: {lever: reproduce("boxing-wm", profile, seed, lever, progress) for lever in levers}
+                for seed in seeds}
     if experiment == "sokoban-search":
         if variant is not None:
             raise ValueError("sokoban-search's levers are variants of its agent: name them as levers, not --variant")
@@ -63,6 +75,9 @@ def lever_lines(experiment: str, results: dict[str, dict]) -> list[str]:
     levers' table rows paired against the first (a value)."""
     if experiment == "sokoban-search":
         return [solved_line(lever, result["rows"]) for lever, result in results.items()]
+    if experiment == "boxing-wm":
+        return [f"{lever}: {m['score']['mean']:.1f} ± {m['score']['std']:.1f} over {m['score']['episodes']} bouts, "
+                f"{m.get('first_run_wall_seconds', m['wall_seconds']) / 60:.0f} min" for lever, m in results.items()]
     return [" | ".join(row) for row in planner_lever_rows(results, LEVERS[experiment])]
 
 
