@@ -222,3 +222,16 @@ def test_a_checkpoint_of_another_dimension_is_refused_naming_the_file_and_the_si
     with pytest.raises(ConfigMismatch, match=rf"{tmp_path / 'controller.pkl'}.*'task.hidden_size': \(8, 4\)"):
         train_controller("sokoban-small", grid, Memory(25, 8, hidden_size=4, n_gaussians=2).eval(), cfg,
                          out_dir=tmp_path, env_options=dict(observation="grid"), progress=False)
+
+
+def test_mirrored_candidates_come_in_antithetic_pairs_and_a_mirrored_run_resumes_to_the_same_result(tmp_path):
+    strategy = new_strategy(30, ControllerConfig(population=8, diagonal=True, mirrored=True))
+    for generation in range(3):
+        steps = np.array(strategy.ask()) - np.asarray(strategy.mean)
+        assert np.allclose(steps[0::2], -steps[1::2])
+        strategy.tell(list(steps + strategy.mean), list(np.random.default_rng(generation).normal(size=8)))
+    straight = sokoban_run(tmp_path / "straight", 2, mirrored=True, diagonal=True)
+    sokoban_run(tmp_path / "resumed", 1, mirrored=True, diagonal=True)
+    resumed = sokoban_run(tmp_path / "resumed", 2, mirrored=True, diagonal=True)
+    assert np.array_equal(resumed.mean_params, straight.mean_params)
+    assert [e["mean"] for e in resumed.curve] == [e["mean"] for e in straight.curve]

@@ -57,7 +57,10 @@ class ControllerConfig:
     ``eval_every`` generations the CMA-ES mean plays ``eval_episodes`` real episodes.
     ``diagonal=True`` (beyond the thesis) runs separable CMA-ES: a diagonal covariance, so the
     state and its checkpoint grow with D rather than D^2 (a Boxing controller on [z h] has
-    D = 4,914: the full strategy pickles to ~390 MB, the diagonal one to ~3 MB).
+    D = 4,914: the full strategy pickles to ~390 MB, the diagonal one to ~3 MB). ``mirrored=True``
+    (beyond the thesis) draws the candidates in antithetic pairs, every one of them (cma's
+    ``CMA_mirrors`` = population / 2, unconditional), which cancels much of the noise in the
+    mean's step.
     """
 
     population: int = 64
@@ -65,6 +68,7 @@ class ControllerConfig:
     generations: int = 200               # not stated in the thesis
     sigma: float = 0.1                   # initial CMA-ES step size; the search starts at zero
     diagonal: bool = False               # separable CMA-ES (diagonal covariance): O(D) memory and time
+    mirrored: bool = False               # mirrored sampling: candidates in pairs m +- sigma * y (cma's CMA_mirrors)
     max_steps: int | None = None         # None: full-length episodes
     noop_max: int = 30
     seed: int = 0

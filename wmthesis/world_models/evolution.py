@@ -199,9 +199,12 @@ class SeededNormal:
 
 
 def new_strategy(dimension: int, cfg):
-    """A ``cma.CMAEvolutionStrategy`` from zero with step size ``cfg.sigma``, quiet, no files."""
+    """A ``cma.CMAEvolutionStrategy`` from zero with step size ``cfg.sigma``, quiet, no files;
+    separable (``cfg.diagonal``) and mirrored (``cfg.mirrored``) where the config says."""
     options = {"popsize": cfg.population, "seed": np.nan, "randn": SeededNormal(cfg.seed),
-               "verbose": -9, "verb_disp": 0, "verb_log": 0, "maxiter": np.inf, "CMA_diagonal": cfg.diagonal}
+               "verbose": -9, "verb_disp": 0, "verb_log": 0, "maxiter": np.inf, "CMA_diagonal": cfg.diagonal,
+               **({"CMA_mirrors": cfg.population // 2, "CMA_mirrormethod": 0} if getattr(cfg, "mirrored", False)
+                  else {})}
     return cma.CMAEvolutionStrategy(np.zeros(dimension), cfg.sigma, options)
 
 

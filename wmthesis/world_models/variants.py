@@ -23,7 +23,10 @@ BOXING_WM = Variants(
             "45 generations", default=True),
     Variant("separable-64", "separable CMA-ES with the thesis's population of 64, 1 bout a candidate "
             "(all on the same start), 40 generations",
-            dict(population=64, episodes=1, diagonal=True, generations=40, eval_every=10)))
+            dict(population=64, episodes=1, diagonal=True, generations=40, eval_every=10)),
+    Variant("separable-128-mirrored", "separable CMA-ES, population 128 in antithetic pairs, 1 bout a candidate, "
+            "20 generations (the same 2,560 bouts)",
+            dict(population=128, episodes=1, diagonal=True, mirrored=True, generations=20, eval_every=5)))
 
 ROOT = "population-16"  # the first recipe: its runs keep the experiment's own folders
 # The seeds a recipe is chosen on: their runs are the choice's evidence, never a reported number
