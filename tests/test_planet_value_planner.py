@@ -236,7 +236,7 @@ def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_re
 
 
 def test_a_planner_variant_copies_a_run_fitted_with_its_own_value_config():
-    from wmthesis.experiments.planet_boxing_value import VALUE_VARIANTS, folder_variant, value_run
+    from wmthesis.planet.value_variants import VALUE_VARIANTS, folder_variant, value_run
 
     planners = [name for name, v in VALUE_VARIANTS.items() if set(v.changes) == {"planner"}]
     assert planners == ["lean-value-rewards-0.7"]

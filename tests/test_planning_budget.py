@@ -37,17 +37,19 @@ def test_without_search_the_agent_follows_its_value_one_step_at_a_time():
 def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_nothing_to_do(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     from wmthesis.experiments import reproduce
-    from wmthesis.experiments.planning_budget import (BOXING_BOUTS, COLUMNS, MCTS_BUDGETS, SOKOBAN_BUDGETS,
-                                                      SOKOBAN_LEVELS)
+    from wmthesis.experiments.planning_budget import (BOXING_BOUTS, CEM_BUDGETS, COLUMNS, MCTS_BUDGETS,
+                                                      SOKOBAN_BUDGETS, SOKOBAN_LEVELS)
 
     metrics = reproduce("planning-budget", "smoke", 0, progress=False)
     rows = metrics["rows"]
-    sokoban, mcts = rows[:1 + len(SOKOBAN_BUDGETS["smoke"])], rows[1 + len(SOKOBAN_BUDGETS["smoke"]):]
+    sokoban, mcts, cem = ([r for r in rows if r["planner"] == planner] for planner in ("sokoban-search", "mcts", "cem"))
     assert [r["budget"] for r in sokoban] == [0, *SOKOBAN_BUDGETS["smoke"]]
     assert [r["budget"] for r in mcts] == [0, *MCTS_BUDGETS["smoke"]]
+    assert [r["budget"] for r in cem] == [0, *(h * j * i for h, j, i in CEM_BUDGETS["smoke"])]  # H x J x I
+    assert all(r["levels"] == BOXING_BOUTS["smoke"] for r in cem)
     assert all(r["levels"] == SOKOBAN_LEVELS["smoke"] and 0 <= r["score"] <= 100 for r in sokoban)
     assert all(r["levels"] == BOXING_BOUTS["smoke"] for r in mcts)
-    for curve in (sokoban, mcts):  # every budget on the same bouts or levels as the row without search
+    for curve in (sokoban, mcts, cem):  # every budget on the same bouts or levels as the row without search
         assert all(r["no_search_score"] == curve[0]["score"] and r["ms_per_action"] > 0 for r in curve)
         assert all(abs(r["gain"] - (r["score"] - r["no_search_score"])) < 1e-9 for r in curve)
     with open(tmp_path / "results" / "planning_budget-smoke.csv") as f:
@@ -55,7 +57,7 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     assert tuple(table[0]) == COLUMNS == ("planner", "game", "budget", "seed", "score", "no_search_score",
                                           "ms_per_action")
     assert [(r["planner"], r["game"], int(r["budget"])) for r in table] == \
-        [("mcts", "boxing", b) for b in (0, *MCTS_BUDGETS["smoke"])] + \
+        [("cem", "boxing", r["budget"]) for r in cem] + [("mcts", "boxing", b) for b in (0, *MCTS_BUDGETS["smoke"])] + \
         [("sokoban-search", "boxoban-medium", b) for b in (0, *SOKOBAN_BUDGETS["smoke"])]
     saved = sorted((tmp_path / "smoke" / "planning-budget" / "seed0").glob("budget-*.json"))
     saved += sorted((tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / "imitation").glob("*-simulations-*.pkl"))

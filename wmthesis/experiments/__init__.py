@@ -29,8 +29,7 @@ from wmthesis.experiments.alphazero import ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,
                                          planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
-from wmthesis.experiments.planet_boxing_value import (VALUE_VARIANTS as BOXING_VALUE_VARIANTS,
-                                                      folder_variant as boxing_folder_variant, planet_boxing_value)
+from wmthesis.experiments.planet_boxing_value import planet_boxing_value
 from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value
 from wmthesis.experiments.planning_budget import planning_budget
 from wmthesis.experiments.sokoban_search import sokoban_search
@@ -40,6 +39,7 @@ from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOB
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.world_models.variants import BOXING_WM, folder_variant as boxing_wm_folder_variant
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
+from wmthesis.planet.value_variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS, folder_variant as boxing_folder_variant
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.runs import register_runner
 from wmthesis.utils import check_choice, worker_init

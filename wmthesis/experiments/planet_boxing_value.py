@@ -17,56 +17,12 @@ from wmthesis.planet.train import load_planet
 from wmthesis.planet.value_bouts import value_bout
 from wmthesis.planet.value_play import validation_seeds
 from wmthesis.planet.value_rounds import agent_rounds, round_values
+from wmthesis.planet.value_variants import (GAME, VALUE_VARIANTS, folder_variant, results_folder, value_folder,
+                                            value_run)
 from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores, slug,
                                         start_from)
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
 from wmthesis.runs import hold, played_bouts, releasing_holds
-from wmthesis.variants import Variant, Variants
-
-# Each variant fits its value on the same frozen model and bouts, in a folder of its own; one that
-# builds on another starts from a copy of that run's bouts and values (the same seeds give the same
-# first rounds), and one that changes the planner alone plays on that run's value. The numbers of
-# the variants and levers that left the code: docs/findings/planet-boxing-value.md.
-GAME = "boxing"
-LEAN = dict(rounds=10, agent_rounds=3, score_rounds=False)
-VALUE_VARIANTS = Variants(
-    "planet-boxing-value",
-    Variant("scored-rounds", "the value of the round chosen on validation bouts, every round scored (notebook 09)"),
-    Variant("rounds-10", "ten rounds, each scored", dict(value=dict(rounds=10)), builds_on="scored-rounds"),
-    Variant("rounds-10-mean-3", "rounds-10's agent as the mean of its last 3 rounds' values (chosen by validate_agents)",
-            dict(value=dict(agent_rounds=3)), builds_on="rounds-10"),
-    Variant("lean", "that agent from scratch, no greedy bouts after each round: issue 31's hour", dict(value=LEAN)),
-    Variant("lean-value-rewards-0.7", "lean's value; CEM scores every imagined step by the value's Q, discount 0.7 "
-            "(chosen on two seeds' validation bouts)", dict(planner=dict(rewards="value", discount=0.7)),
-            builds_on="lean", default=True),
-)
-ROOT = "scored-rounds"  # the first recipe: its runs keep the experiment's own folders (``seedS``, ``PROFILE-seedS``)
-
-
-def folder_variant(variant: str | None) -> str | None:
-    """A variant's name in its folders and metrics (None for :data:`ROOT`'s); ``variant`` None is the default."""
-    name = VALUE_VARIANTS.check(variant).name
-    return None if name == ROOT else name
-
-
-def value_run(variant: str | None) -> str:
-    """The variant whose run fitted ``variant``'s value: itself, or for one that changes the planner
-    alone, the run it builds on (its name)."""
-    chain = VALUE_VARIANTS.lineage(variant)
-    while "value" not in chain[-1].changes and chain[-1].builds_on is not None and len(chain) > 1:
-        chain.pop()
-    return chain[-1].name
-
-
-def value_folder(profile: str, seed: int, variant: str | None = None):
-    """The work folder of the value run of ``variant`` (None: the default) and ``seed``."""
-    return run_store.work_folder(profile, "planet-boxing-value", seed, folder_variant(variant))
-
-
-def results_folder(profile: str, seed: int, variant: str | None = None):
-    """Where the value run of ``variant`` (None: the default) and ``seed`` writes its ``metrics.json`` and figures."""
-    return run_store.results_folder("planet-boxing-value", profile, seed, folder_variant(variant))
-
 
 @releasing_holds
 def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str | None = None,
@@ -183,5 +139,5 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     return results
 
 
-__all__ = ["planet_boxing_value", "results_folder", "value_plan_choices", "validate_planners", "PLANNER_LEVERS", "LEVER_BOUTS", 
-           "VALUE_VARIANTS", "folder_variant", "value_run", "AGENT_RULES", "validate_agents"]
+__all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "PLANNER_LEVERS", "LEVER_BOUTS",
+           "AGENT_RULES", "validate_agents"]

@@ -3,7 +3,9 @@ search budget, on a seed's trained models, the same levels for every budget. Mea
 Sokoban agent (``sokoban-search``) on the first Boxoban medium report levels, without search and
 under each node budget of :data:`SOKOBAN_BUDGETS`; and MCTS in the World Models memory
 (``boxing-wm-alphazero``'s ``imitation`` run) on Boxing: its policy head alone, then each number of
-simulations of :data:`MCTS_BUDGETS`, on the same evaluation bouts. Writes the run's ``metrics.json`` and, over every
+simulations of :data:`MCTS_BUDGETS`, on the same evaluation bouts; and CEM in PlaNet's model with
+the learned value (``planet-boxing-value``'s default) on Boxing: the value alone, then each
+horizon x candidates x iterations of :data:`CEM_BUDGETS`, on the value's evaluation bouts. Writes the run's ``metrics.json`` and, over every
 seed run in the profile, ``data/results/planning_budget.csv`` (``quick``; other profiles
 ``planning_budget-PROFILE.csv``)."""
 from __future__ import annotations
@@ -20,11 +22,15 @@ from wmthesis.alphazero.evaluation import evaluation_games, policy_head_games, t
 from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
+from wmthesis.planet.config import ValuePlannerConfig
+from wmthesis.planet.value_runs import lever_scores
+from wmthesis.planet.value_variants import value_folder
 from wmthesis.runs import (atomic_path, built_on, hold, releasing_holds, results_folder, run_header, run_jobs,
                            work_folder, write_json)
 from wmthesis.sokoban_search.budget import NO_SEARCH, budget_jobs, budget_plays, ms_per_action
 from wmthesis.sokoban_search.config import SokobanSearchConfig
 from wmthesis.sokoban_search.iteration import load_run
+from wmthesis.training import with_added_defaults
 from wmthesis.utils import data_dir
 from wmthesis.variants import no_variant
 from wmthesis.viz import save_figure
@@ -34,6 +40,10 @@ SOKOBAN_BUDGETS = {"smoke": (50, 300), "quick": (1_000, 5_000, 20_000, 40_000, 1
 SOKOBAN_LEVELS = {"smoke": 4, "quick": 500, "thesis": 1000}  # the first Boxoban medium report levels
 MCTS_BUDGETS = {"smoke": (2, 4), "quick": (16, 64, 256), "thesis": (16, 64, 256)}  # simulations an action
 BOXING_BOUTS = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation bouts a seed, the same for every budget
+# CEM with the value: (horizon H, candidates J, iterations I), H x J x I imagined steps an action; the
+# value alone (H = 1) is the row without search. quick's J and I are its PlaNet's; H = 3 its planner's.
+CEM_BUDGETS = {"smoke": ((2, 16, 2), (3, 16, 2)), "quick": ((2, 100, 3), (3, 100, 3), (6, 100, 3), (12, 100, 3)),
+               "thesis": ((3, 1000, 10), (6, 1000, 10), (12, 1000, 10))}
 COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action")
 
 
@@ -47,7 +57,7 @@ def planning_budget(profile: str | None = None, seed: int = 0, variant: str | No
     no_variant("planning-budget", variant)
     profile = profile_name(profile)
     started = time.time()
-    rows = sokoban_curve(profile, seed, progress) + mcts_curve(profile, seed, progress)
+    rows = sokoban_curve(profile, seed, progress) + mcts_curve(profile, seed, progress) + cem_curve(profile, seed, progress)
     out = results_folder("planning-budget", profile, seed)
     figure = save_figure(plot_budget_curves(rows), out / "budget_curve.png")
     curves = "; ".join(f"{planner} on {game}: " + ", ".join(f"{r['budget']:,}: {r['score']:.1f}" for r in rows
@@ -124,6 +134,22 @@ def mcts_curve(profile: str, seed: int, progress: bool) -> list[dict]:
     return rows
 
 
+def cem_curve(profile: str, seed: int, progress: bool) -> list[dict]:
+    """CEM with the value on PlaNet's Boxing model: the default value run's planner with its horizon,
+    candidates and iterations set by :data:`CEM_BUDGETS` (budget H x J x I), and the value alone (H = 1:
+    budget 0), on the first :data:`BOXING_BOUTS` of the value's evaluation bouts."""
+    metrics = built_on("planet-boxing-value", profile, seed, progress=progress)
+    base = with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"])
+    budgets = {NO_SEARCH: dict(horizon=1), **{h * j * i: dict(horizon=h, candidates=j, iterations=i)
+                                              for h, j, i in CEM_BUDGETS[profile]}}
+    planners = {f"budget {budget}": ValuePlannerConfig(**{**base, **changes}) for budget, changes in budgets.items()}
+    scores = lever_scores(work_folder(profile, "planet-boxing-agent", seed), value_folder(profile, seed),
+                          metrics, planners, metrics["bouts"][:BOXING_BOUTS[profile]], progress, folder="planning-budget")
+    without = np.array(scores[f"budget {NO_SEARCH}"]["returns"])
+    return [_row("cem", "boxing", budget, seed, np.array(scores[f"budget {budget}"]["returns"]), without,
+                 scores[f"budget {budget}"].get("ms_per_action", float("nan"))) for budget in budgets]
+
+
 def _row(planner: str, game: str, budget: int, seed: int, scores: np.ndarray, without: np.ndarray,
          ms: float) -> dict:
     """A budget's row: the mean of ``scores`` (one per bout or level), the same agent's without
@@ -177,5 +203,5 @@ def write_budget_table(profile: str) -> str:
     return text.getvalue()
 
 
-__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "MCTS_BUDGETS", "BOXING_BOUTS", "budget_table",
+__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "cem_curve", "MCTS_BUDGETS", "BOXING_BOUTS", "CEM_BUDGETS", "budget_table",
            "read_budget_rows", "write_budget_table", "plot_budget_curves", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS", "COLUMNS"]

@@ -44,9 +44,13 @@ def bout_result(rewards) -> dict:
 
 def bout_scores(plays: list[dict]) -> dict:
     """:func:`play_bout`'s plays summed up: ``full`` and ``first``-500-step scores
-    (:func:`~wmthesis.metrics.score_summary`) with their ``returns`` and ``first_returns``."""
+    (:func:`~wmthesis.metrics.score_summary`) with their ``returns`` and ``first_returns``, and the
+    ``ms_per_action`` where every play was timed."""
+    timed = all("seconds" in p for p in plays)
     return {"full": score_summary([p["return"] for p in plays]), "first": score_summary([p["first"] for p in plays]),
-            "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays]}
+            "returns": [p["return"] for p in plays], "first_returns": [p["first"] for p in plays],
+            **({"ms_per_action": 1000 * sum(p["seconds"] for p in plays) / max(1, sum(p["steps"] for p in plays))}
+               if timed else {})}
 
 
 def agent_table(metrics: dict) -> str:

@@ -4,6 +4,7 @@ their scores cached for the value agent, the planner's config and the bouts (:fu
 from __future__ import annotations
 
 import dataclasses
+import time
 from pathlib import Path
 
 from wmthesis.planet.bouts import bout_result, bout_scores
@@ -20,15 +21,17 @@ def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int
                        game: str = "boxing") -> dict:
     """One full episode of ``game``, CEM with the chosen value at its end
     (:func:`~wmthesis.planet.value_planner.play_value_planner`) on the frozen model of
-    ``planet_run``: its ``return``, the return of its first :data:`FIRST_STEPS` steps and its
-    ``steps``."""
+    ``planet_run``: its ``return``, the return of its first :data:`FIRST_STEPS` steps, its
+    ``steps`` and the ``seconds`` it took (the planner's thinking, the game and the encoding)."""
     model, planet, _ = load_planet(planet_run)
     env = make_planet_env(game, planet)
     try:
+        start = time.perf_counter()
         rewards = play_value_planner(env, model, load_value(value_run, model), planet, planner, env_seed, mind_seed)
+        seconds = time.perf_counter() - start
     finally:
         env.close()
-    return bout_result(rewards)
+    return {**bout_result(rewards), "seconds": round(seconds, 3)}
 
 
 def planner_defaults(key: dict) -> dict:

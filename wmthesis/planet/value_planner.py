@@ -112,8 +112,9 @@ def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfi
     """One greedy episode of the planner with value in ``env`` (reset with ``env_seed``; CEM's
     noise from ``mind_seed``; CEM's sizes from ``planet``, its horizon from ``planner``): its
     rewards, one per agent step."""
-    mind = ValuePlanetMind(model, value, horizon=planner.horizon, candidates=planet.candidates, top_k=planet.top_k,
-                           iterations=planet.iterations, bits=planet.bits, discount=planner.discount,
+    mind = ValuePlanetMind(model, value, horizon=planner.horizon, candidates=planner.candidates or planet.candidates,
+                           top_k=planet.top_k, iterations=planner.iterations or planet.iterations, bits=planet.bits,
+                           discount=planner.discount,
                            imagine=planner.imagine, value_prior=planner.value_prior, rewards=planner.rewards,
                            generator=torch.Generator(next(model.parameters()).device).manual_seed(int(mind_seed)))
     record = EpisodeBuffer()

@@ -42,15 +42,15 @@ def checked_levers(kind: str, names: tuple[str, ...] | None, choices: dict, coun
 
 
 def lever_scores(planet_run: Path, work: Path, metrics: dict, planners: dict, bouts: list, progress: bool,
-                 game: str = "boxing", executor=None) -> dict[str, dict]:
+                 game: str = "boxing", executor=None, folder: str = "planner-validation") -> dict[str, dict]:
     """CEM with the value agent of the finished value run in ``work`` (its ``metrics``) under
     each lever of ``planners`` (name -> ValuePlannerConfig) on ``bouts``, all in one pool
     (:func:`value_planners_scores`), each cached in
-    ``work/planner-validation/<the lever's name, lower case, dashes>/scores.json``. Returns
+    ``work/<folder>/<the lever's name, lower case, dashes>/scores.json``. Returns
     name -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
     agent = agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config)
-    caches = [(planner, work / "planner-validation" / slug(name) / "scores.json") for name, planner in planners.items()]
+    caches = [(planner, work / folder / slug(name) / "scores.json") for name, planner in planners.items()]
     return dict(zip(planners, value_planners_scores(planet_run, work, caches, bouts, agent, progress, game, executor)))
 
 
