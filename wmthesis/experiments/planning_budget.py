@@ -56,14 +56,21 @@ def planning_budget(profile: str | None = None, seed: int = 0, variant: str | No
     its 95% t interval over levels, milliseconds per action)."""
     no_variant("planning-budget", variant)
     profile = profile_name(profile)
-    started = time.time()
-    rows = sokoban_curve(profile, seed, progress) + mcts_curve(profile, seed, progress) + cem_curve(profile, seed, progress)
+    started, rows = time.time(), []
+    for curve in (sokoban_curve, mcts_curve, cem_curve):  # each planner's rows saved before the next begins
+        rows += curve(profile, seed, progress)
+        metrics = _write_run(rows, profile, seed, time.time() - started)
+    return metrics
+
+
+def _write_run(rows: list[dict], profile: str, seed: int, seconds: float) -> dict:
+    """The run's ``metrics.json`` (its rows so far, a summary line, the figure) and the profile's CSV."""
     out = results_folder("planning-budget", profile, seed)
     figure = save_figure(plot_budget_curves(rows), out / "budget_curve.png")
     curves = "; ".join(f"{planner} on {game}: " + ", ".join(f"{r['budget']:,}: {r['score']:.1f}" for r in rows
                                                          if (r["planner"], r["game"]) == (planner, game))
                        for planner, game in dict.fromkeys((r["planner"], r["game"]) for r in rows))
-    metrics = {**run_header("planning-budget", profile, seed, time.time() - started),
+    metrics = {**run_header("planning-budget", profile, seed, seconds),
                "summary": f"score by search budget (0: no search): {curves}",
                "rows": rows, "files": {"figures": [str(figure)]}}
     write_json(out / "metrics.json", metrics)
