@@ -37,8 +37,9 @@ def test_without_search_the_agent_follows_its_value_one_step_at_a_time():
 def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_nothing_to_do(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     from wmthesis.experiments import reproduce
-    from wmthesis.experiments.planning_budget import (BOXING_BOUTS, CEM_BUDGETS, COLUMNS, MCTS_BUDGETS,
-                                                      SOKOBAN_BUDGETS, SOKOBAN_LEVELS)
+    from wmthesis.budget_curves import COLUMNS
+    from wmthesis.experiments.planning_budget import (BOXING_BOUTS, CEM_BUDGETS, MCTS_BUDGETS, SOKOBAN_BUDGETS,
+                                                      SOKOBAN_LEVELS)
 
     metrics = reproduce("planning-budget", "smoke", 0, progress=False)
     rows = metrics["rows"]

@@ -1,37 +1,36 @@
 """Planning that pays (issue 57; the thesis's promise, chapter 1): each planner's score against its
-search budget, on a seed's trained models, the same levels for every budget. Measured so far: the
-Sokoban agent (``sokoban-search``) on the first Boxoban medium report levels, without search and
-under each node budget of :data:`SOKOBAN_BUDGETS`; and MCTS in the World Models memory
-(``boxing-wm-alphazero``'s ``imitation`` run) on Boxing: its policy head alone, then each number of
-simulations of :data:`MCTS_BUDGETS`, on the same evaluation bouts; and CEM in PlaNet's model with
-the learned value (``planet-boxing-value``'s default) on Boxing: the value alone, then each
-horizon x candidates x iterations of :data:`CEM_BUDGETS`, on the value's evaluation bouts. Writes the run's ``metrics.json`` and, over every
-seed run in the profile, ``data/results/planning_budget.csv`` (``quick``; other profiles
-``planning_budget-PROFILE.csv``)."""
+search budget on a seed's trained models, the same bouts or levels for every budget:
+
+- the Sokoban agent (``sokoban-search``) on the first Boxoban medium report levels, without search
+  and under each node budget of :data:`SOKOBAN_BUDGETS`;
+- MCTS in the World Models memory (``boxing-wm-alphazero``'s ``imitation`` run) on Boxing: its
+  policy head alone, then each number of simulations of :data:`MCTS_BUDGETS`;
+- CEM in PlaNet's model with the learned value (``planet-boxing-value``'s default) on Boxing: the
+  value alone, then each horizon x candidates x iterations of :data:`CEM_BUDGETS`.
+
+Writes the run's ``metrics.json`` and every seed's rows of the profile
+(:mod:`wmthesis.budget_curves`)."""
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
-import json
 import time
 
 import numpy as np
 
 from wmthesis.alphazero.evaluation import evaluation_games, policy_head_games, trained_run
+from wmthesis.budget_curves import plot_budget_curves, write_budget_table
 from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
 from wmthesis.planet.config import ValuePlannerConfig
 from wmthesis.planet.value_runs import lever_scores
 from wmthesis.planet.value_variants import value_folder
-from wmthesis.runs import (atomic_path, built_on, hold, releasing_holds, results_folder, run_header, run_jobs,
+from wmthesis.runs import (built_on, hold, releasing_holds, results_folder, run_header, run_jobs,
                            work_folder, write_json)
 from wmthesis.sokoban_search.budget import NO_SEARCH, budget_jobs, budget_plays, ms_per_action
 from wmthesis.sokoban_search.config import SokobanSearchConfig
 from wmthesis.sokoban_search.iteration import load_run
 from wmthesis.training import with_added_defaults
-from wmthesis.utils import data_dir
 from wmthesis.variants import no_variant
 from wmthesis.viz import save_figure
 
@@ -44,7 +43,6 @@ BOXING_BOUTS = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation bouts a see
 # value alone (H = 1) is the row without search. quick's J and I are its PlaNet's; H = 3 its planner's.
 CEM_BUDGETS = {"smoke": ((2, 16, 2), (3, 16, 2)), "quick": ((2, 100, 3), (3, 100, 3), (6, 100, 3), (12, 100, 3)),
                "thesis": ((3, 1000, 10), (6, 1000, 10), (12, 1000, 10))}
-COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action")
 
 
 @releasing_holds
@@ -76,36 +74,6 @@ def _write_run(rows: list[dict], profile: str, seed: int, seconds: float) -> dic
     write_json(out / "metrics.json", metrics)
     write_budget_table(profile)
     return metrics
-
-
-def plot_budget_curves(rows: list[dict]):
-    """Score against budget (log scale; no search at the left edge), one panel per planner and
-    game, each seed a line, the mean over seeds in black with its 95% t interval. Returns the figure."""
-    import matplotlib.pyplot as plt
-
-    panels = sorted({(r["planner"], r["game"]) for r in rows})
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.4), squeeze=False)
-    for ax, (planner, game) in zip(axes[0], panels):
-        mine = [r for r in rows if (r["planner"], r["game"]) == (planner, game)]
-        searched = sorted({r["budget"] for r in mine if r["budget"] != NO_SEARCH})
-        x = {NO_SEARCH: searched[0] / 4 if searched else 1, **{b: b for b in searched}}
-        for seed in sorted({r["seed"] for r in mine}):
-            line = sorted((r for r in mine if r["seed"] == seed), key=lambda r: r["budget"])
-            ax.plot([x[r["budget"]] for r in line], [r["score"] for r in line], "o-", lw=1, ms=3, alpha=0.6,
-                    label=f"seed {seed}")
-        over = [aggregate([r["score"] for r in mine if r["budget"] == b]) for b in x]
-        ax.plot(list(x.values()), [a["mean"] for a in over], "k-", lw=2, label="mean")
-        if all(a["ci_low"] is not None for a in over):
-            ax.fill_between(list(x.values()), [a["ci_low"] for a in over], [a["ci_high"] for a in over], color="k",
-                            alpha=0.12, label="95% interval")
-        ax.set_xscale("log")
-        ax.set_xticks(list(x.values()), ["none", *(f"{b:,}" for b in searched)], rotation=30, fontsize=7)
-        ax.set_xlabel("search budget")
-        ax.set_ylabel("score")
-        ax.set_title(f"{planner} on {game}", fontsize=9)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    return fig
 
 
 def sokoban_curve(profile: str, seed: int, progress: bool) -> list[dict]:
@@ -167,48 +135,5 @@ def _row(planner: str, game: str, budget: int, seed: int, scores: np.ndarray, wi
             "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(scores)}
 
 
-def budget_table(rows: list[dict]) -> list[dict]:
-    """Per planner, game and budget over its seeds: the mean score, the paired gain over no search
-    with its 95% t interval over seeds (each seed's bouts or levels paired), and ms per action."""
-    keys = dict.fromkeys((r["planner"], r["game"], r["budget"]) for r in rows)
-    out = []
-    for planner, game, budget in keys:
-        mine = [r for r in rows if (r["planner"], r["game"], r["budget"]) == (planner, game, budget)]
-        gain = aggregate([r["score"] - r["no_search_score"] for r in mine])
-        out.append({"planner": planner, "game": game, "budget": budget, "seeds": len(mine),
-                    "score": float(np.mean([r["score"] for r in mine])), "gain": gain["mean"],
-                    "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"],
-                    "ms_per_action": float(np.mean([r["ms_per_action"] for r in mine]))})
-    return out
-
-
-def read_budget_rows(profile: str) -> list[dict]:
-    """The rows :func:`write_budget_table` wrote for ``profile`` (numbers as numbers)."""
-    name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
-    with open(data_dir("results") / name) as f:
-        return [{**r, "budget": int(r["budget"]), "seed": int(r["seed"]),
-                 **{k: float(r[k]) for k in ("score", "no_search_score", "ms_per_action")}} for r in csv.DictReader(f)]
-
-
-def write_budget_table(profile: str) -> str:
-    """Every seed's rows of ``profile`` (each run's ``metrics.json``) as one CSV of :data:`COLUMNS`,
-    ``data/results/planning_budget.csv`` (``planning_budget-PROFILE.csv`` outside ``quick``);
-    returns its text."""
-    results = data_dir("results")
-    rows = []
-    for path in sorted(results.glob(f"planning-budget/{profile}-seed*/metrics.json")):
-        rows += json.loads(path.read_text())["rows"]
-    rows.sort(key=lambda r: (r["planner"], r["game"], r["seed"], r["budget"]))
-    text = io.StringIO()
-    writer = csv.DictWriter(text, COLUMNS, extrasaction="ignore", lineterminator="\n")
-    writer.writeheader()
-    writer.writerows({**r, **{k: round(r[k], 3) for k in ("score", "no_search_score", "ms_per_action")}}
-                     for r in rows)
-    name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
-    with atomic_path(results / name) as tmp:
-        tmp.write_text(text.getvalue())
-    return text.getvalue()
-
-
-__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "cem_curve", "MCTS_BUDGETS", "BOXING_BOUTS", "CEM_BUDGETS", "budget_table",
-           "read_budget_rows", "write_budget_table", "plot_budget_curves", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS", "COLUMNS"]
+__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "cem_curve", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS",
+           "MCTS_BUDGETS", "BOXING_BOUTS", "CEM_BUDGETS"]

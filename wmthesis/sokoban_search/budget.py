@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
+from wmthesis.budget_curves import NO_SEARCH
 from wmthesis.envs.boxoban import load_levels
 from wmthesis.runs import partial_path, read_json, write_json
 from wmthesis.sokoban_search.evaluation import board_env
 from wmthesis.sokoban_search.iteration import evaluation_search, load_run
 from wmthesis.sokoban_search.report import EVAL_PARTS, boxoban_job
 
-NO_SEARCH = 0  # the budget of the row without search
 MAX_STEPS = 120  # Boxoban's step limit, as every evaluation plays it
 
 

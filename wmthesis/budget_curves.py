@@ -1,0 +1,94 @@
+"""Score against search budget over seeds (issue 57): the rows every ``planning-budget`` run writes,
+as one CSV (``data/results/planning_budget.csv``), a table over seeds and a figure. One row per
+planner, game, budget and seed: the score, the same agent's without search on the same bouts or
+levels, and milliseconds per action (:data:`COLUMNS`); budget 0 is the row without search."""
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import numpy as np
+
+from wmthesis.metrics import aggregate
+from wmthesis.runs import atomic_path
+from wmthesis.utils import data_dir
+
+NO_SEARCH = 0
+COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action")
+
+
+def plot_budget_curves(rows: list[dict]):
+    """Score against budget (log scale; no search at the left edge), one panel per planner and
+    game, each seed a line, the mean over seeds in black with its 95% t interval. Returns the figure."""
+    import matplotlib.pyplot as plt
+
+    panels = sorted({(r["planner"], r["game"]) for r in rows})
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.4), squeeze=False)
+    for ax, (planner, game) in zip(axes[0], panels):
+        mine = [r for r in rows if (r["planner"], r["game"]) == (planner, game)]
+        searched = sorted({r["budget"] for r in mine if r["budget"] != NO_SEARCH})
+        x = {NO_SEARCH: searched[0] / 4 if searched else 1, **{b: b for b in searched}}
+        for seed in sorted({r["seed"] for r in mine}):
+            line = sorted((r for r in mine if r["seed"] == seed), key=lambda r: r["budget"])
+            ax.plot([x[r["budget"]] for r in line], [r["score"] for r in line], "o-", lw=1, ms=3, alpha=0.6,
+                    label=f"seed {seed}")
+        over = [aggregate([r["score"] for r in mine if r["budget"] == b]) for b in x]
+        ax.plot(list(x.values()), [a["mean"] for a in over], "k-", lw=2, label="mean")
+        if all(a["ci_low"] is not None for a in over):
+            ax.fill_between(list(x.values()), [a["ci_low"] for a in over], [a["ci_high"] for a in over], color="k",
+                            alpha=0.12, label="95% interval")
+        ax.set_xscale("log")
+        ax.set_xticks(list(x.values()), ["none", *(f"{b:,}" for b in searched)], rotation=30, fontsize=7)
+        ax.set_xlabel("search budget")
+        ax.set_ylabel("score")
+        ax.set_title(f"{planner} on {game}", fontsize=9)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def budget_table(rows: list[dict]) -> list[dict]:
+    """Per planner, game and budget over its seeds: the mean score, the paired gain over no search
+    with its 95% t interval over seeds (each seed's bouts or levels paired), and ms per action."""
+    keys = dict.fromkeys((r["planner"], r["game"], r["budget"]) for r in rows)
+    out = []
+    for planner, game, budget in keys:
+        mine = [r for r in rows if (r["planner"], r["game"], r["budget"]) == (planner, game, budget)]
+        gain = aggregate([r["score"] - r["no_search_score"] for r in mine])
+        out.append({"planner": planner, "game": game, "budget": budget, "seeds": len(mine),
+                    "score": float(np.mean([r["score"] for r in mine])), "gain": gain["mean"],
+                    "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"],
+                    "ms_per_action": float(np.mean([r["ms_per_action"] for r in mine]))})
+    return out
+
+
+def read_budget_rows(profile: str) -> list[dict]:
+    """The rows :func:`write_budget_table` wrote for ``profile`` (numbers as numbers)."""
+    name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
+    with open(data_dir("results") / name) as f:
+        return [{**r, "budget": int(r["budget"]), "seed": int(r["seed"]),
+                 **{k: float(r[k]) for k in ("score", "no_search_score", "ms_per_action")}} for r in csv.DictReader(f)]
+
+
+def write_budget_table(profile: str) -> str:
+    """Every seed's rows of ``profile`` (each run's ``metrics.json``) as one CSV of :data:`COLUMNS`,
+    ``data/results/planning_budget.csv`` (``planning_budget-PROFILE.csv`` outside ``quick``);
+    returns its text."""
+    results = data_dir("results")
+    rows = []
+    for path in sorted(results.glob(f"planning-budget/{profile}-seed*/metrics.json")):
+        rows += json.loads(path.read_text())["rows"]
+    rows.sort(key=lambda r: (r["planner"], r["game"], r["seed"], r["budget"]))
+    text = io.StringIO()
+    writer = csv.DictWriter(text, COLUMNS, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    writer.writerows({**r, **{k: round(r[k], 3) for k in ("score", "no_search_score", "ms_per_action")}}
+                     for r in rows)
+    name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
+    with atomic_path(results / name) as tmp:
+        tmp.write_text(text.getvalue())
+    return text.getvalue()
+
+
+__all__ = ["COLUMNS", "NO_SEARCH", "budget_table", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
