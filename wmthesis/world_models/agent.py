@@ -26,8 +26,9 @@ AGENT_NAME = "agent.pt"
 
 
 class Agent(NamedTuple):
-    """A loaded agent: ``vision`` (frames -> z), ``memory``, the controller's flat ``params`` (D,)
-    and ``info`` (configs, task, generation, commit)."""
+    """A loaded agent: ``vision`` (frames -> z, encoding as the controller was evolved: float32 or
+    bfloat16), ``memory``, the controller's flat ``params`` (D,) and ``info`` (configs, task,
+    generation, commit)."""
     vision: VAEVision
     memory: torch.nn.Module
     params: np.ndarray
@@ -70,7 +71,8 @@ def load_agent(path: str | os.PathLike) -> Agent:
     memory = make_memory(task["latent_size"], task["n_actions"], MemoryConfig(**saved["memory_config"]))
     memory.load_state_dict(saved["memory"])
     info = {k: saved[k] for k in ("task", "controller_config", "memory_config", "generation", "commit")}
-    return Agent(VAEVision(vae.eval()), memory.eval(), saved["params"], info)
+    return Agent(VAEVision(vae.eval(), bfloat16=bool(task.get("vision_bfloat16", False))), memory.eval(),
+                 saved["params"], info)
 
 
 __all__ = ["Agent", "AGENT_NAME", "FORMAT", "FORMAT_VERSION", "save_agent", "load_agent"]
