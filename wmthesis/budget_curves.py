@@ -64,8 +64,11 @@ def budget_table(rows: list[dict]) -> list[dict]:
 
 
 def read_budget_rows(profile: str) -> list[dict]:
-    """The rows :func:`write_budget_table` wrote for ``profile`` (numbers as numbers)."""
+    """The rows :func:`write_budget_table` wrote for ``profile`` (numbers as numbers); none before
+    the first seed is measured."""
     name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
+    if not (data_dir("results") / name).is_file():  # no seed measured yet in this profile
+        return []
     with open(data_dir("results") / name) as f:
         return [{**r, "budget": int(r["budget"]), "seed": int(r["seed"]),
                  **{k: float(r[k]) for k in ("score", "no_search_score", "ms_per_action")}} for r in csv.DictReader(f)]
