@@ -17,7 +17,7 @@ NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 AWAITING_RERUN = {"02_boxing_world_models",
                   "03_boxing_world_models_alphazero", "05_planet_boxing",
                   "06_kl_scale_free_nats_search", "07_sokoban_search", "08_planet_freeway", "09_planet_boxing_value",
-                  "10_planet_value_planner", "11_planning_budget"}
+                  "10_planet_value_planner"}
 
 
 def code_cells(path: Path) -> list[dict]:
