@@ -19,6 +19,7 @@ import numpy as np
 
 from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.utils import check_choice
+from wmthesis.variants import no_variant
 
 PLAYABLE = ("sokoban-search", "boxing-wm")
 
@@ -50,8 +51,7 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
     record, video = check_output(record, ".rrd"), check_output(video, ".mp4")
     if experiment == "boxing-wm":
         return _play_boxing(profile_name(profile), seed, variant, bouts, record, video, on_play)
-    if variant is not None:
-        raise ValueError(f"experiment {experiment!r} has no variants, got {variant!r}")
+    no_variant(experiment, variant)
     return _play_sokoban(profile_name(profile), seed, bouts, record, video, on_play)
 
 
