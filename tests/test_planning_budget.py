@@ -4,6 +4,7 @@ import csv
 import numpy as np
 
 from wmthesis.envs.levels import parse_levels
+from wmthesis.runs import read_json
 from wmthesis.sokoban_search.agent import SearchAgent
 from wmthesis.sokoban_search.budget import greedy_play
 from wmthesis.sokoban_search.search import Simulator, best_first
@@ -66,3 +67,36 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     stamps = [p.stat().st_mtime_ns for p in saved]
     again = reproduce("planning-budget", "smoke", 0, progress=False)
     assert again["rows"] == rows and [p.stat().st_mtime_ns for p in saved] == stamps
+
+    # a budget cut off after its first game plays only the rest; one planner's new budgets keep the others' rows
+    import wmthesis.alphazero.evaluation as evaluation
+    from wmthesis.__main__ import main
+    from wmthesis.utils import read_pickle
+
+    last = saved[-1]  # the top MCTS budget's games
+    games = read_pickle(last)
+    evaluation._save_games(last.with_name(last.stem + ".partial.pkl"), games["key"], games["games"][:1])
+    last.unlink()
+    played, real_play = [], evaluation.play
+    monkeypatch.setattr(evaluation, "play", lambda *a, **k: played.append(a[3]) or real_play(*a, **k))
+    assert main(["budget-curve", "mcts", "--budgets", f"{MCTS_BUDGETS['smoke'][-1]},3", "--profile", "smoke"]) == 0
+    assert played == [*range(1, BOXING_BOUTS["smoke"]), *range(BOXING_BOUTS["smoke"])]  # the cut budget's rest, then 3's
+    after = {(r["planner"], r["budget"]): r for r in read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0"
+                                                                / "metrics.json")["rows"]}
+    assert [b for p, b in after if p == "mcts"] == [0, MCTS_BUDGETS["smoke"][-1], 3]
+    assert after[("mcts", MCTS_BUDGETS["smoke"][-1])]["score"] == mcts[-1]["score"]  # the resumed games score the same
+    assert [after[(r["planner"], r["budget"])]["score"] for r in sokoban + cem] == [r["score"] for r in sokoban + cem]
+
+
+def test_bad_planners_and_budgets_are_refused_in_one_line_before_anything_plays(capsys):
+    from wmthesis.__main__ import main
+    from wmthesis.budget_curves import parse_budgets
+
+    assert parse_budgets("mcts", "16, 64,16") == (16, 64) and parse_budgets("cem", "6x100x3,2X10x1") == ((6, 100, 3), (2, 10, 1))
+    for argv, words in [(["chess"], "unknown planner 'chess'"), (["mcts", "--budgets", "0"], "budget 0 is the row without"),
+                        (["mcts", "--budgets", "16,-4"], "'-4' is negative"), (["sokoban-search", "--budgets", "1e3"], "not an integer"),
+                        (["cem", "--budgets", "1x100x3"], "horizon 1 is the value alone"), (["cem", "--budgets", "6x100"], "not HxJxI"),
+                        (["cem", "--budgets", "6x0x3"], "has a 0")]:
+        assert main(["budget-curve", *argv, "--profile", "smoke"]) == 2
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1, err

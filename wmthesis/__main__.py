@@ -11,6 +11,10 @@
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
         writes a JSON list of {level, solved, steps, actions}.
+    budget-curve PLANNER [--budgets B,...] [--profile P] [--seed S]
+        One planner's score against its search budget on the seed's trained models (mcts,
+        cem, sokoban-search; `reproduce planning-budget` measures all three at the profile's
+        budgets), with its row without search; resumable; rows into data/results/planning_budget.csv.
     play EXPERIMENT [--profile P] [--seed S] [--bouts N] [--record FILE.rrd] [--video FILE.mp4]
         A trained agent plays its experiment's evaluation levels or bouts, with no training
         (sokoban-search's shipped agents today); prints each play and the score.
@@ -40,7 +44,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from wmthesis.config import ATARI_ENVIRONMENTS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, for_profile
+from wmthesis.config import ATARI_ENVIRONMENTS, PLANNERS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, for_profile
 from wmthesis.runs import FolderHeld, write_json
 from wmthesis.utils import data_dir
 
@@ -154,6 +158,24 @@ def cmd_solve_sokoban(args) -> int:
         if boxoban else Path(args.levels).with_suffix(".solutions.json")
     write_json(out, results)
     print(f"{out}: {sum(r['solved'] for r in results)} of {len(results)} levels solved")
+    return 0
+
+
+def cmd_budget_curve(args) -> int:
+    from wmthesis.budget_curves import check_planners, parse_budgets
+
+    check_planners([args.planner])  # bad input refused before anything loads or plays
+    budgets = None if args.budgets is None else {args.planner: parse_budgets(args.planner, args.budgets)}
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from wmthesis.experiments.planning_budget import planning_budget
+
+    metrics = planning_budget(args.profile, args.seed, planners=(args.planner,), budgets=budgets)
+    for row in (r for r in metrics["rows"] if r["planner"] == args.planner):
+        gain = "" if row["budget"] == 0 else f", gain {row['gain']:+.1f} [{row['gain_ci_low']:+.1f}, {row['gain_ci_high']:+.1f}]"
+        print(f"{args.planner} on {row['game']}, budget {row['budget']:,}: {row['score']:.1f}{gain}, "
+              f"{row['ms_per_action']:.1f} ms an action")
     return 0
 
 
@@ -296,6 +318,14 @@ def parser() -> argparse.ArgumentParser:
     solve.add_argument("--out", help="JSON results (default: LEVELS.solutions.json)")
     solve.add_argument("--max-steps", type=at_least(1), default=120, help="steps allowed per level")
     solve.set_defaults(run=cmd_solve_sokoban)
+
+    budget = commands.add_parser("budget-curve", help="one planner's score against its search budget (resumable)")
+    budget.add_argument("planner", help=f"one of {', '.join(PLANNERS)}")
+    budget.add_argument("--budgets", help="budgets in place of the profile's: 16,64,256 (mcts: simulations; "
+                                          "sokoban-search: nodes) or 6x100x3,12x100x3 (cem: horizon x candidates x iterations)")
+    budget.add_argument("--profile", choices=PROFILES)
+    budget.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained models")
+    budget.set_defaults(run=cmd_budget_curve)
 
     player = commands.add_parser("play", help="a trained agent plays, with no training")
     player.add_argument("experiment", choices=EXPERIMENTS)

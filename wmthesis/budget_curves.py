@@ -10,12 +10,62 @@ import json
 
 import numpy as np
 
+from wmthesis.config import PLANNERS
 from wmthesis.metrics import aggregate
 from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir
 
 NO_SEARCH = 0
 COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action")
+
+
+def check_planners(planners) -> None:
+    """ValueError (one line, naming the valid ones) for the first of ``planners`` not in :data:`PLANNERS`."""
+    unknown = [p for p in planners if p not in PLANNERS]
+    if unknown:
+        raise ValueError(f"unknown planner {unknown[0]!r} (valid: {', '.join(PLANNERS)})")
+
+
+def parse_budgets(planner: str, text: str) -> tuple:
+    """``planner``'s budgets from ``text``: positive integers ``"16,64,256"`` (simulations for
+    ``mcts``, nodes for ``sokoban-search``), or ``"HxJxI"`` triples for ``cem`` (horizon,
+    candidates, iterations; ``"6x100x3,12x100x3"``). The row without search (budget 0; CEM's
+    horizon 1, the value alone) is measured always, so it is refused here, as are an unknown
+    planner, a negative number and one that is not an integer: ValueError in one line."""
+    check_planners([planner])
+    items = [item.strip() for item in text.split(",") if item.strip()]
+    if not items:
+        raise ValueError(f"no budget in {text!r}: give {planner}'s budgets, e.g. {_EXAMPLES[planner]}")
+    budgets = tuple(_budget(planner, item) for item in items)
+    return tuple(dict.fromkeys(budgets))  # each once, in the order given
+
+
+_EXAMPLES = {"sokoban-search": "1000,5000,40000", "mcts": "16,64,256", "cem": "6x100x3,12x100x3"}
+
+
+def _budget(planner: str, item: str):
+    """One budget of ``planner`` (see :func:`parse_budgets`)."""
+    parts = item.lower().split("x") if planner == "cem" else [item]
+    if planner == "cem" and len(parts) != 3:
+        raise ValueError(f"cem budget {item!r} is not HxJxI (horizon x candidates x iterations, e.g. 6x100x3)")
+    try:
+        numbers = [int(part) for part in parts]
+    except ValueError:
+        raise ValueError(f"{planner} budget {item!r} is not {'made of integers' if planner == 'cem' else 'an integer'}"
+                         f" (e.g. {_EXAMPLES[planner]})") from None
+    if any(n < 0 for n in numbers):
+        raise ValueError(f"{planner} budget {item!r} is negative: a budget counts "
+                         f"{'imagined steps' if planner == 'cem' else 'simulations' if planner == 'mcts' else 'nodes'}")
+    if planner == "cem":
+        if 0 in numbers:
+            raise ValueError(f"cem budget {item!r} has a 0: horizon, candidates and iterations are 1 or more")
+        if numbers[0] == 1:
+            raise ValueError(f"cem budget {item!r}: horizon 1 is the value alone, the row without search, "
+                             "measured always")
+        return tuple(numbers)
+    if numbers[0] == NO_SEARCH:
+        raise ValueError(f"{planner} budget 0 is the row without search, measured always: give budgets of 1 or more")
+    return numbers[0]
 
 
 def plot_budget_curves(rows: list[dict]):
@@ -94,4 +144,4 @@ def write_budget_table(profile: str) -> str:
     return text.getvalue()
 
 
-__all__ = ["COLUMNS", "NO_SEARCH", "budget_table", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
+__all__ = ["COLUMNS", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "read_budget_rows", "write_budget_table", "plot_budget_curves"]

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from wmthesis.utils import check_choice
 
 PROFILES = ("smoke", "quick", "thesis")
+PLANNERS = ("sokoban-search", "mcts", "cem")  # the planners of a budget curve, in the order a run measures them
 # The names a command checks before anything heavy loads: the environments and the experiments
 # (:mod:`wmthesis.envs` and :mod:`wmthesis.experiments` are built on them).
 ATARI_ENVIRONMENTS = ("boxing", "freeway")

@@ -70,7 +70,8 @@ def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained
     """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
     cached in ``evaluation.pkl`` for the run's number of games. ``pretrained``: the heads
     after imitation, before self-play (``evaluation-pretrained.pkl``); ``simulations``: the
-    search's budget in place of ``cfg.simulations`` (``evaluation-S-simulations-N.pkl`` for N games)."""
+    search's budget in place of ``cfg.simulations`` (``evaluation-S-simulations-N.pkl`` for N games).
+    Each game is saved as it ends (``*.partial.pkl``): a cut-off evaluation plays only the rest."""
     if simulations is not None:
         cfg = dataclasses.replace(cfg, simulations=int(simulations))
     name = ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl" if simulations is None
@@ -79,28 +80,41 @@ def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
            **({} if simulations is None else {"simulations": cfg.simulations})}
-    try:  # a missing or corrupt cache is played again
-        cached = read_pickle(path)
-        if cached["key"] == key:
-            return cached["games"]
-    except (OSError, ValueError):
-        pass
+    cached = _cached_games(path, key)  # a missing or corrupt cache is played again
+    if cached is not None:
+        return cached
     heads = run.pretrained_heads() if pretrained else run.heads
     mind = AlphaZeroMind(vision, run.mdp(memory), Evaluator(heads), cfg)
     env = boxing_env(cfg.noop_max)
-    games = []
+    partial = path.with_name(path.stem + ".partial.pkl")  # the games played so far: a cut-off run resumes game by game
+    games = _cached_games(partial, key) or []
     try:
-        for k, game_seed in enumerate(key["seeds"]):
+        for k, game_seed in list(enumerate(key["seeds"]))[len(games):]:
             mind.keep_frames = k == 0
             game = play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
             if game.frames is not None:
                 game.frames = game.frames[:RECORDING_STEPS]
             games.append(game)
+            _save_games(partial, key, games)
     finally:
         env.close()
+    _save_games(path, key, games)
+    partial.unlink(missing_ok=True)
+    return games
+
+
+def _cached_games(path: Path, key: dict) -> list | None:
+    """The games saved in ``path`` under ``key``; None where missing, corrupt or of another key."""
+    try:
+        cached = read_pickle(path)
+        return cached["games"] if cached["key"] == key else None
+    except (OSError, ValueError):  # read_pickle names a corrupt file in a ValueError
+        return None
+
+
+def _save_games(path: Path, key: dict, games: list) -> None:
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         pickle.dump({"key": key, "games": games}, f)
-    return games
 
 
 def policy_head_games(run, vision, memory, cfg, work: Path, seed: int) -> dict:

@@ -18,14 +18,14 @@ import time
 import numpy as np
 
 from wmthesis.alphazero.evaluation import evaluation_games, policy_head_games, trained_run
-from wmthesis.budget_curves import plot_budget_curves, write_budget_table
+from wmthesis.budget_curves import PLANNERS, check_planners, plot_budget_curves, write_budget_table
 from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
 from wmthesis.planet.config import ValuePlannerConfig
 from wmthesis.planet.value_runs import lever_scores
 from wmthesis.planet.value_variants import value_folder
-from wmthesis.runs import (built_on, hold, releasing_holds, results_folder, run_header, run_jobs,
+from wmthesis.runs import (built_on, hold, read_json, releasing_holds, results_folder, run_header, run_jobs,
                            work_folder, write_json)
 from wmthesis.sokoban_search.budget import NO_SEARCH, budget_jobs, budget_plays, ms_per_action
 from wmthesis.sokoban_search.config import SokobanSearchConfig
@@ -47,16 +47,22 @@ CEM_BUDGETS = {"smoke": ((2, 16, 2), (3, 16, 2)), "quick": ((2, 100, 3), (3, 100
 
 @releasing_holds
 def planning_budget(profile: str | None = None, seed: int = 0, variant: str | None = None,
-                    progress: bool = True) -> dict:
-    """The budget curve of every planner measured so far on ``seed``'s trained models (see the
-    module docstring); resumable level by level. Returns the metrics: one row per planner and
+                    progress: bool = True, planners: tuple[str, ...] = PLANNERS,
+                    budgets: dict | None = None) -> dict:
+    """The budget curve of each of ``planners`` (:data:`~wmthesis.budget_curves.PLANNERS`) on
+    ``seed``'s trained models (see the module docstring); resumable level by level and bout by
+    bout. ``budgets``: planner -> its budgets in place of the profile's
+    (:func:`~wmthesis.budget_curves.parse_budgets`). Returns the metrics: one row per planner and
     budget (score, the same agent without search on the same levels, the paired gain over it with
-    its 95% t interval over levels, milliseconds per action)."""
+    its 95% t interval over levels, milliseconds per action), the other planners' rows kept."""
     no_variant("planning-budget", variant)
-    profile = profile_name(profile)
-    started, rows = time.time(), []
-    for curve in (sokoban_curve, mcts_curve, cem_curve):  # each planner's rows saved before the next begins
-        rows += curve(profile, seed, progress)
+    profile, budgets = profile_name(profile), budgets or {}
+    check_planners([*planners, *budgets])
+    earlier = read_json(results_folder("planning-budget", profile, seed) / "metrics.json") or {}
+    started, rows = time.time(), [r for r in earlier.get("rows", []) if r["planner"] not in planners]
+    curves = {"sokoban-search": sokoban_curve, "mcts": mcts_curve, "cem": cem_curve}
+    for planner in planners:  # each planner's rows saved before the next begins
+        rows += curves[planner](profile, seed, progress, budgets.get(planner))
         metrics = _write_run(rows, profile, seed, time.time() - started)
     return metrics
 
@@ -76,14 +82,15 @@ def _write_run(rows: list[dict], profile: str, seed: int, seconds: float) -> dic
     return metrics
 
 
-def sokoban_curve(profile: str, seed: int, progress: bool) -> list[dict]:
-    """The Sokoban agent's rows: without search (budget 0) and under each of :data:`SOKOBAN_BUDGETS`."""
+def sokoban_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
+    """The Sokoban agent's rows: without search (budget 0) and under each node budget of
+    ``budgets`` (default the profile's :data:`SOKOBAN_BUDGETS`)."""
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
     folder = work_folder(profile, "sokoban-search", seed) / "pixels"
     if load_run(folder, cfg) is None:
         built_on("sokoban-search", profile, seed, progress=progress)
     work = hold(work_folder(profile, "planning-budget", seed))
-    budgets = (NO_SEARCH, *SOKOBAN_BUDGETS[profile])
+    budgets = (NO_SEARCH, *(budgets or SOKOBAN_BUDGETS[profile]))
     jobs = budget_jobs(work, folder, cfg, BOXOBAN_SPLITS["report"]["medium"], SOKOBAN_LEVELS[profile], budgets)
     run_jobs(jobs, progress)
     plays = {budget: budget_plays(jobs, budget) for budget in budgets}
@@ -92,9 +99,10 @@ def sokoban_curve(profile: str, seed: int, progress: bool) -> list[dict]:
                  ms_per_action(plays[budget])) for budget in budgets]
 
 
-def mcts_curve(profile: str, seed: int, progress: bool) -> list[dict]:
+def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
     """MCTS in the World Models memory on Boxing: the ``imitation`` run's policy head alone (budget
-    0), then its search under each of :data:`MCTS_BUDGETS`, on the same :data:`BOXING_BOUTS` bouts."""
+    0), then its search under each number of simulations of ``budgets`` (default the profile's
+    :data:`MCTS_BUDGETS`), on the same :data:`BOXING_BOUTS` bouts."""
     built_on("boxing-wm-alphazero", profile, seed, "imitation", progress)
     work = work_folder(profile, "boxing-wm-alphazero", seed)
     run, vision, memory, cfg = trained_run(work_folder(profile, "boxing-wm", seed), work, "imitation")
@@ -102,21 +110,22 @@ def mcts_curve(profile: str, seed: int, progress: bool) -> list[dict]:
     head = policy_head_games(run, vision, memory, cfg, work / "imitation", seed)
     without = np.array(head["returns"])
     rows = [_row("mcts", "boxing", NO_SEARCH, seed, without, without, head["ms_per_action"])]
-    for budget in MCTS_BUDGETS[profile]:
+    for budget in budgets or MCTS_BUDGETS[profile]:
         games = evaluation_games(run, vision, memory, cfg, work / "imitation", seed, simulations=budget)
         ms = 1000 * sum(g.seconds for g in games) / max(1, sum(len(g.actions) for g in games))
         rows.append(_row("mcts", "boxing", budget, seed, np.array([g.score for g in games]), without, ms))
     return rows
 
 
-def cem_curve(profile: str, seed: int, progress: bool) -> list[dict]:
+def cem_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
     """CEM with the value on PlaNet's Boxing model: the default value run's planner with its horizon,
-    candidates and iterations set by :data:`CEM_BUDGETS` (budget H x J x I), and the value alone (H = 1:
-    budget 0), on the first :data:`BOXING_BOUTS` of the value's evaluation bouts."""
+    candidates and iterations set by each ``(H, J, I)`` of ``budgets`` (default the profile's
+    :data:`CEM_BUDGETS`; budget H x J x I), and the value alone (H = 1: budget 0), on the first
+    :data:`BOXING_BOUTS` of the value's evaluation bouts."""
     metrics = built_on("planet-boxing-value", profile, seed, progress=progress)
     base = with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"])
     budgets = {NO_SEARCH: dict(horizon=1), **{h * j * i: dict(horizon=h, candidates=j, iterations=i)
-                                              for h, j, i in CEM_BUDGETS[profile]}}
+                                              for h, j, i in budgets or CEM_BUDGETS[profile]}}
     planners = {f"budget {budget}": ValuePlannerConfig(**{**base, **changes}) for budget, changes in budgets.items()}
     scores = lever_scores(work_folder(profile, "planet-boxing-agent", seed), value_folder(profile, seed),
                           metrics, planners, metrics["bouts"][:BOXING_BOUTS[profile]], progress, folder="planning-budget")
