@@ -37,6 +37,10 @@ def test_a_registry_holds_one_default_and_merges_changes_along_what_a_variant_bu
         Variants("demo", Variant("a", "a", default=True), Variant("a", "again"))
     with pytest.raises(ValueError, match="builds on 'nowhere'"):
         Variants("demo", Variant("a", "a", default=True), Variant("b", "b", builds_on="nowhere"))
+    rooted = Variants("demo", Variant("first", "the first recipe"), Variant("better", "b", default=True), root="first")
+    assert rooted.folder_name("first") is None and rooted.folder_name(None) == rooted.folder_name("better") == "better"
+    with pytest.raises(ValueError, match="the root 'gone' is not declared"):
+        Variants("demo", Variant("a", "a", default=True), root="gone")
 
 
 def test_every_experiment_has_one_recipe_signature_and_refuses_a_variant_it_lacks():

@@ -38,13 +38,18 @@ class Variant:
 
 
 class Variants(Mapping):
-    """An experiment's variants by name (in the order declared), exactly one of them the default."""
+    """An experiment's variants by name (in the order declared), exactly one of them the default.
+    ``root``: the variant whose runs keep the experiment's own folders (its first recipe, where
+    later recipes came as variants); every other variant's runs go to folders of its name."""
 
-    def __init__(self, experiment: str, *variants: Variant):
+    def __init__(self, experiment: str, *variants: Variant, root: str | None = None):
         self.experiment = experiment
         self._variants = {v.name: v for v in variants}
         if len(self._variants) != len(variants):
             raise ValueError(f"{experiment}: a variant name is declared twice")
+        if root is not None and root not in self._variants:
+            raise ValueError(f"{experiment}: the root {root!r} is not declared")
+        self.root = root
         defaults = [v.name for v in variants if v.default]
         if len(defaults) != 1:
             raise ValueError(f"{experiment}: exactly one default variant, got {defaults}")
@@ -76,6 +81,12 @@ class Variants(Mapping):
             raise ValueError(f"unknown variant {name!r} of {self.experiment}; valid: {', '.join(self._variants)} "
                              f"(variants no longer in the code, with their numbers: {self.findings})")
         return self._variants[name]
+
+    def folder_name(self, name: str | None) -> str | None:
+        """The variant ``name``'s name in its folders and metrics (None: the default): None for
+        the :attr:`root`'s runs, which keep the experiment's own folders."""
+        name = self.check(name).name
+        return None if name == self.root else name
 
     def lineage(self, name: str | None) -> list[Variant]:
         """The variant ``name`` and those it builds on, the first built on first."""

@@ -37,9 +37,9 @@ from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOB
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
                                                        sokoban_world_models)
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
-from wmthesis.world_models.variants import BOXING_WM, folder_variant as boxing_wm_folder_variant
+from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
-from wmthesis.planet.value_variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS, folder_variant as boxing_folder_variant
+from wmthesis.planet.value_variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.runs import register_runner
 from wmthesis.utils import check_choice, worker_init
@@ -60,8 +60,8 @@ NO_VARIANTS = tuple(name for name in EXPERIMENTS if name not in VARIANTS)
 # Experiment -> the variant its default run's metrics name (None: it names none, its runs keep the
 # experiment's own folders), for the experiments whose default has a name in its metrics.
 DEFAULT_RESULTS = {**{name: registry.default.name for name, registry in PLANET_REGISTRIES.items()},
-                   "planet-boxing-value": boxing_folder_variant(None), "planet-freeway-value": None,
-                   "boxing-wm": boxing_wm_folder_variant(None)}
+                   "planet-boxing-value": BOXING_VALUE_VARIANTS.folder_name(None), "planet-freeway-value": None,
+                   "boxing-wm": BOXING_WM.folder_name(None)}
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,

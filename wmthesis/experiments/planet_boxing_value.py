@@ -17,7 +17,7 @@ from wmthesis.planet.train import load_planet
 from wmthesis.planet.value_bouts import value_bout
 from wmthesis.planet.value_play import validation_seeds
 from wmthesis.planet.value_rounds import agent_rounds, round_values
-from wmthesis.planet.value_variants import (GAME, VALUE_VARIANTS, folder_variant, results_folder, value_folder,
+from wmthesis.planet.value_variants import (GAME, VALUE_VARIANTS, results_folder, value_folder,
                                             value_run)
 from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores, slug,
                                         start_from)
@@ -55,7 +55,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
     references = {"human": human(GAME), "thesis PlaNet (around 30)": THESIS_PLANET_BOXING_SCORE}
     return fit_and_compare("planet-boxing-value", GAME, planet_run, work, out, config, planner,
                            {"random": agent["random"], "planet": agent["agent"]}, agent["bouts"], profile=profile,
-                           seed=seed, progress=progress, references=references, variant=folder_variant(chosen.name), started=started)
+                           seed=seed, progress=progress, references=references, variant=VALUE_VARIANTS.folder_name(chosen.name), started=started)
 
 
 def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True,

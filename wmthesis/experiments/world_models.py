@@ -25,8 +25,7 @@ from wmthesis.world_models.evolution import evaluate_population, final_bout_seed
 from wmthesis.world_models.figures import plot_learning_curve
 from wmthesis.world_models.prediction import open_loop, open_loop_errors
 from wmthesis.world_models.train import encode_store, reconstruct, train_memory, train_vision
-from wmthesis.world_models.variants import (BOXING_WM, agent_path, controller_config, controller_folder,
-                                            folder_variant)
+from wmthesis.world_models.variants import BOXING_WM, agent_path, controller_config, controller_folder
 from wmthesis.world_models.vision import VAEVision
 
 
@@ -43,7 +42,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     started = time.time()
     wm = _world_model(profile, seed, progress)
     work, store, vae, vision, memory = wm.work, wm.store, wm.vae, wm.vision, wm.memory
-    out = results_folder("boxing-wm", profile, seed, folder_variant(chosen.name))
+    out = results_folder("boxing-wm", profile, seed, BOXING_WM.folder_name(chosen.name))
     controller_cfg = controller_config(profile, seed, chosen.name)
     run = train_controller("boxing", vision, memory, controller_cfg, out_dir=controller_folder(work, chosen.name),
                            progress=progress)
@@ -68,7 +67,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
                               {"pixel_error": rollout["pixel_error"]})
     metrics = {
         **run_header("boxing-wm", profile, seed, time.time() - started,
-                     **({} if folder_variant(chosen.name) is None else {"variant": chosen.name})),
+                     **({} if BOXING_WM.folder_name(chosen.name) is None else {"variant": chosen.name})),
         "score": score_summary(returns),
         "random_play_in_store": score_summary(random_returns),
         "reference": published("boxing-wm"),

@@ -22,14 +22,8 @@ VALUE_VARIANTS = Variants(
     Variant("lean-value-rewards-0.7", "lean's value; CEM scores every imagined step by the value's Q, discount 0.7 "
             "(chosen on two seeds' validation bouts)", dict(planner=dict(rewards="value", discount=0.7)),
             builds_on="lean", default=True),
-)
-ROOT = "scored-rounds"  # the first recipe: its runs keep the experiment's own folders (``seedS``, ``PROFILE-seedS``)
-
-
-def folder_variant(variant: str | None) -> str | None:
-    """A variant's name in its folders and metrics (None for :data:`ROOT`'s); ``variant`` None is the default."""
-    name = VALUE_VARIANTS.check(variant).name
-    return None if name == ROOT else name
+    root="scored-rounds")  # the first recipe: its runs keep the experiment's own folders (``seedS``, ``PROFILE-seedS``)
+ROOT = VALUE_VARIANTS.root
 
 
 def value_run(variant: str | None) -> str:
@@ -43,12 +37,12 @@ def value_run(variant: str | None) -> str:
 
 def value_folder(profile: str, seed: int, variant: str | None = None):
     """The work folder of the value run of ``variant`` (None: the default) and ``seed``."""
-    return run_store.work_folder(profile, "planet-boxing-value", seed, folder_variant(variant))
+    return run_store.work_folder(profile, "planet-boxing-value", seed, VALUE_VARIANTS.folder_name(variant))
 
 
 def results_folder(profile: str, seed: int, variant: str | None = None):
     """Where the value run of ``variant`` (None: the default) and ``seed`` writes its ``metrics.json`` and figures."""
-    return run_store.results_folder("planet-boxing-value", profile, seed, folder_variant(variant))
+    return run_store.results_folder("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(variant))
 
 
-__all__ = ["GAME", "LEAN", "VALUE_VARIANTS", "ROOT", "folder_variant", "value_run", "value_folder", "results_folder"]
+__all__ = ["GAME", "LEAN", "VALUE_VARIANTS", "ROOT", "value_run", "value_folder", "results_folder"]

@@ -26,18 +26,12 @@ BOXING_WM = Variants(
             dict(population=64, episodes=1, diagonal=True, generations=40, eval_every=10)),
     Variant("separable-128-mirrored", "separable CMA-ES, population 128 in antithetic pairs, 1 bout a candidate, "
             "20 generations (the same 2,560 bouts)",
-            dict(population=128, episodes=1, diagonal=True, mirrored=True, generations=20, eval_every=5)))
-
-ROOT = "population-16"  # the first recipe: its runs keep the experiment's own folders
+            dict(population=128, episodes=1, diagonal=True, mirrored=True, generations=20, eval_every=5)),
+    root="population-16")  # the first recipe: its runs keep the experiment's own folders
+ROOT = BOXING_WM.root
 # The seeds a recipe is chosen on: their runs are the choice's evidence, never a reported number
 # (the summary tables them apart); the recipe is reported on other seeds (5-9, and 0-4 beside them).
 VALIDATION_SEEDS = (10, 11, 12)
-
-
-def folder_variant(variant: str | None) -> str | None:
-    """A variant's name in its folders and metrics (None for :data:`ROOT`'s); None is the default."""
-    name = BOXING_WM.check(variant).name
-    return None if name == ROOT else name
 
 
 def controller_config(profile: str, seed: int, variant: str | None = None) -> ControllerConfig:
@@ -52,7 +46,7 @@ def controller_config(profile: str, seed: int, variant: str | None = None) -> Co
 def controller_folder(work: Path, variant: str | None = None) -> Path:
     """Where the controller of ``variant`` (None: the default) evolves, in the world model's folder
     ``work``: ``controller`` for :data:`ROOT`, ``controller-<variant>`` for the others."""
-    name = folder_variant(variant)
+    name = BOXING_WM.folder_name(variant)
     return Path(work) / ("controller" if name is None else f"controller-{name}")
 
 
@@ -60,8 +54,8 @@ def agent_path(work: Path, variant: str | None = None) -> Path:
     """The shippable agent of ``variant`` (None: the default) in the world model's folder ``work``
     (:mod:`~wmthesis.world_models.agent`): ``agent.pt`` for :data:`ROOT`, ``agent-<variant>.pt``
     for the others."""
-    name = folder_variant(variant)
+    name = BOXING_WM.folder_name(variant)
     return Path(work) / ("agent.pt" if name is None else f"agent-{name}.pt")
 
 
-__all__ = ["BOXING_WM", "ROOT", "VALIDATION_SEEDS", "agent_path", "folder_variant", "controller_config", "controller_folder"]
+__all__ = ["BOXING_WM", "ROOT", "VALIDATION_SEEDS", "agent_path", "controller_config", "controller_folder"]
