@@ -26,6 +26,7 @@ from wmthesis.world_models.config import MemoryConfig
 from wmthesis.world_models.controller import ControllerMind
 from wmthesis.world_models.evolution import load_run
 from wmthesis.world_models.train import make_memory
+from wmthesis.world_models.variants import controller_folder
 
 
 def evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]:
@@ -166,8 +167,9 @@ def policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list
 
 def controller_minds(profile: str, wm: Path, vision) -> tuple:
     """``(agent_seed -> ControllerMind, name)`` for the boxing-wm controller under `wm`, or
-    ``(None, why not)`` when it is missing or was trained on another memory."""
-    controller_path, memory_path = wm / "controller" / "controller.pkl", wm / "memory-mdn.best.pt"
+    ``(None, why not)`` when it is missing or was trained on another memory: the default recipe's
+    (:data:`~wmthesis.world_models.variants.BOXING_WM`)."""
+    controller_path, memory_path = controller_folder(wm) / "controller.pkl", wm / "memory-mdn.best.pt"
     if not (controller_path.is_file() and memory_path.is_file()):
         return None, (f"no boxing-wm controller under {wm} (run notebook 02 / `reproduce boxing-wm` first): "
                       "the comparison with it is skipped")
@@ -183,7 +185,7 @@ def controller_minds(profile: str, wm: Path, vision) -> tuple:
 def boxing_baselines(profile: str, wm: Path, work: Path, vision, cfg, seed: int) -> dict:
     """Random play and the boxing-wm controller (when its run exists) on the evaluation games;
     cached in ``baselines.json``. Returns ``returns`` by agent and ``notes``."""
-    controller_path = wm / "controller" / "controller.pkl"
+    controller_path = controller_folder(wm) / "controller.pkl"
     key = {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
            "controller_mtime": controller_path.stat().st_mtime_ns if controller_path.is_file() else None}
