@@ -61,7 +61,7 @@ def test_a_boxing_agent_plays_the_bouts_its_score_was_measured_on(tmp_path, monk
     result = play_module.play("boxing-wm", profile="smoke", bouts=2, video=tmp_path / "bouts.mp4",
                               record=tmp_path / "bouts.rrd", on_play=lambda line: None)
     assert [p["return"] for p in result["plays"]] == metrics["returns"]
-    assert result["score"] == metrics["score"]["mean"] and result["variant"] == "population-16"
+    assert result["score"] == metrics["score"]["mean"] and result["variant"] == "separable-64"
     video = cv2.VideoCapture(str(tmp_path / "bouts.mp4"))
     frames, width = int(video.get(cv2.CAP_PROP_FRAME_COUNT)), int(video.get(cv2.CAP_PROP_FRAME_WIDTH))
     video.release()
@@ -69,5 +69,5 @@ def test_a_boxing_agent_plays_the_bouts_its_score_was_measured_on(tmp_path, monk
     assert main(["play", "boxing-wm", "--profile", "smoke", "--seed", "4"]) == 2
     assert "reproduce boxing-wm --profile smoke --seed 4`" in capsys.readouterr().err
     Path(metrics["files"]["agent"]).write_bytes(b"not an agent")
-    with pytest.raises(ValueError, match="cannot read .*agent.pt"):
+    with pytest.raises(ValueError, match=r"cannot read .*agent-separable-64\.pt"):
         load_agent(metrics["files"]["agent"])

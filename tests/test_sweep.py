@@ -33,7 +33,7 @@ def test_seeds_and_runs_are_parsed_and_bad_ones_refused():
         parse_runs(["planet-freeway:nope"], [0])
     with pytest.raises(ValueError, match="has no variants"):
         parse_runs(["planet-boxing-agent:x"], [0])
-    with pytest.raises(ValueError, match="unknown variant 'x' of boxing-wm; valid: population-16"):
+    with pytest.raises(ValueError, match="unknown variant 'x' of boxing-wm; valid: population-16, separable-64"):
         parse_runs(["boxing-wm:x"], [0])
     assert parse_runs(["planet-boxing-value:lean"], [2]) == [SweepRun("planet-boxing-value", "lean", 2)]
     with pytest.raises(ValueError, match="valid: scored-rounds, rounds-10"):
@@ -99,7 +99,8 @@ def _write_run(folder, experiment, seed, score, profile="quick", **extra):
 def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     for seed, score in enumerate([10.0, 14.0, 21.0]):  # seed 2 was resumed: its first run's time counts
-        _write_run(tmp_path, "boxing-wm", seed, score, **({"first_run_wall_seconds": 3600.0} if seed == 2 else {}))
+        _write_run(tmp_path, "boxing-wm", seed, score, variant="separable-64",  # the default recipe
+                   **({"first_run_wall_seconds": 3600.0} if seed == 2 else {}))
     _write_run(tmp_path, "planet-freeway", 0, 23.0, variant="freeway-tuned")
     value = _write_run(tmp_path, "planet-boxing-value", 4, 0.0)  # its headline is the value's score, not "score"
     value.write_text(json.dumps({**json.loads(value.read_text()), "value": {"mean": 26.8},
@@ -118,7 +119,7 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     value_rows = {row["variant"]: row["mean"] for row in rows if row["experiment"] == "planet-boxing-value"}
     assert value_rows == {None: 26.8, "cem-with-value": 31.5}
     table = (tmp_path / "results" / "summary.md").read_text()
-    assert "| boxing-wm |  | quick | 3 | 15.0 | 5.6 | [1.2, 28.8] | 0: 10.0, 1: 14.0, 2: 21.0 | 0, 1, 60 |" in table
+    assert "| boxing-wm | separable-64 | quick | 3 | 15.0 | 5.6 | [1.2, 28.8] | 0: 10.0, 1: 14.0, 2: 21.0 | 0, 1, 60 |" in table
     assert "Student-t" in table
     # the headline: the thesis's figure and the best published one, once, with its source as a footnote
     headline = table.split("## Every variant")[0]
@@ -127,7 +128,7 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert "| World Models on Sokoban (controller's return) | 5.3 | 0 levels solved | not run yet |" in headline
     csv_lines = (tmp_path / "results" / "summary.csv").read_text().splitlines()
     assert csv_lines[0].startswith("experiment,variant,profile,n,mean,std,ci_low,ci_high")
-    assert csv_lines[1].startswith("boxing-wm,,quick,3,15.0,")
+    assert csv_lines[1].startswith("boxing-wm,separable-64,quick,3,15.0,")
     assert json.loads((tmp_path / "results" / "summary.json").read_text())["rows"][0]["n"] == 3
     assert (tmp_path / "results" / "summary.png").stat().st_size > 5000
     assert aggregate([2.0, 2.0])["ci_low"] == 2.0  # no spread, no width
@@ -137,22 +138,24 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
 
 def test_the_ablations_are_paired_by_seed_against_the_headline_row(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    for seed, score in enumerate([10.0, 14.0, 21.0]):
+    for seed, score in enumerate([10.0, 14.0, 21.0]):  # the first recipe, in the experiment's own folders
         _write_run(tmp_path, "boxing-wm", seed, score)
     for seed, score in [(1, 20.0), (2, 24.0), (3, 99.0), (10, 50.0)]:  # seed 3: no partner; 10 chose the recipe
         _write_run(tmp_path, "boxing-wm", seed, score, variant="separable-64")
     rows = write_summary()
     apart = [r for r in rows if r["variant"] == "separable-64, validation seeds"]
     assert [(r["seeds"], r["mean"]) for r in apart] == [([10], 50.0)]  # a row of its own, never a reported one
+    (headline,) = [r for r in rows if (r["experiment"], r["variant"]) == ("boxing-wm", "separable-64")]
+    assert headline["seeds"] == [1, 2, 3]  # the default's report seeds
     (ablation,) = ablation_rows(rows)
-    assert (ablation["experiment"], ablation["variant"], ablation["against"]) == ("boxing-wm", "separable-64", None)
-    assert (ablation["seeds"], ablation["mean"], ablation["default_mean"]) == ([1, 2], 22.0, 17.5)
-    # by hand: differences 6 and 3, mean 4.5, sample std 2.1213, t_{0.975, 1} = 12.706204736
+    assert (ablation["experiment"], ablation["variant"], ablation["against"]) == ("boxing-wm", None, "separable-64")
+    assert (ablation["seeds"], ablation["mean"], ablation["default_mean"]) == ([1, 2], 17.5, 22.0)
+    # by hand: differences -6 and -3, mean -4.5, sample std 2.1213, t_{0.975, 1} = 12.706204736
     half = 12.706204736174707 * math.sqrt(4.5) / math.sqrt(2)
-    assert ablation["difference"] == 4.5
-    assert (ablation["ci_low"], ablation["ci_high"]) == (pytest.approx(4.5 - half), pytest.approx(4.5 + half))
+    assert ablation["difference"] == -4.5
+    assert (ablation["ci_low"], ablation["ci_high"]) == (pytest.approx(-4.5 - half), pytest.approx(-4.5 + half))
     table = (tmp_path / "results" / "summary.md").read_text()
-    assert "| boxing-wm | separable-64 | first recipe | score | 1 2 | 22.0 | 17.5 | +4.5 [-14.6, +23.6] |" in table
+    assert "| boxing-wm | first recipe | separable-64 | score | 1 2 | 17.5 | 22.0 | -4.5 [-23.6, +14.6] |" in table
 
 
 def test_the_summary_aggregates_the_sokoban_agents_report_evaluations_over_seeds(tmp_path):
@@ -225,7 +228,7 @@ def test_a_smoke_sweep_runs_each_seed_as_a_task_and_resumes_with_nothing_to_do(l
     assert out.count(": done (") == 4
     summary = json.loads((local_ray / "results" / "summary.json").read_text())
     rows = {(row["experiment"], row["variant"]): row for row in summary["rows"]}
-    assert set(rows) == {("boxing-wm", None), ("planet-freeway", "freeway-tuned")}
+    assert set(rows) == {("boxing-wm", "separable-64"), ("planet-freeway", "freeway-tuned")}
     for (experiment, variant), row in rows.items():
         assert row["n"] == 2 and row["seeds"] == [0, 1]
         files = [finished(SweepRun(experiment, variant, seed), "smoke") for seed in (0, 1)]

@@ -7,7 +7,8 @@ Why a variant beyond the first: with a population of 16 over D = 4,914 parameter
 next to nothing of its covariance or step size in 45 generations (its learning rates scale as
 1/D: sigma moved 0.10 -> 0.11-0.13 on every committed seed), and since the controller is an argmax,
 which no positive scale changes, the search is a fixed-radius random search whose early luck
-decides the seed (docs/findings/boxing-wm.md).
+decides the seed (docs/findings/boxing-wm.md). The default, ``separable-64``, was chosen by the
+rule written there before the runs ended, on validation seeds 10-12 alone.
 """
 from __future__ import annotations
 
@@ -20,10 +21,10 @@ from wmthesis.world_models.config import ControllerConfig
 BOXING_WM = Variants(
     "boxing-wm",
     Variant("population-16", "the first quick recipe: CMA-ES with a population of 16, 2 bouts a candidate, "
-            "45 generations", default=True),
+            "45 generations (stalled on 2 seeds of 5)"),
     Variant("separable-64", "separable CMA-ES with the thesis's population of 64, 1 bout a candidate "
-            "(all on the same start), 40 generations",
-            dict(population=64, episodes=1, diagonal=True, generations=40, eval_every=10)),
+            "(all on the same start), 40 generations (chosen on validation seeds 10-12)",
+            dict(population=64, episodes=1, diagonal=True, generations=40, eval_every=10), default=True),
     Variant("separable-128-mirrored", "separable CMA-ES, population 128 in antithetic pairs, 1 bout a candidate, "
             "20 generations (the same 2,560 bouts)",
             dict(population=128, episodes=1, diagonal=True, mirrored=True, generations=20, eval_every=5)),
