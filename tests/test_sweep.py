@@ -158,6 +158,21 @@ def test_the_ablations_are_paired_by_seed_against_the_headline_row(tmp_path, mon
     assert "| boxing-wm | first recipe | separable-64 | score | 1 2 | 17.5 | 22.0 | -4.5 [-23.6, +14.6] |" in table
 
 
+def test_seed_runs_reads_each_seeds_committed_run_of_a_variant(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    from wmthesis.experiments import seed_runs
+
+    _write_run(tmp_path, "boxing-wm", 0, 10.0)  # the first recipe, in the experiment's own folders
+    for seed in (1, 3):
+        _write_run(tmp_path, "boxing-wm", seed, 30.0 + seed, variant="separable-64")
+    _write_run(tmp_path, "sokoban-wm", 2, -5.0)
+    assert {s: m["score"]["mean"] for s, m in seed_runs("boxing-wm", "quick", range(5)).items()} == {1: 31.0, 3: 33.0}
+    assert list(seed_runs("boxing-wm", "quick", range(5), "population-16")) == [0]
+    assert list(seed_runs("sokoban-wm", "quick", (2, 4))) == [2] and seed_runs("boxing-wm", "thesis", (0,)) == {}
+    with pytest.raises(ValueError, match="has no variants"):
+        seed_runs("sokoban-wm", "quick", (2,), "nope")
+
+
 def test_the_summary_aggregates_the_sokoban_agents_report_evaluations_over_seeds(tmp_path):
     for seed, (unfiltered, medium) in enumerate([(0.99, 0.86), (0.97, 0.80), (0.98, 0.83)]):
         folder = tmp_path / "results" / "sokoban-search" / f"quick-seed{seed}"

@@ -41,7 +41,7 @@ from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.value_variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
-from wmthesis.runs import register_runner
+from wmthesis.runs import read_json, register_runner, results_folder
 from wmthesis.utils import check_choice, worker_init
 from wmthesis.variants import no_variant
 
@@ -84,6 +84,21 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
 register_runner(reproduce)
 
 
+def seed_runs(name: str, profile: str | None, seeds, variant: str | None = None, train: bool = False) -> dict:
+    """``{seed: metrics}`` of experiment ``name``'s ``variant`` (None: the default) for each of
+    ``seeds``: with ``train``, each run here (resuming; :func:`reproduce`); without, the metrics
+    each committed run wrote (``data/results/``), the seeds without one left out."""
+    check_choice("experiment", name, EXPERIMENTS)
+    profile = profile_name(profile)
+    if train:
+        return {seed: reproduce(name, profile, seed, variant, progress=False) for seed in seeds}
+    if name not in VARIANTS:
+        no_variant(name, variant)
+    folder = VARIANTS[name].folder_name(variant) if name in VARIANTS else None
+    found = {seed: read_json(results_folder(name, profile, seed, folder) / "metrics.json") for seed in seeds}
+    return {seed: metrics for seed, metrics in found.items() if metrics is not None}
+
+
 def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int = 1) -> dict:
     """Run several experiments, ``workers`` at a time, and return their metrics by run.
 
@@ -106,7 +121,7 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
         return {run: future.result() for run, future in futures.items()}
 
 
-__all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "reproduce", "reproduce_all", "sokoban_search", 
+__all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "reproduce", "reproduce_all", "seed_runs", "sokoban_search", 
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES",
