@@ -109,3 +109,24 @@ def test_a_stamp_reads_back():
     assert found["profile"] == "smoke" and found["commit"] + ("+changes" if found["changes"] else "") == git_commit()
     assert 4 <= found["seconds"] <= 60 and found["threads"] >= 1 and "cores" in found["cpu"]
     assert read_stamp("nothing here") is None
+
+
+def test_the_index_reads_each_notebooks_stamp_and_names_one_it_does_not_know(tmp_path):
+    from wmthesis.notebook_index import SHOWS, notebook_rows, notebook_table
+
+    def write(name: str, last_output: str) -> None:
+        cells = [{"cell_type": "code", "execution_count": 1, "metadata": {}, "source": "print(1)",
+                  "outputs": [{"output_type": "stream", "name": "stdout", "text": last_output}]}]
+        (tmp_path / f"{name}.ipynb").write_text(json.dumps({"cells": cells, "metadata": {}, "nbformat": 4,
+                                                             "nbformat_minor": 5}))
+
+    write("02_boxing_world_models", stamp("quick", time.time() - 1500, train=False) + "\n")
+    write("03_boxing_world_models_alphazero", "no stamp here\n")
+    rows = notebook_rows(tmp_path)
+    assert [r["stamp"]["how"] if r["stamp"] else None for r in rows] == ["from shipped runs", None]
+    table = notebook_table(rows)
+    assert f"| `02_boxing_world_models` | 5.4.1 | {SHOWS['02_boxing_world_models'][1]} | 25 min from the shipped runs" in table
+    assert "| awaiting a re-run on today's code |" in table.splitlines()[-1]
+    write("12_new", stamp("quick", time.time(), train=True))
+    with pytest.raises(ValueError, match="12_new.ipynb: not in wmthesis.notebook_index.SHOWS"):
+        notebook_rows(tmp_path)

@@ -160,13 +160,14 @@ def ablation_table(rows: list[dict], profile: str = "quick") -> str:
     return "\n".join(lines)
 
 
-def readme_with_table(readme: str, table: str) -> str:
-    """``readme`` with the text between :data:`BEGIN` and :data:`END` replaced by ``table``; a
-    README without both markers raises ValueError naming them."""
-    pattern = re.compile(re.escape(BEGIN) + r".*?" + re.escape(END), re.S)
+def readme_with_table(readme: str, table: str, begin: str = BEGIN, end: str = END) -> str:
+    """``readme`` with the text between ``begin`` and ``end`` (by default the results block's
+    markers) replaced by ``table``; a README without both markers raises ValueError naming them."""
+    pattern = re.compile(re.escape(begin) + r".*?" + re.escape(end), re.S)
     if not pattern.search(readme):
-        raise ValueError(f"the README has no results block: put {BEGIN} and {END} where the table goes")
-    return pattern.sub(lambda _: f"{BEGIN}\n{table}\n{END}", readme, count=1)
+        raise ValueError(f"the README has no {'results' if begin == BEGIN else 'such'} block: put {begin} and {end} "
+                         "where the table goes")
+    return pattern.sub(lambda _: f"{begin}\n{table}\n{end}", readme, count=1)
 
 
 __all__ = ["Headline", "HEADLINES", "BEGIN", "END", "headline_rows", "headline_table", "ablation_rows",

@@ -3,7 +3,10 @@
 A notebook ends with :func:`stamp`, one line a reader (and ``tests/test_notebooks.py``) can check:
 
     run stamp · commit 41365a0 · 2026-11-27 · profile quick · Intel(R) Xeon(R) CPU @ 2.20GHz (2 cores)
-        · 2 torch threads · wall time 86 s
+        · 2 torch threads · wall time 86 s · from shipped runs
+
+(the last part, where given: ``trained here`` for a notebook run with ``TRAIN = True``, ``from
+shipped runs`` for one that read the committed runs and shipped agents)
 
 ``commit`` is the checkout's ``HEAD``, with ``+changes`` when files of the package differ from it
 (the committed outputs must come from committed code: the tests refuse such a stamp).
@@ -21,7 +24,7 @@ from pathlib import Path
 CHECKOUT = Path(__file__).resolve().parents[1]
 STAMP = re.compile(r"run stamp · commit (?P<commit>[0-9a-f]{7,40})(?P<changes>\+changes)? · (?P<date>[\d-]+) · "
                    r"profile (?P<profile>\w+) · (?P<cpu>.+?) · (?P<threads>\d+) torch threads? · "
-                   r"wall time (?P<seconds>\d+) s")
+                   r"wall time (?P<seconds>\d+) s(?: · (?P<how>trained here|from shipped runs))?")
 
 
 def git_commit(checkout: Path = CHECKOUT) -> str | None:
@@ -51,19 +54,21 @@ def cpu_model() -> str:
     return f"{model} ({os.cpu_count()} cores)"
 
 
-def stamp(profile: str, started: float) -> str:
-    """The line that ends a notebook: commit, date, ``profile``, CPU, torch threads and the wall
-    time since ``started`` (a ``time.time()``)."""
+def stamp(profile: str, started: float, train: bool | None = None) -> str:
+    """The line that ends a notebook: commit, date, ``profile``, CPU, torch threads, the wall
+    time since ``started`` (a ``time.time()``) and, where ``train`` is given, how it ran
+    (``trained here`` or ``from shipped runs``)."""
     import torch  # heavy: loaded when a notebook ends, not when the package is imported
 
     threads = torch.get_num_threads()
     return (f"run stamp · commit {git_commit() or 'unknown'} · {date.today().isoformat()} · profile {profile} · "
-            f"{cpu_model()} · {threads} torch thread{'s' if threads > 1 else ''} · wall time {time.time() - started:.0f} s")
+            f"{cpu_model()} · {threads} torch thread{'s' if threads > 1 else ''} · wall time {time.time() - started:.0f} s"
+            + ("" if train is None else " · trained here" if train else " · from shipped runs"))
 
 
 def read_stamp(text: str) -> dict | None:
     """The fields of the last stamp in ``text`` (None if it has none): commit, changes (bool),
-    date, profile, cpu, threads and seconds (ints)."""
+    date, profile, cpu, threads and seconds (ints), how (None where the stamp does not say)."""
     found = list(STAMP.finditer(text))
     if not found:
         return None

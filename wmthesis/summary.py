@@ -25,6 +25,7 @@ import numpy as np
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
 from wmthesis.headline import ablation_table, headline_table, readme_with_table
 from wmthesis.metrics import aggregate
+from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
 from wmthesis.references import PUBLISHED
 from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir
@@ -237,8 +238,8 @@ def headline_line(experiment: str, variant: str | None = None, profile: str = "q
 def write_summary(folder: str | Path | None = None, readme: str | Path | None = None) -> list[dict]:
     """Read every run under ``folder`` (default ``data/results``), write ``summary.md`` (the
     headline table, :mod:`wmthesis.headline`, then every row), ``summary.json``, ``summary.csv``
-    and ``summary.png`` there, and the headline table into ``readme`` between its markers where
-    given; return the rows."""
+    and ``summary.png`` there, and into ``readme`` where given the headline table and the notebook
+    index (:mod:`wmthesis.notebook_index`) between their markers; return the rows."""
     folder = Path(folder) if folder is not None else data_dir("results")
     rows = summarise(read_runs(folder))
     headline = headline_table(rows)
@@ -251,10 +252,12 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
             tmp.write_text(text)
     if rows:
         save_figure(summary_figure(rows), folder / "summary.png")
-    if readme is not None:
+    if readme is not None:  # the front door's two generated blocks: the results and the notebook index
         readme = Path(readme)
+        text = readme_with_table(readme.read_text(), headline)
+        text = readme_with_table(text, notebook_table(notebook_rows()), NOTEBOOKS_BEGIN, NOTEBOOKS_END)
         with atomic_path(readme) as tmp:
-            tmp.write_text(readme_with_table(readme.read_text(), headline))
+            tmp.write_text(text)
     return rows
 
 
