@@ -71,3 +71,26 @@ def test_a_boxing_agent_plays_the_bouts_its_score_was_measured_on(tmp_path, monk
     Path(metrics["files"]["agent"]).write_bytes(b"not an agent")
     with pytest.raises(ValueError, match=r"cannot read .*agent-separable-64\.pt"):
         load_agent(metrics["files"]["agent"])
+
+
+def test_an_alphazero_agent_searches_its_evaluation_games_to_the_same_scores(tmp_path, monkeypatch, capsys):
+    """The imitation variant's agent file (vision's encoder, deterministic memory, the search's
+    heads) replays the evaluation games its run scored, search and all; another budget plays."""
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    from wmthesis.alphazero.agent import load_agent
+    from wmthesis.experiments import reproduce
+    from wmthesis.utils import read_pickle
+
+    reproduce("boxing-wm-alphazero", "smoke", 0, "imitation", progress=False)
+    work = tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0"
+    scored = [g.score for g in read_pickle(work / "imitation" / "evaluation.pkl")["games"]]
+    result = play_module.play("boxing-wm-alphazero", profile="smoke", variant="imitation", bouts=len(scored),
+                              video=tmp_path / "bouts.mp4", on_play=lambda line: None)
+    assert [p["return"] for p in result["plays"]] == scored and result["variant"] == "imitation"
+    video = cv2.VideoCapture(str(tmp_path / "bouts.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) > 0
+    video.release()
+    agent = load_agent(work / "agent-imitation.pt")
+    assert agent.info["variant"] == "imitation" and agent.mind(simulations=3).config.simulations == 3
+    assert main(["play", "boxing-wm-alphazero", "--profile", "smoke", "--variant", "unchanged"]) == 2
+    assert "reproduce boxing-wm-alphazero --profile smoke --seed 0 --variant unchanged`" in capsys.readouterr().err

@@ -6,9 +6,11 @@ play's result is printed as it ends; ``record`` writes a rerun recording of the 
 an mp4 of their frames (opencv). Paths are checked before anything plays; an agent that is not
 there is one line naming what is missing and the command that trains it.
 
-Agents that play today: ``sokoban-search`` (its shipped pixel agents, seeds 0-2 of ``quick``) and
-``boxing-wm`` (a run's ``agent.pt``: vision, memory and controller, :mod:`wmthesis.world_models.agent`),
-on the bouts its summary row was scored on.
+Agents that play today: ``sokoban-search`` (its shipped pixel agents, seeds 0-2 of ``quick``),
+``boxing-wm`` (a run's ``agent-VARIANT.pt``: vision, memory and controller,
+:mod:`wmthesis.world_models.agent`) on the bouts its summary row was scored on, and
+``boxing-wm-alphazero`` (a variant's ``agent-VARIANT.pt``: vision, memory, the search's heads,
+:mod:`wmthesis.alphazero.agent`) searching on its evaluation games.
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.utils import check_choice
 from wmthesis.variants import no_variant
 
-PLAYABLE = ("sokoban-search", "boxing-wm")
+PLAYABLE = ("sokoban-search", "boxing-wm", "boxing-wm-alphazero")
 
 
 def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
@@ -51,6 +53,8 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
     record, video = check_output(record, ".rrd"), check_output(video, ".mp4")
     if experiment == "boxing-wm":
         return _play_boxing(profile_name(profile), seed, variant, bouts, record, video, on_play)
+    if experiment == "boxing-wm-alphazero":
+        return _play_alphazero(profile_name(profile), seed, variant, bouts, record, video, on_play)
     no_variant(experiment, variant)
     return _play_sokoban(profile_name(profile), seed, bouts, record, video, on_play)
 
@@ -84,15 +88,56 @@ def _play_boxing(profile: str, seed: int, variant: str | None, bouts: int, recor
     score = float(np.mean(returns))
     on_play(f"mean {score:.1f} over {bouts} bout{'s' if bouts > 1 else ''} ({name}, {profile}, seed {seed})")
     if shown:
-        frames = np.concatenate([np.stack([f[k] for f in shown[:p["steps"] + 1]]) for k, p in enumerate(plays)])
-        if record is not None:
-            from wmthesis.viz import record_frames
-
-            record_frames(record, {"frame": frames})
-        if video is not None:
-            _write_video(video, np.repeat(np.repeat(frames, 4, axis=1), 4, axis=2), fps=15)
+        _keep_frames(np.concatenate([np.stack([f[k] for f in shown[:p["steps"] + 1]]) for k, p in enumerate(plays)]),
+                     record, video, fps=15)
     return {"experiment": "boxing-wm", "variant": name, "profile": profile, "seed": seed, "plays": plays,
             "score": score}
+
+
+def _play_alphazero(profile: str, seed: int, variant: str | None, bouts: int, record: Path | None,
+                    video: Path | None, on_play) -> dict:
+    """The World Models + AlphaZero agent of ``variant`` (None: the default) searching on the first
+    ``bouts`` of its evaluation games (:func:`~wmthesis.alphazero.evaluation.evaluation_seeds`)."""
+    from wmthesis.alphazero.agent import agent_name, load_agent
+    from wmthesis.alphazero.evaluation import evaluation_seeds
+    from wmthesis.alphazero.selfplay import VARIANTS, play as play_game
+    from wmthesis.envs.atari import boxing_env
+    from wmthesis.runs import work_folder
+
+    name = VARIANTS.check(variant).name
+    path = work_folder(profile, "boxing-wm-alphazero", seed) / agent_name(name)
+    if not path.is_file():
+        raise FileNotFoundError(f"no trained boxing-wm-alphazero agent at {path}: train it with `python -m wmthesis "
+                                f"reproduce boxing-wm-alphazero --profile {profile} --seed {seed} --variant {name}`")
+    agent = load_agent(path)
+    mind, env, plays, frames = agent.mind(), boxing_env(agent.config.noop_max), [], []
+    try:
+        for k, game_seed in enumerate(evaluation_seeds(seed, bouts, agent.config.noop_max)):
+            mind.keep_frames = bool(record or video)
+            game = play_game(env, mind, game_seed, k, train_mode=False, max_steps=agent.config.eval_max_steps)
+            plays.append({"bout": k, "return": float(game.score), "steps": len(game.actions)})
+            frames += [] if game.frames is None else list(game.frames)
+            on_play(f"bout {k}: {game.score:+.0f} in {len(game.actions)} steps")
+    finally:
+        env.close()
+    score = float(np.mean([p["return"] for p in plays]))
+    on_play(f"mean {score:.1f} over {bouts} bout{'s' if bouts > 1 else ''} ({name}, {profile}, seed {seed}, "
+            f"{agent.config.simulations} simulations an action)")
+    _keep_frames(np.stack(frames) if frames else None, record, video, fps=15)
+    return {"experiment": "boxing-wm-alphazero", "variant": name, "profile": profile, "seed": seed, "plays": plays,
+            "score": score}
+
+
+def _keep_frames(frames: np.ndarray | None, record: Path | None, video: Path | None, fps: int) -> None:
+    """``frames`` (T, H, W, 3) uint8 as a rerun recording and an mp4 (4x larger), where asked for."""
+    if frames is None:
+        return
+    if record is not None:
+        from wmthesis.viz import record_frames
+
+        record_frames(record, {"frame": frames})
+    if video is not None:
+        _write_video(video, np.repeat(np.repeat(frames, 4, axis=1), 4, axis=2), fps=fps)
 
 
 def _play_sokoban(profile: str, seed: int, levels: int, record: Path | None, video: Path | None, on_play) -> dict:

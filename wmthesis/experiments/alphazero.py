@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.alphazero import diagnosis
+from wmthesis.alphazero.agent import agent_name, save_agent
 from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.evaluation import (RECORDING_STEPS, boxing_baselines, controller_minds, evaluation_games,
                                            policy_head_returns, score_figure)
@@ -18,6 +19,7 @@ from wmthesis.envs.atari import boxing_env
 from wmthesis.metrics import score_difference, score_summary
 from wmthesis.references import published
 from wmthesis.rollouts import collect
+from wmthesis.stamp import git_commit
 from wmthesis.runs import (built_on, first_run_seconds, hold, releasing_holds, results_folder, run_header, work_folder,
                            write_json)
 from wmthesis.viz import record_frames, save_figure
@@ -66,8 +68,8 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
                     preprocessing="world_models", max_steps=collect_cfg.max_steps, progress=progress)
     vae, _ = train_vision(store, wm, for_profile(VisionConfig, profile), seed=seed, progress=progress)
     latents = encode_store(store, vae, wm / "latents.h5", progress=progress)
-    memory, memory_history = train_memory(latents, work, for_profile(MemoryConfig, profile, kind="deterministic"),
-                                          n_actions=18, seed=seed, progress=progress)
+    memory_cfg = for_profile(MemoryConfig, profile, kind="deterministic")
+    memory, memory_history = train_memory(latents, work, memory_cfg, n_actions=18, seed=seed, progress=progress)
     vision = VAEVision(vae)
 
     configs, runs, games, ablations = {}, {}, {}, {}
@@ -77,6 +79,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
                                  seed=seed, progress=progress, rollouts=LatentStore(latents), expert=expert)
         runs[name] = run.summary()
+        save_agent(work / agent_name(name), name, vae, memory, run, memory_cfg, git_commit())  # what `play` plays
         games[name] = evaluation_games(run, vision, memory, cfg, work / name, seed)
         if cfg.expert_games:
             ablations[f"AlphaZero {name}: policy head alone, no search"] = \

@@ -35,44 +35,75 @@ class Agent(NamedTuple):
     info: dict
 
 
-def save_agent(path: str | os.PathLike, vae: VAE, memory, run, memory_config: MemoryConfig,
-               commit: str | None) -> Path:
-    """Write the agent of a finished controller ``run`` (a
-    :class:`~wmthesis.world_models.evolution.ControllerRun`) on ``vae`` and ``memory`` to ``path``
-    atomically; returns the path."""
-    encoder = {k: v for k, v in vae.state_dict().items() if not k.startswith("decoder.")}
-    saved = {"format": FORMAT, "version": FORMAT_VERSION, "latent_size": vae.latent_size, "encoder": encoder,
-             "memory_config": dataclasses.asdict(memory_config), "memory": memory.state_dict(),
-             "params": np.asarray(run.mean_params, np.float64), "task": run.task, "controller_config": run.config,
-             "generation": run.generation, "commit": commit}
+def encoder_state(vae: VAE) -> dict:
+    """The VAE's weights without its decoder (playing only encodes): what an agent file keeps."""
+    return {k: v for k, v in vae.state_dict().items() if not k.startswith("decoder.")}
+
+
+def load_encoder(latent_size: int, encoder: dict, path: Path, bfloat16: bool = False) -> VAEVision:
+    """The vision of an agent file at ``path`` from its :func:`encoder_state`; ValueError naming the
+    file where the weights do not fit."""
+    vae = VAE(latent_size)
+    missing, unexpected = vae.load_state_dict(encoder, strict=False)
+    if unexpected or any(not k.startswith("decoder.") for k in missing):
+        raise ValueError(f"{path}: its encoder does not fit the VAE (missing {missing}, unexpected {unexpected})")
+    return VAEVision(vae.eval(), bfloat16=bfloat16)
+
+
+def write_agent_file(path: str | os.PathLike, form: str, version: int, vae: VAE, memory, memory_config: MemoryConfig,
+                     **fields) -> Path:
+    """An agent file at ``path``, written atomically: ``form`` and ``version``, ``vae``'s encoder,
+    ``memory`` with its config, and ``fields`` (what else the agent plays with); returns the path."""
+    saved = {"format": form, "version": version, "latent_size": vae.latent_size, "encoder": encoder_state(vae),
+             "memory_config": dataclasses.asdict(memory_config), "memory": memory.state_dict(), **fields}
     path = Path(path)
     with atomic_path(path) as tmp:
         torch.save(saved, tmp)
     return path
 
 
-def load_agent(path: str | os.PathLike) -> Agent:
-    """The agent saved at ``path``; a missing, corrupt or foreign file raises an error naming it."""
+def agent_memory(saved: dict):
+    """The memory an agent file's dict (:func:`read_agent_file`) holds, in eval mode."""
+    task = saved["task"]
+    memory = make_memory(task["latent_size"], task["n_actions"], MemoryConfig(**saved["memory_config"]))
+    memory.load_state_dict(saved["memory"])
+    return memory.eval()
+
+
+def read_agent_file(path: str | os.PathLike, kind: str, form: str, version: int) -> dict:
+    """The dict an agent file at ``path`` holds; a missing file, a corrupt one or one of another
+    ``form`` or version raises an error naming it (``kind``: what it should hold, for the message)."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no World Models agent at {path}")
+        raise FileNotFoundError(f"no {kind} agent at {path}")
     try:
         saved = torch.load(path, weights_only=False, map_location="cpu")
         stamp = (saved.get("format"), saved.get("version"))
     except Exception as error:  # truncated, or not a torch file
         raise ValueError(f"cannot read {path}: {error}") from error
-    if stamp != (FORMAT, FORMAT_VERSION):
-        raise ValueError(f"{path} is not a {FORMAT} file of version {FORMAT_VERSION} (it says {stamp})")
-    vae = VAE(saved["latent_size"])
-    missing, unexpected = vae.load_state_dict(saved["encoder"], strict=False)
-    if unexpected or any(not k.startswith("decoder.") for k in missing):
-        raise ValueError(f"{path}: its encoder does not fit the VAE (missing {missing}, unexpected {unexpected})")
-    task = saved["task"]
-    memory = make_memory(task["latent_size"], task["n_actions"], MemoryConfig(**saved["memory_config"]))
-    memory.load_state_dict(saved["memory"])
+    if stamp != (form, version):
+        raise ValueError(f"{path} is not a {form} file of version {version} (it says {stamp})")
+    return saved
+
+
+def save_agent(path: str | os.PathLike, vae: VAE, memory, run, memory_config: MemoryConfig,
+               commit: str | None) -> Path:
+    """Write the agent of a finished controller ``run`` (a
+    :class:`~wmthesis.world_models.evolution.ControllerRun`) on ``vae`` and ``memory`` to ``path``
+    atomically; returns the path."""
+    return write_agent_file(path, FORMAT, FORMAT_VERSION, vae, memory, memory_config,
+                            params=np.asarray(run.mean_params, np.float64), task=run.task, controller_config=run.config,
+                            generation=run.generation, commit=commit)
+
+
+def load_agent(path: str | os.PathLike) -> Agent:
+    """The agent saved at ``path``; a missing, corrupt or foreign file raises an error naming it."""
+    path = Path(path)
+    saved = read_agent_file(path, "World Models", FORMAT, FORMAT_VERSION)
     info = {k: saved[k] for k in ("task", "controller_config", "memory_config", "generation", "commit")}
-    return Agent(VAEVision(vae.eval(), bfloat16=bool(task.get("vision_bfloat16", False))), memory.eval(),
-                 saved["params"], info)
+    vision = load_encoder(saved["latent_size"], saved["encoder"], path, bool(saved["task"].get("vision_bfloat16", False)))
+    return Agent(vision, agent_memory(saved), saved["params"], info)
 
 
-__all__ = ["Agent", "AGENT_NAME", "FORMAT", "FORMAT_VERSION", "save_agent", "load_agent"]
+__all__ = ["Agent", "AGENT_NAME", "FORMAT", "FORMAT_VERSION", "save_agent", "load_agent", "encoder_state",
+           "load_encoder", "read_agent_file", "write_agent_file", "agent_memory"]
