@@ -14,7 +14,6 @@ import os
 from pathlib import Path
 from typing import NamedTuple
 
-
 from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator
 from wmthesis.alphazero.latent_mdp import LatentMDP, RewardModel
