@@ -17,7 +17,8 @@
         budgets), with its row without search; resumable; rows into data/results/planning_budget.csv.
     play EXPERIMENT [--profile P] [--seed S] [--bouts N] [--record FILE.rrd] [--video FILE.mp4]
         A trained agent plays its experiment's evaluation levels or bouts, with no training
-        (sokoban-search's shipped agents today); prints each play and the score.
+        (sokoban-search, boxing-wm, boxing-wm-alphazero; quick's seed-0 agents of the first two
+        ship); prints each play and the score.
     validate EXPERIMENT LEVER ... [--variant V] [--seeds 0,1] [--count N] [--workers K] [--profile P]
         Levers of sokoban-search (its agent's config), planet-boxing-value or planet-freeway-value
         (the planner ending in the value of --variant's run) on the validation split only
