@@ -6,6 +6,7 @@ from pathlib import Path
 
 import cv2
 import pytest
+import torch
 
 import wmthesis.play as play_module
 from wmthesis.__main__ import main
@@ -94,3 +95,21 @@ def test_an_alphazero_agent_searches_its_evaluation_games_to_the_same_scores(tmp
     assert agent.info["variant"] == "imitation" and agent.mind(simulations=3).config.simulations == 3
     assert main(["play", "boxing-wm-alphazero", "--profile", "smoke", "--variant", "unchanged"]) == 2
     assert "reproduce boxing-wm-alphazero --profile smoke --seed 0 --variant unchanged`" in capsys.readouterr().err
+
+
+def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path, monkeypatch):
+    """The value run's agent file (PlaNet's model without its decoder, the value, the planner)
+    replays its CEM-with-value bouts to the same returns."""
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    from wmthesis.experiments import reproduce
+    from wmthesis.planet.agent_file import load_agent
+
+    metrics = reproduce("planet-boxing-value", "smoke", 0, progress=False)
+    result = play_module.play("planet-boxing-value", profile="smoke", bouts=2, record=tmp_path / "bouts.rrd",
+                              on_play=lambda line: None)
+    assert [p["return"] for p in result["plays"]] == metrics["value_planner"]["returns"][:2]
+    assert result["variant"] == "lean-value-rewards-0.7" and (tmp_path / "bouts.rrd").stat().st_size > 0
+    path = tmp_path / "smoke" / "planet-boxing-value" / "lean-value-rewards-0.7-seed0" / "agent.pt"
+    agent = load_agent(path)
+    assert agent.info["bouts"] == metrics["bouts"] and agent.planner.discount == 0.7
+    assert not any(k.startswith("decoder.") for k in torch.load(path, weights_only=False)["model"])  # left behind

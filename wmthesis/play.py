@@ -10,7 +10,9 @@ Agents that play today: ``sokoban-search`` (its shipped pixel agents, seeds 0-2 
 ``boxing-wm`` (a run's ``agent-VARIANT.pt``: vision, memory and controller,
 :mod:`wmthesis.world_models.agent`) on the bouts its summary row was scored on, and
 ``boxing-wm-alphazero`` (a variant's ``agent-VARIANT.pt``: vision, memory, the search's heads,
-:mod:`wmthesis.alphazero.agent`) searching on its evaluation games.
+:mod:`wmthesis.alphazero.agent`) searching on its evaluation games, and ``planet-boxing-value`` and
+``planet-freeway-value`` (a run's ``agent.pt``: PlaNet's model, the value, CEM ending in it,
+:mod:`wmthesis.planet.agent_file`) on the bouts its score was measured on.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.utils import check_choice
 from wmthesis.variants import no_variant
 
-PLAYABLE = ("sokoban-search", "boxing-wm", "boxing-wm-alphazero")
+PLAYABLE = ("sokoban-search", "boxing-wm", "boxing-wm-alphazero", "planet-boxing-value", "planet-freeway-value")
 
 
 def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
@@ -55,6 +57,8 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
         return _play_boxing(profile_name(profile), seed, variant, bouts, record, video, on_play)
     if experiment == "boxing-wm-alphazero":
         return _play_alphazero(profile_name(profile), seed, variant, bouts, record, video, on_play)
+    if experiment in ("planet-boxing-value", "planet-freeway-value"):
+        return _play_planet(experiment, profile_name(profile), seed, variant, bouts, record, video, on_play)
     no_variant(experiment, variant)
     return _play_sokoban(profile_name(profile), seed, bouts, record, video, on_play)
 
@@ -126,6 +130,31 @@ def _play_alphazero(profile: str, seed: int, variant: str | None, bouts: int, re
     _keep_frames(np.stack(frames) if frames else None, record, video, fps=15)
     return {"experiment": "boxing-wm-alphazero", "variant": name, "profile": profile, "seed": seed, "plays": plays,
             "score": score}
+
+
+def _play_planet(experiment: str, profile: str, seed: int, variant: str | None, bouts: int, record: Path | None,
+                 video: Path | None, on_play) -> dict:
+    """The PlaNet agent with a learned value of ``experiment``'s ``variant`` (None: the default) on
+    the first ``bouts`` of the bouts its score was measured on."""
+    from wmthesis.experiments import VARIANTS
+    from wmthesis.planet.agent_file import AGENT_NAME, load_agent, play_agent
+    from wmthesis.runs import work_folder
+
+    name = VARIANTS[experiment].check(variant).name
+    path = work_folder(profile, experiment, seed, VARIANTS[experiment].folder_name(name)) / AGENT_NAME
+    if not path.is_file():
+        raise FileNotFoundError(f"no trained {experiment} agent at {path}: train it with `python -m wmthesis reproduce "
+                                f"{experiment} --profile {profile} --seed {seed} --variant {name}`")
+    agent = load_agent(path)
+    plays, frames = [], [] if record or video else None
+    for k, (env_seed, mind_seed) in enumerate(agent.info["bouts"][:bouts]):
+        rewards = play_agent(agent, env_seed, mind_seed, frames)
+        plays.append({"bout": k, "return": float(sum(rewards)), "steps": len(rewards)})
+        on_play(f"bout {k}: {plays[-1]['return']:+.0f} in {len(rewards)} steps")
+    score = float(np.mean([p["return"] for p in plays]))
+    on_play(f"mean {score:.1f} over {len(plays)} bout{'s' if len(plays) > 1 else ''} ({name}, {profile}, seed {seed})")
+    _keep_frames(np.stack(frames) if frames else None, record, video, fps=15)
+    return {"experiment": experiment, "variant": name, "profile": profile, "seed": seed, "plays": plays, "score": score}
 
 
 def _keep_frames(frames: np.ndarray | None, record: Path | None, video: Path | None, fps: int) -> None:

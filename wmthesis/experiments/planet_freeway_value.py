@@ -74,7 +74,7 @@ VALUE_VARIANTS = Variants(
     # a step nearer the far side weighs the same at the foot of the road as at its top
     Variant("adam-log", "the discounted sum's logarithm on the model that sees the cars, CEM 12 steps before it",
             dict(planner=dict(horizon=12), value=dict(target="log-discounted-sum")), builds_on="freeway-adam"),
-)
+    root="default")  # the default's runs keep the experiment's own folders
 
 
 def model_variant(variant: str | None = None) -> str:
@@ -144,7 +144,7 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, variant: str
     (:func:`base_variant`): its baselines are copied from that run, not played again, and one that keeps the
     value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.planet.value_runs.fit_and_compare`."""
     own = VALUE_VARIANTS.check(variant).changes
-    variant = None if VALUE_VARIANTS.check(variant).name == "default" else variant
+    variant = VALUE_VARIANTS.folder_name(variant)
     changes = VALUE_VARIANTS.changes(variant)
     profile = profile_name(profile)
     started = time.time()

@@ -100,12 +100,16 @@ class PlanetMind(BeliefFilter):
         return scores
 
 
-def play_greedy(env, model: RSSM, config: PlaNetConfig, env_seed: int, mind_seed: int) -> list[float]:
+def play_greedy(env, model: RSSM, config: PlaNetConfig, env_seed: int, mind_seed: int,
+                frames: list | None = None) -> list[float]:
     """One greedy planner episode in ``env`` (reset with ``env_seed``; CEM's noise from
-    ``mind_seed``): its rewards, one per agent step."""
+    ``mind_seed``): its rewards, one per agent step; ``frames`` (a list), where given, gets the
+    episode's frames."""
     mind = PlanetMind.from_config(model, config, int(mind_seed))
     record = EpisodeBuffer()
     loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
+    if frames is not None:
+        frames += list(record.episode["observations"])
     return [float(r) for r in record.episode["rewards"]]
 
 

@@ -108,10 +108,10 @@ def _check_planner(discount: float, imagine: str, value_prior: float, value, rew
 
 
 def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfig, planner: ValuePlannerConfig,
-                       env_seed: int, mind_seed: int) -> list[float]:
+                       env_seed: int, mind_seed: int, frames: list | None = None) -> list[float]:
     """One greedy episode of the planner with value in ``env`` (reset with ``env_seed``; CEM's
     noise from ``mind_seed``; CEM's sizes from ``planet``, its horizon from ``planner``): its
-    rewards, one per agent step."""
+    rewards, one per agent step; ``frames`` (a list), where given, gets the episode's frames."""
     mind = ValuePlanetMind(model, value, horizon=planner.horizon, candidates=planner.candidates or planet.candidates,
                            top_k=planet.top_k, iterations=planner.iterations or planet.iterations, bits=planet.bits,
                            discount=planner.discount,
@@ -119,6 +119,8 @@ def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfi
                            generator=torch.Generator(next(model.parameters()).device).manual_seed(int(mind_seed)))
     record = EpisodeBuffer()
     loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
+    if frames is not None:
+        frames += list(record.episode["observations"])
     return [float(r) for r in record.episode["rewards"]]
 
 

@@ -16,12 +16,14 @@ from wmthesis.data import EpisodeStore
 from wmthesis.metrics import score_difference, score_summary
 from wmthesis.planet.bouts import FIRST_STEPS
 from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.figures import learning_curve_figure, plan_choices_figure
 from wmthesis.planet.train import load_planet, make_planet_env
 from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value_planners_scores
 from wmthesis.planet.value_planner import PLANNERS, plan_choices
 from wmthesis.planet.value_rounds import CHECKPOINT, STORE, load_value, train_value
 from wmthesis.runs import atomic_path, first_run_seconds, run_header, write_json
+from wmthesis.stamp import git_commit
 from wmthesis.training import with_added_defaults
 from wmthesis.utils import check_choice
 from wmthesis.viz import image_grid, save_figure
@@ -96,6 +98,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     returns = chosen["returns"]
     scores = value_planner_scores(planet_run, work, planner, bouts, agent_key(chosen["rounds"], config),
                                   progress, game=game)
+    save_agent(work / AGENT_NAME, game, planet_run, bouts, git_commit(), value_run=work, planner=planner)  # for `play`
     lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in baselines.items()}
     lines.update({f"CEM, H{planner.horizon}, with the value at its end": scores["full"]["mean"], **references})
     value, unit = score_summary(returns), "bouts" if game == "boxing" else "episodes"

@@ -1,0 +1,98 @@
+"""A trained PlaNet agent in one file, to ship and to play: the RSSM (its observation decoder left
+behind: planning never decodes), the learned value and the planner that ends in it where the agent
+has one, the game, the bouts its score was measured on, the configs and the commit, with a format
+version.
+
+    save_agent(path, game, planet_run, bouts, commit, value_run=work, planner=planner)
+    agent = load_agent(path)
+    rewards = play_agent(agent, *agent.info["bouts"][0])   # one bout, its rewards
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import NamedTuple
+
+import torch
+
+from wmthesis.planet.agent import play_greedy
+from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
+from wmthesis.planet.rssm import RSSM
+from wmthesis.planet.train import build_model, load_planet, make_planet_env
+from wmthesis.planet.value import LatentValue
+from wmthesis.planet.value_planner import play_value_planner
+from wmthesis.planet.value_rounds import load_value
+from wmthesis.runs import atomic_path
+from wmthesis.training import with_added_defaults
+from wmthesis.world_models.agent import read_agent_file
+
+FORMAT = "wmthesis-planet-agent"
+FORMAT_VERSION = 1
+AGENT_NAME = "agent.pt"
+DECODER = "decoder."  # the observation model's keys in the RSSM's state: not shipped
+
+
+class Agent(NamedTuple):
+    """A loaded agent: the ``model`` (an RSSM without its decoder's weights), its ``planet``
+    config, the ``value`` and its ``planner`` (None for PlaNet's own CEM) and ``info`` (game,
+    bouts, commit)."""
+    model: RSSM
+    planet: PlaNetConfig
+    value: LatentValue | None
+    planner: ValuePlannerConfig | None
+    info: dict
+
+
+def save_agent(path: str | os.PathLike, game: str, planet_run: Path, bouts: list, commit: str | None,
+               value_run: Path | None = None, planner: ValuePlannerConfig | None = None) -> Path:
+    """Write the agent of the PlaNet run in ``planet_run`` (with the chosen value of the value run
+    in ``value_run`` and CEM ``planner`` ending in it, where given) for ``game`` to ``path``,
+    atomically, with the ``bouts`` ((env seed, mind seed) pairs) it was scored on; returns the path."""
+    model, planet, _ = load_planet(planet_run)
+    value = None if value_run is None else load_value(value_run, model)
+    saved = {"format": FORMAT, "version": FORMAT_VERSION, "game": game, "n_actions": model.n_actions,
+             "planet": dataclasses.asdict(planet), "bouts": [list(map(int, b)) for b in bouts], "commit": commit,
+             "model": {k: v for k, v in model.state_dict().items() if not k.startswith(DECODER)},
+             "value": None if value is None else {"state": value.state_dict(), "hidden": value.heads[0][0].out_features,
+                                                  "heads": len(value.heads), "log": value.log},
+             "planner": None if planner is None else dataclasses.asdict(planner)}
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save(saved, tmp)
+    return path
+
+
+def load_agent(path: str | os.PathLike) -> Agent:
+    """The agent saved at ``path``; a missing, corrupt or foreign file raises an error naming it."""
+    path = Path(path)
+    saved = read_agent_file(path, "PlaNet", FORMAT, FORMAT_VERSION)
+    planet = PlaNetConfig(**with_added_defaults(PlaNetConfig, saved["planet"]))
+    model = build_model(planet, saved["n_actions"])
+    missing, unexpected = model.load_state_dict(saved["model"], strict=False)
+    if unexpected or any(not k.startswith(DECODER) for k in missing):
+        raise ValueError(f"{path}: its model does not fit the RSSM (missing {missing}, unexpected {unexpected})")
+    value, planner = None, None
+    if saved["value"] is not None:
+        v = saved["value"]
+        value = LatentValue(model.belief_size + model.state_size, v["hidden"], v["heads"], v["log"])
+        value.load_state_dict(v["state"])
+        value = value.to(next(model.parameters()).device).eval()
+        planner = ValuePlannerConfig(**with_added_defaults(ValuePlannerConfig, saved["planner"]))
+    return Agent(model.eval(), planet, value, planner, {k: saved[k] for k in ("game", "bouts", "commit")})
+
+
+def play_agent(agent: Agent, env_seed: int, mind_seed: int, frames: list | None = None) -> list[float]:
+    """One greedy bout of ``agent`` in its game (reset with ``env_seed``, the planner's noise from
+    ``mind_seed``): its rewards, one per agent step; ``frames`` (a list) gets its frames where given."""
+    env = make_planet_env(agent.info["game"], agent.planet)
+    try:
+        if agent.value is None:
+            return play_greedy(env, agent.model, agent.planet, env_seed, mind_seed, frames)
+        return play_value_planner(env, agent.model, agent.value, agent.planet, agent.planner, env_seed, mind_seed,
+                                  frames)
+    finally:
+        env.close()
+
+
+__all__ = ["Agent", "AGENT_NAME", "FORMAT", "FORMAT_VERSION", "save_agent", "load_agent", "play_agent"]
