@@ -34,8 +34,8 @@ def test_play_refuses_what_it_cannot_do_before_anything_plays(tmp_path, capsys, 
     assert "x.mp4 cannot be written: its folder" in capsys.readouterr().err
     assert main(["play", "sokoban-search", "--record", str(tmp_path / "x.mp4")]) == 2
     assert "name a .rrd file" in capsys.readouterr().err
-    assert main(["play", "planet-boxing-agent"]) == 2
-    assert "python -m wmthesis reproduce planet-boxing-agent" in capsys.readouterr().err
+    assert main(["play", "planet-boxing-study"]) == 2
+    assert "planet-boxing-study has no agent that plays" in capsys.readouterr().err
     assert main(["play", "sokoban-search", "--variant", "x"]) == 2
     assert "has no variants" in capsys.readouterr().err
     assert main(["play", "boxing-wm", "--variant", "x"]) == 2

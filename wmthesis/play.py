@@ -8,11 +8,11 @@ there is one line naming what is missing and the command that trains it.
 
 Agents that play today: ``sokoban-search`` (its shipped pixel agents, seeds 0-2 of ``quick``),
 ``boxing-wm`` (a run's ``agent-VARIANT.pt``: vision, memory and controller,
-:mod:`wmthesis.world_models.agent`) on the bouts its summary row was scored on, and
+:mod:`wmthesis.world_models.agent`) on the bouts its summary row was scored on,
 ``boxing-wm-alphazero`` (a variant's ``agent-VARIANT.pt``: vision, memory, the search's heads,
-:mod:`wmthesis.alphazero.agent`) searching on its evaluation games, and ``planet-boxing-value`` and
-``planet-freeway-value`` (a run's ``agent.pt``: PlaNet's model, the value, CEM ending in it,
-:mod:`wmthesis.planet.agent_file`) on the bouts its score was measured on.
+:mod:`wmthesis.alphazero.agent`) searching on its evaluation games, and
+every PlaNet experiment (a run's ``agent.pt``: PlaNet's model, and the value with CEM ending in it
+where it has one, :mod:`wmthesis.planet.agent_file`) on the bouts its score was measured on.
 """
 from __future__ import annotations
 
@@ -25,7 +25,9 @@ from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.utils import check_choice
 from wmthesis.variants import no_variant
 
-PLAYABLE = ("sokoban-search", "boxing-wm", "boxing-wm-alphazero", "planet-boxing-value", "planet-freeway-value")
+PLANET_AGENTS = ("planet-sokoban", "planet-boxing", "planet-freeway", "planet-boxing-agent", "planet-boxing-value",
+                 "planet-freeway-value")  # each run writes its agent.pt (wmthesis.planet.agent_file)
+PLAYABLE = ("sokoban-search", "boxing-wm", "boxing-wm-alphazero", *PLANET_AGENTS)
 
 
 def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
@@ -48,8 +50,7 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
     mean: the solve rate for Sokoban)."""
     check_choice("experiment", experiment, EXPERIMENTS)
     if experiment not in PLAYABLE:
-        raise ValueError(f"play shows {', '.join(PLAYABLE)} today; {experiment}'s agents do not ship yet "
-                         f"(train one: python -m wmthesis reproduce {experiment})")
+        raise ValueError(f"play shows {', '.join(PLAYABLE)}; {experiment} has no agent that plays")
     if bouts < 1:
         raise ValueError(f"--bouts must be 1 or more, got {bouts}")
     record, video = check_output(record, ".rrd"), check_output(video, ".mp4")
@@ -57,7 +58,7 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
         return _play_boxing(profile_name(profile), seed, variant, bouts, record, video, on_play)
     if experiment == "boxing-wm-alphazero":
         return _play_alphazero(profile_name(profile), seed, variant, bouts, record, video, on_play)
-    if experiment in ("planet-boxing-value", "planet-freeway-value"):
+    if experiment in PLANET_AGENTS:
         return _play_planet(experiment, profile_name(profile), seed, variant, bouts, record, video, on_play)
     no_variant(experiment, variant)
     return _play_sokoban(profile_name(profile), seed, bouts, record, video, on_play)
@@ -134,17 +135,21 @@ def _play_alphazero(profile: str, seed: int, variant: str | None, bouts: int, re
 
 def _play_planet(experiment: str, profile: str, seed: int, variant: str | None, bouts: int, record: Path | None,
                  video: Path | None, on_play) -> dict:
-    """The PlaNet agent with a learned value of ``experiment``'s ``variant`` (None: the default) on
-    the first ``bouts`` of the bouts its score was measured on."""
+    """The PlaNet agent of ``experiment``'s ``variant`` (None: the default; with a learned value
+    where the experiment fits one) on the first ``bouts`` of the bouts its score was measured on."""
     from wmthesis.experiments import VARIANTS
     from wmthesis.planet.agent_file import AGENT_NAME, load_agent, play_agent
     from wmthesis.runs import work_folder
 
-    name = VARIANTS[experiment].check(variant).name
-    path = work_folder(profile, experiment, seed, VARIANTS[experiment].folder_name(name)) / AGENT_NAME
+    if experiment in VARIANTS:
+        name, folder = VARIANTS[experiment].check(variant).name, VARIANTS[experiment].folder_name(variant)
+    else:
+        no_variant(experiment, variant)
+        name = folder = None
+    path = work_folder(profile, experiment, seed, folder) / AGENT_NAME
     if not path.is_file():
         raise FileNotFoundError(f"no trained {experiment} agent at {path}: train it with `python -m wmthesis reproduce "
-                                f"{experiment} --profile {profile} --seed {seed} --variant {name}`")
+                                f"{experiment} --profile {profile} --seed {seed}" + (f" --variant {name}`" if name else "`"))
     agent = load_agent(path)
     plays, frames = [], [] if record or video else None
     for k, (env_seed, mind_seed) in enumerate(agent.info["bouts"][:bouts]):
@@ -152,7 +157,8 @@ def _play_planet(experiment: str, profile: str, seed: int, variant: str | None, 
         plays.append({"bout": k, "return": float(sum(rewards)), "steps": len(rewards)})
         on_play(f"bout {k}: {plays[-1]['return']:+.0f} in {len(rewards)} steps")
     score = float(np.mean([p["return"] for p in plays]))
-    on_play(f"mean {score:.1f} over {len(plays)} bout{'s' if len(plays) > 1 else ''} ({name}, {profile}, seed {seed})")
+    on_play(f"mean {score:.1f} over {len(plays)} bout{'s' if len(plays) > 1 else ''} ({name or experiment}, {profile}, "
+            f"seed {seed})")
     _keep_frames(np.stack(frames) if frames else None, record, video, fps=15)
     return {"experiment": experiment, "variant": name, "profile": profile, "seed": seed, "plays": plays, "score": score}
 

@@ -14,6 +14,7 @@ from wmthesis.data import EpisodeStore
 from wmthesis.envs import ATARI_GAMES
 from wmthesis.metrics import error_at, horizon_errors, score_summary
 from wmthesis.planet.agent import play_greedy
+from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.figures import horizon_error_figure, learning_curve_figure, open_loop_figure
 from wmthesis.planet.prediction import open_loop
 from wmthesis.planet.profiles import planet_config
@@ -21,6 +22,7 @@ from wmthesis.planet.train import load_planet, make_planet_env, same_training, t
 from wmthesis.planet.variants import ENVIRONMENTS, REGISTRIES
 from wmthesis.references import HUMAN, RANDOM, published
 from wmthesis.runs import hold, read_json, releasing_holds, results_folder, run_header, work_folder, write_json
+from wmthesis.stamp import git_commit
 from wmthesis.utils import check_choice, derive_seeds
 from wmthesis.viz import record_frames, save_figure
 
@@ -82,6 +84,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
 
     model, trained_config, meta = load_planet(work)
     returns = _planet_evaluate(model, trained_config, env_name, work, seed, n_eval, run["updates"])
+    save_agent(work / AGENT_NAME, env_name, work, _evaluation_bouts(seed, n_eval), git_commit())  # for `play`
     context, horizon, cutoff = PLANET_OPEN_LOOP[profile]["atari" if env_name in ATARI_GAMES else "sokoban"]
     with EpisodeStore(work / "episodes.h5") as store:
         random_returns = [float(store.episode(i)["rewards"].sum()) for i in range(trained_config.seed_episodes)]
@@ -131,13 +134,17 @@ def _planet_evaluate(model, config, env_name: str, work: Path, seed: int, n_eval
     env = make_planet_env(env_name, config)
     returns = []
     try:
-        for k in range(n_eval):
-            env_seed, mind_seed = derive_seeds(seed, 2, k, n=2)
+        for env_seed, mind_seed in _evaluation_bouts(seed, n_eval):
             returns.append(float(sum(play_greedy(env, model, config, env_seed, mind_seed))))
     finally:
         env.close()
     write_json(path, {"updates": updates, "returns": returns}, indent=None)
     return returns
+
+
+def _evaluation_bouts(seed: int, n_eval: int) -> list[tuple[int, int]]:
+    """The (env seed, mind seed) of each evaluation episode: from (seed, 2, k), apart from training's tests."""
+    return [tuple(int(v) for v in derive_seeds(seed, 2, k, n=2)) for k in range(n_eval)]
 
 
 def _planet_open_loop(model, store, length: int, context: int, config, seed: int, sequences: int = 6) -> dict:

@@ -17,6 +17,7 @@ from pathlib import Path
 from wmthesis.config import profile_name
 from wmthesis.data import EpisodeStore
 from wmthesis.metrics import score_difference
+from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.bouts import FIRST_STEPS, bout_scores, play_bout
 from wmthesis.planet.config import PlaNetConfig
 from wmthesis.planet.figures import learning_curve_figure, study_error_figure, study_label, study_pictures_figure
@@ -26,6 +27,7 @@ from wmthesis.planet.train import load_planet, same_training, train_planet, with
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human, published, random_play
 from wmthesis.runs import (hold, played_bouts, read_json, releasing_holds, results_folder, run_header, work_folder,
                            write_json)
+from wmthesis.stamp import git_commit
 from wmthesis.utils import data_dir, derive_seeds, parallel_calls
 from wmthesis.variants import no_variant
 from wmthesis.viz import record_frames, save_figure
@@ -130,6 +132,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str 
                          progress, [(play_bout, GAME, config, who, env_seed, mind_seed)
                                     for who in (work, None) for env_seed, mind_seed in bouts])  # each saved as it ends
     agent, random = plays[:len(bouts)], plays[len(bouts):]
+    save_agent(work / AGENT_NAME, "boxing", work, bouts, git_commit())  # for `play`
     scores = {"agent": bout_scores(agent), "random": bout_scores(random)}
     _, _, meta = load_planet(work)
     references = {"random (published)": random_play(GAME), "human": human(GAME),
