@@ -113,3 +113,6 @@ def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path
     agent = load_agent(path)
     assert agent.info["bouts"] == metrics["bouts"] and agent.planner.discount == 0.7
     assert not any(k.startswith("decoder.") for k in torch.load(path, weights_only=False)["model"])  # left behind
+    cem = reproduce("planet-boxing-agent", "smoke", 0, progress=False)  # the model's own agent (made first, cached)
+    alone = play_module.play("planet-boxing-agent", profile="smoke", bouts=2, on_play=lambda line: None)
+    assert [p["return"] for p in alone["plays"]] == cem["agent"]["returns"][:2]
