@@ -100,3 +100,20 @@ def test_bad_planners_and_budgets_are_refused_in_one_line_before_anything_plays(
         assert main(["budget-curve", *argv, "--profile", "smoke"]) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err
+
+
+def test_the_summary_tables_the_budget_rows_over_seeds_paired_with_no_search(tmp_path):
+    from wmthesis.budget_curves import COLUMNS
+    from wmthesis.summary import write_summary
+
+    rows = [("mcts", "boxing", 0, 0, 30.0, 30.0, 2.0), ("mcts", "boxing", 0, 1, 20.0, 20.0, 2.0),
+            ("mcts", "boxing", 64, 0, 36.0, 30.0, 9.0), ("mcts", "boxing", 64, 1, 22.0, 20.0, 11.0)]
+    with open(tmp_path / "planning_budget.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(COLUMNS)
+        writer.writerows(rows)
+    write_summary(tmp_path)
+    table = (tmp_path / "summary.md").read_text().split("## Score against search budget")[1]
+    # by hand: gains 6 and 2, mean 4, sample std 2.8284, t_{0.975, 1} = 12.706: half width 25.4
+    assert "| mcts | boxing | 0 | 2 | 25.0 | +0.0 [+0.0, +0.0] | 2.0 |" in table
+    assert "| mcts | boxing | 64 | 2 | 29.0 | +4.0 [-21.4, +29.4] | 10.0 |" in table

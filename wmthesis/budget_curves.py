@@ -8,6 +8,8 @@ import csv
 import io
 import json
 
+from pathlib import Path
+
 import numpy as np
 
 from wmthesis.config import PLANNERS
@@ -113,13 +115,27 @@ def budget_table(rows: list[dict]) -> list[dict]:
     return out
 
 
-def read_budget_rows(profile: str) -> list[dict]:
-    """The rows :func:`write_budget_table` wrote for ``profile`` (numbers as numbers); none before
-    the first seed is measured."""
+def budget_markdown(rows: list[dict]) -> str:
+    """:func:`budget_table` of ``rows`` as markdown (an empty string without rows)."""
+    if not rows:
+        return ""
+    lines = ["| planner | game | budget | seeds | score | gain over no search [95% interval] | ms an action |",
+             "|---|---|---|---|---|---|---|"]
+    for r in budget_table(rows):
+        interval = "" if r["gain_ci_low"] is None else f" [{r['gain_ci_low']:+.1f}, {r['gain_ci_high']:+.1f}]"
+        lines.append(f"| {r['planner']} | {r['game']} | {r['budget']:,} | {r['seeds']} | {r['score']:.1f} | "
+                     f"{r['gain']:+.1f}{interval} | {r['ms_per_action']:.1f} |")
+    return "\n".join(lines)
+
+
+def read_budget_rows(profile: str, folder: Path | None = None) -> list[dict]:
+    """The rows :func:`write_budget_table` wrote for ``profile`` in ``folder`` (default
+    ``data/results``), numbers as numbers; none before the first seed is measured."""
     name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
-    if not (data_dir("results") / name).is_file():  # no seed measured yet in this profile
+    path = (data_dir("results") if folder is None else Path(folder)) / name
+    if not path.is_file():  # no seed measured yet in this profile
         return []
-    with open(data_dir("results") / name) as f:
+    with open(path) as f:
         return [{**r, "budget": int(r["budget"]), "seed": int(r["seed"]),
                  **{k: float(r[k]) for k in ("score", "no_search_score", "ms_per_action")}} for r in csv.DictReader(f)]
 
@@ -144,4 +160,4 @@ def write_budget_table(profile: str) -> str:
     return text.getvalue()
 
 
-__all__ = ["COLUMNS", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
+__all__ = ["COLUMNS", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
