@@ -197,8 +197,10 @@ def test_a_run_called_again_keeps_the_wall_time_of_the_run_that_computed_it(tmp_
     assert first_run_seconds(path, 21.9) == 21.9  # no earlier run
     path.write_text(json.dumps({"wall_seconds": 7200.0}))  # written before first_run_wall_seconds existed
     assert first_run_seconds(path, 21.9) == 7200.0
-    path.write_text(json.dumps({"wall_seconds": 30.0, "first_run_wall_seconds": 5400.0}))
+    path.write_text(json.dumps({"wall_seconds": 30.0, "first_run_wall_seconds": 5400.0, "curve": [1, 2]}))
     assert first_run_seconds(path, 21.9) == 5400.0
+    assert first_run_seconds(path, 21.9, lambda earlier: earlier["curve"] == [1, 2]) == 5400.0  # the same training
+    assert first_run_seconds(path, 21.9, lambda earlier: earlier["curve"] == [3]) == 21.9  # another: its time is not ours
     path.write_text("{not json")
     assert first_run_seconds(path, 21.9) == 21.9
 

@@ -126,12 +126,15 @@ def run_header(experiment: str, profile: str, seed: int, seconds: float, **run) 
             "threads": torch.get_num_threads(), "wall_seconds": round(seconds, 1)}
 
 
-def first_run_seconds(path: Path, seconds: float) -> float:
+def first_run_seconds(path: Path, seconds: float, same: Callable[[dict], bool] | None = None) -> float:
     """The wall time of the run that computed everything: kept from an earlier metrics file at
     ``path`` (its ``first_run_wall_seconds``, or the ``wall_seconds`` of a file written before
-    that field; a resumed or cached run is faster), else this run's ``seconds``."""
+    that field; a resumed or cached run is faster) where ``same(earlier)`` says it measured the
+    same training (None: any earlier file), else this run's ``seconds``."""
     try:
         earlier = json.loads(Path(path).read_text())
+        if same is not None and not same(earlier):
+            return seconds
         return float(earlier.get("first_run_wall_seconds", earlier["wall_seconds"]))
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return seconds

@@ -76,7 +76,9 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
         "returns": returns.tolist(),
         "files": {"figures": [str(f) for f in figures], "recording": str(recording), "agent": str(agent)},
     }
-    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"])
+    evolved = json.loads(json.dumps(run.curve, default=float))  # an earlier file of another controller keeps no time
+    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"],
+                                                          lambda earlier: earlier.get("controller_curve") == evolved)
     write_json(out / "metrics.json", metrics, default=float)
     return metrics
 
