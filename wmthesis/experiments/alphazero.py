@@ -137,11 +137,17 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         "memory_history": memory_history,
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
-    trained = json.loads(json.dumps(runs, default=float))  # an earlier file of other self-play runs keeps no time
-    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"],
-                                                          lambda earlier: earlier.get("runs") == trained)
+    metrics["first_run_wall_seconds"] = first_run_seconds(  # an earlier file of other self-play keeps no time
+        out / "metrics.json", metrics["wall_seconds"], lambda earlier: _played(earlier.get("runs", {})) == _played(runs))
     write_json(out / "metrics.json", metrics, default=float)
     return metrics
+
+
+def _played(runs: dict) -> dict:
+    """What decides a set of self-play runs (their configs, games and each game's return), not
+    how long they took: two runs the same here trained the same heads."""
+    return json.loads(json.dumps({name: [run["config"], run["games"], [g["return"] for g in run["curve"]]]
+                                  for name, run in runs.items()}, default=float))
 
 
 def _expert(profile: str, seed: int, wm: Path, vision, progress: bool):
