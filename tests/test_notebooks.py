@@ -129,3 +129,9 @@ def test_the_index_reads_each_notebooks_stamp_and_names_one_it_does_not_know(tmp
     write("12_new", stamp("quick", time.time(), train=True))
     with pytest.raises(ValueError, match="12_new.ipynb: not in wmthesis.notebook_index.SHOWS"):
         notebook_rows(tmp_path)
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_every_notebook_has_a_parameters_cell_that_sets_the_profile(path):
+    tagged = [c for c in json.loads(path.read_text())["cells"] if "parameters" in c["metadata"].get("tags", [])]
+    assert len(tagged) == 1 and "PROFILE = " in "".join(tagged[0]["source"]), f"{path.name}: tag its parameters cell"

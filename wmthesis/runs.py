@@ -140,6 +140,36 @@ def first_run_seconds(path: Path, seconds: float, same: Callable[[dict], bool] |
         return seconds
 
 
+# ----------------------------------------------------------------------------- agent files
+def save_agent_file(path: str | os.PathLike, form: str, version: int, **fields) -> Path:
+    """A trained agent in one torch file at ``path``, written whole: its ``form`` and ``version``
+    and ``fields`` (what the agent plays with); returns the path (:func:`read_agent_file` reads it)."""
+    import torch  # heavy: loaded when an agent is written
+
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save({"format": form, "version": version, **fields}, tmp)
+    return path
+
+
+def read_agent_file(path: str | os.PathLike, kind: str, form: str, version: int) -> dict:
+    """The dict an agent file at ``path`` holds; a missing file, a corrupt one or one of another
+    ``form`` or version raises an error naming it (``kind``: what it should hold, for the message)."""
+    import torch  # heavy: loaded when an agent is read
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no {kind} agent at {path}")
+    try:
+        saved = torch.load(path, weights_only=False, map_location="cpu")
+        stamp = (saved.get("format"), saved.get("version"))
+    except Exception as error:  # truncated, or not a torch file
+        raise ValueError(f"cannot read {path}: {error}") from error
+    if stamp != (form, version):
+        raise ValueError(f"{path} is not a {form} file of version {version} (it says {stamp})")
+    return saved
+
+
 # ----------------------------------------------------------------------------- keyed caches of played bouts
 def cached_for(path: Path, key: dict, read_key: Callable[[dict], dict] | None = None) -> dict | None:
     """The JSON cache at ``path`` if it was written for ``key``, else None. ``read_key`` brings a
@@ -296,4 +326,5 @@ def _alive(pid) -> bool:
 
 __all__ = ["work_folder", "results_folder", "register_runner", "built_on", "atomic_path", "write_json", "read_json", "jsonable", "cached",
            "run_header", "first_run_seconds", "cached_for", "played_bouts", "played_groups", "partial_path",
-           "run_jobs", "LOCK_NAME", "FolderHeld", "hold", "release", "releasing_holds"]
+           "run_jobs", "LOCK_NAME", "FolderHeld", "hold", "release", "releasing_holds", "save_agent_file",
+           "read_agent_file"]

@@ -18,7 +18,8 @@ from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator
 from wmthesis.alphazero.latent_mdp import LatentMDP, RewardModel
 from wmthesis.alphazero.selfplay import AlphaZeroMind
-from wmthesis.world_models.agent import agent_memory, load_encoder, read_agent_file, write_agent_file
+from wmthesis.runs import read_agent_file
+from wmthesis.world_models.agent import agent_memory, load_encoder, write_agent_file
 from wmthesis.world_models.config import MemoryConfig
 from wmthesis.world_models.vision import VAE, VAEVision
 

@@ -14,7 +14,6 @@ import os
 from pathlib import Path
 from typing import NamedTuple
 
-import torch
 
 from wmthesis.planet.agent import play_greedy
 from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
@@ -23,9 +22,8 @@ from wmthesis.planet.train import build_model, load_planet, make_planet_env
 from wmthesis.planet.value import LatentValue
 from wmthesis.planet.value_planner import play_value_planner
 from wmthesis.planet.value_rounds import load_value
-from wmthesis.runs import atomic_path
+from wmthesis.runs import read_agent_file, save_agent_file
 from wmthesis.training import with_added_defaults
-from wmthesis.world_models.agent import read_agent_file
 
 FORMAT = "wmthesis-planet-agent"
 FORMAT_VERSION = 1
@@ -51,16 +49,13 @@ def save_agent(path: str | os.PathLike, game: str, planet_run: Path, bouts: list
     atomically, with the ``bouts`` ((env seed, mind seed) pairs) it was scored on; returns the path."""
     model, planet, _ = load_planet(planet_run)
     value = None if value_run is None else load_value(value_run, model)
-    saved = {"format": FORMAT, "version": FORMAT_VERSION, "game": game, "n_actions": model.n_actions,
-             "planet": dataclasses.asdict(planet), "bouts": [list(map(int, b)) for b in bouts], "commit": commit,
-             "model": {k: v for k, v in model.state_dict().items() if not k.startswith(DECODER)},
-             "value": None if value is None else {"state": value.state_dict(), "hidden": value.heads[0][0].out_features,
-                                                  "heads": len(value.heads), "log": value.log},
-             "planner": None if planner is None else dataclasses.asdict(planner)}
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        torch.save(saved, tmp)
-    return path
+    return save_agent_file(
+        path, FORMAT, FORMAT_VERSION, game=game, n_actions=model.n_actions, planet=dataclasses.asdict(planet),
+        bouts=[list(map(int, b)) for b in bouts], commit=commit,
+        model={k: v for k, v in model.state_dict().items() if not k.startswith(DECODER)},
+        value=None if value is None else {"state": value.state_dict(), "hidden": value.heads[0][0].out_features,
+                                          "heads": len(value.heads), "log": value.log},
+        planner=None if planner is None else dataclasses.asdict(planner))
 
 
 def load_agent(path: str | os.PathLike) -> Agent:

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from wmthesis.runs import atomic_path
+from wmthesis.runs import read_agent_file, save_agent_file
 from wmthesis.world_models.config import MemoryConfig
 from wmthesis.world_models.train import make_memory
 from wmthesis.world_models.vision import VAE, VAEVision
@@ -54,12 +54,8 @@ def write_agent_file(path: str | os.PathLike, form: str, version: int, vae: VAE,
                      **fields) -> Path:
     """An agent file at ``path``, written atomically: ``form`` and ``version``, ``vae``'s encoder,
     ``memory`` with its config, and ``fields`` (what else the agent plays with); returns the path."""
-    saved = {"format": form, "version": version, "latent_size": vae.latent_size, "encoder": encoder_state(vae),
-             "memory_config": dataclasses.asdict(memory_config), "memory": memory.state_dict(), **fields}
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        torch.save(saved, tmp)
-    return path
+    return save_agent_file(path, form, version, latent_size=vae.latent_size, encoder=encoder_state(vae),
+                           memory_config=dataclasses.asdict(memory_config), memory=memory.state_dict(), **fields)
 
 
 def agent_memory(saved: dict):
@@ -68,22 +64,6 @@ def agent_memory(saved: dict):
     memory = make_memory(task["latent_size"], task["n_actions"], MemoryConfig(**saved["memory_config"]))
     memory.load_state_dict(saved["memory"])
     return memory.eval()
-
-
-def read_agent_file(path: str | os.PathLike, kind: str, form: str, version: int) -> dict:
-    """The dict an agent file at ``path`` holds; a missing file, a corrupt one or one of another
-    ``form`` or version raises an error naming it (``kind``: what it should hold, for the message)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no {kind} agent at {path}")
-    try:
-        saved = torch.load(path, weights_only=False, map_location="cpu")
-        stamp = (saved.get("format"), saved.get("version"))
-    except Exception as error:  # truncated, or not a torch file
-        raise ValueError(f"cannot read {path}: {error}") from error
-    if stamp != (form, version):
-        raise ValueError(f"{path} is not a {form} file of version {version} (it says {stamp})")
-    return saved
 
 
 def save_agent(path: str | os.PathLike, vae: VAE, memory, run, memory_config: MemoryConfig,
@@ -106,4 +86,4 @@ def load_agent(path: str | os.PathLike) -> Agent:
 
 
 __all__ = ["Agent", "AGENT_NAME", "FORMAT", "FORMAT_VERSION", "save_agent", "load_agent", "encoder_state",
-           "load_encoder", "read_agent_file", "write_agent_file", "agent_memory"]
+           "load_encoder", "write_agent_file", "agent_memory"]
