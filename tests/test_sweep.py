@@ -155,7 +155,7 @@ def test_the_ablations_are_paired_by_seed_against_the_headline_row(tmp_path, mon
     assert ablation["difference"] == -4.5
     assert (ablation["ci_low"], ablation["ci_high"]) == (pytest.approx(-4.5 - half), pytest.approx(-4.5 + half))
     table = (tmp_path / "results" / "summary.md").read_text()
-    assert "| boxing-wm | first recipe | separable-64 | score | 1 2 | 17.5 | 22.0 | -4.5 [-23.6, +14.6] |" in table
+    assert "| boxing-wm | population-16 (first recipe) | separable-64 | score | 1 2 | 17.5 | 22.0 | -4.5 [-23.6, +14.6] |" in table
 
 
 def test_seed_runs_reads_each_seeds_committed_run_of_a_variant(tmp_path, monkeypatch):

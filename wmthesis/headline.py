@@ -147,14 +147,19 @@ def ablation_rows(rows: list[dict], profile: str = "quick") -> list[dict]:
     return out
 
 
-def ablation_table(rows: list[dict], profile: str = "quick") -> str:
+def ablation_table(rows: list[dict], profile: str = "quick", roots: dict | None = None) -> str:
     """The ablations as markdown: each variant against its experiment's headline row, paired by
-    seed; "first recipe" is the variant whose runs keep the experiment's own folders."""
+    seed. The runs in the experiment's own folders (variant None) are its first recipe, named
+    by ``roots`` (experiment -> the root variant's name, :attr:`~wmthesis.variants.Variants.root`)."""
+    def label(experiment: str, variant: str | None) -> str:
+        root = (roots or {}).get(experiment)
+        return variant or (f"{root} (first recipe)" if root else "first recipe")
+
     lines = ["| experiment | variant | against (headline) | measured | paired seeds | variant | headline "
              "| difference [95% interval] |", "|---|---|---|---|---|---|---|---|"]
     for a in ablation_rows(rows, profile):
         interval = "" if a["ci_low"] is None else f" [{a['ci_low']:+.1f}, {a['ci_high']:+.1f}]"
-        lines.append(f"| {a['experiment']} | {a['variant'] or 'first recipe'} | {a['against'] or 'first recipe'} "
+        lines.append(f"| {a['experiment']} | {label(a['experiment'], a['variant'])} | {label(a['experiment'], a['against'])} "
                      f"| {a['measured'] or 'score'} | {' '.join(map(str, a['seeds']))} | {a['mean']:.1f} "
                      f"| {a['default_mean']:.1f} | {a['difference']:+.1f}{interval} |")
     return "\n".join(lines)

@@ -244,9 +244,10 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
     folder = Path(folder) if folder is not None else data_dir("results")
     rows = summarise(read_runs(folder))
     headline = headline_table(rows)
+    ablations = ablation_table(rows, roots={name: v.root for name, v in VARIANTS.items() if v.root})
     budget = budget_markdown(read_budget_rows("quick", folder)) or "no seed measured yet (`python -m wmthesis reproduce planning-budget`)"
     outputs = {"md": f"## Headline\n\n{headline}\n\n## Ablations: each variant against its headline row, paired by seed"
-                     f"\n\n{ablation_table(rows)}\n\n## Score against search budget, quick (planning_budget.csv)\n\n"
+                     f"\n\n{ablations}\n\n## Score against search budget, quick (planning_budget.csv)\n\n"
                      f"{budget}\n\n## Every variant\n\n{markdown_table(rows)}\n",
                "json": json.dumps({"interval": INTERVAL, "rows": rows}, indent=1),
                "csv": _csv(rows)}
