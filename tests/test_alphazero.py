@@ -20,7 +20,8 @@ from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator, alphazero_loss, 
 from wmthesis.alphazero.imitation import PolicyHeadMind, agreement, expert_games
 from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, RewardView, State, reward_fit, reward_rows,
                                            train_reward_model)
-from wmthesis.alphazero.selfplay import AlphaZeroMind, VARIANTS, load_run, play, train_alphazero
+from wmthesis.alphazero.selfplay import AlphaZeroMind, load_run, play, train_alphazero
+from wmthesis.alphazero.variants import VARIANTS
 from wmthesis.config import for_profile
 from wmthesis.core import Mind, loop
 from wmthesis.envs.atari import NoopStart
@@ -254,9 +255,9 @@ def test_a_run_does_not_depend_on_the_global_random_state():
     assert [e["return"] for e in runs[0].curve] == [e["return"] for e in runs[1].curve]
 
 
-@pytest.mark.parametrize("variant", ["monte-carlo", "n-step", "learned-reward", "imitation"])
+@pytest.mark.parametrize("variant", ["monte-carlo", "n-step", "learned-reward", "imitation", "own-reward"])
 def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
-    if variant in ("learned-reward", "imitation"):
+    if variant in ("learned-reward", "imitation", "own-reward"):
         config = tiny_config(**VARIANTS.changes(variant), reward_pretrain_epochs=2, reward_epochs=1,
                              eval_max_steps=8)
     else:
@@ -276,9 +277,9 @@ def test_resumed_run_equals_an_uninterrupted_one(tmp_path, variant):
     assert [e["return"] for e in whole.curve] == [e["return"] for e in resumed.curve]
     assert whole.rounds == resumed.rounds and whole.tests == resumed.tests
     assert json.dumps(whole.reward_fits) == json.dumps(resumed.reward_fits)  # nan (no hit held out) == nan
-    assert whole.expert == resumed.expert and bool(whole.expert) == (variant == "imitation")
-    if config.reward_model:  # pretrained, then trained after each of the 2 rounds; the weights round-trip
-        assert [f["game"] for f in whole.reward_fits] == [0, 2, 4]
+    assert whole.expert == resumed.expert and bool(whole.expert) == (variant in ("imitation", "own-reward"))
+    if config.reward_model:  # pretrained (and trained on the expert's games), then after each of the 2 rounds
+        assert [f["game"] for f in whole.reward_fits] == ([0, 0] if config.expert_games else [0]) + [2, 4]
         assert load_run(tmp_path / "parts").config == dataclasses.asdict(config)
         for a, b in zip(whole.reward_model.state_dict().values(), resumed.reward_model.state_dict().values()):
             assert torch.equal(a, b)
@@ -449,6 +450,32 @@ def test_reward_model_learns_a_sparse_action_dependent_reward():
     assert view(hit[0].numpy(), 1) == pytest.approx(float(expected[1]), abs=1e-5)
 
 
+def chance_rows(n: int, seed: int) -> tuple:
+    """Rows whose rewards the features cannot tell: +1 with probability 0.05, -1 with 0.01:
+    features (n, 6), actions (n,) in 0..2, rewards (n,)."""
+    rng = np.random.default_rng(seed)
+    u = rng.random(n)
+    r = np.where(u < 0.05, 1.0, np.where(u > 0.99, -1.0, 0.0)).astype(np.float32)
+    return rng.standard_normal((n, 6)).astype(np.float32), rng.integers(3, size=n), r
+
+
+def test_an_unweighted_reward_model_is_calibrated_and_a_weighted_one_leans_to_rare_rewards():
+    """The own-reward variant's search sums expected rewards: they must be calibrated. On
+    held-out :func:`chance_rows` (mean reward 0.04), the mean of the expected rewards."""
+    train, held_out = chance_rows(20_000, 0), chance_rows(5_000, 1)
+    means = {}
+    for weighted in (False, True):
+        torch.manual_seed(0)
+        model = RewardModel(6, 3, hidden=32, reward_range=2)
+        optimiser = torch.optim.Adam(model.parameters(), lr=1e-3)
+        train_reward_model(model, optimiser, train, 3, 256, np.random.default_rng(0), weighted=weighted)
+        with torch.no_grad():
+            means[weighted] = float(model.expected(torch.from_numpy(held_out[0]),
+                                                   torch.from_numpy(held_out[1]).long()).mean())
+    assert means[False] == pytest.approx(0.04, abs=0.01)
+    assert means[True] > 0.07  # the weights lift both rare rewards, the commoner +1 most in sum
+
+
 def test_reward_rows_credit_the_delayed_reward_and_the_mdp_uses_the_model():
     features, actions, rewards = np.arange(10.0).reshape(5, 2), np.arange(5), np.array([0, 0, 1, 0, -1], np.float32)
     x, a, r = reward_rows(features, actions, rewards, delay=2)
@@ -528,10 +555,10 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     from wmthesis.experiments import reproduce
 
     metrics = reproduce("boxing-wm-alphazero", "smoke", progress=False)
-    assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward", "imitation"}
+    assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward", "imitation", "own-reward"}
     for name in ("AlphaZero unchanged", "AlphaZero improved", "AlphaZero learned-reward", "AlphaZero imitation",
                  "AlphaZero imitation: policy head alone, no search", "AlphaZero imitation: before self-play (search)",
-                 "random"):
+                 "AlphaZero own-reward", "AlphaZero own-reward: policy head alone, no search", "random"):
         score = metrics["scores"][name]
         assert np.isfinite(score["mean"]) and score["episodes"] == 2
     written = json.loads(Path(metrics["files"]["figures"][0]).with_name("metrics.json").read_text())
@@ -539,7 +566,8 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     assert all(Path(f).stat().st_size > 1000 for f in metrics["files"]["figures"])
     assert len(metrics["diagnosis"]["reward_error"]["reward_mse"]) == 5
     assert len(metrics["runs"]["learned-reward"]["reward_fits"]) == 3
-    for name in ("unchanged", "improved", "learned-reward", "imitation"):
+    assert len(metrics["runs"]["own-reward"]["reward_fits"]) == 4  # and once more on the expert's games
+    for name in ("unchanged", "improved", "learned-reward", "imitation", "own-reward"):
         assert metrics["runs"][name]["games"] == 4 and len(metrics["runs"][name]["rounds"]) == 2
     expert = metrics["runs"]["imitation"]["expert"]
     assert expert["games"] == 8 and expert["steps"] == 8 * 20 and 0 <= expert["agreement"] <= 1

@@ -272,7 +272,22 @@ def test_at_least_one_simulation_and_exact_budget():
     assert mcts.plan(0, debug_mode=True)[1]["simulations"] == 7
 
 
-@pytest.mark.parametrize("option", [dict(n_simulations=0), dict(timeout=0.0), dict(c=-1.0),
+def test_a_depth_cap_keeps_the_tree_shallow_and_backs_up_the_capped_leaf_value():
+    """With ``max_depth=1`` the search is a one-step lookahead: Q(a) = R(a) + gamma V(s_a) on
+    every visit, however many simulations; the big reward three steps down is out of reach."""
+    value = {(0,): 0.0, (1,): 0.5, (2,): 0.2}
+    evaluator = lambda state: (np.ones(3), value.get(state, 0.0))  # noqa: E731
+    counts, info = search(TreeMDP(small=0.1, big=1.0), evaluator, (), 300, gamma=0.9, max_depth=1)
+    assert info["max_depth"] == 1 and counts.sum() == 300
+    np.testing.assert_allclose(info["q"], [0.1, 0.9 * 0.5, 0.9 * 0.2])
+    assert np.argmax(counts) == 1
+    _, deep = search(TreeMDP(small=0.1, big=1.0), evaluator, (), 300, gamma=0.9, max_depth=2)
+    assert deep["max_depth"] == 2
+    _, free = search(LineMDP(), uniform(2), 0, 50)
+    assert free["max_depth"] > 2  # no cap: an endless line is followed deeper
+
+
+@pytest.mark.parametrize("option", [dict(n_simulations=0), dict(timeout=0.0), dict(c=-1.0), dict(max_depth=0),
                                     dict(gamma=1.5), dict(dirichlet_alpha=0.0), dict(noise_ratio=2.0)])
 def test_invalid_options_raise(option):
     with pytest.raises(ValueError):

@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
 from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.references import (BOXOBAN, THESIS_ALPHAZERO, THESIS_PLANET_BOXING, THESIS_PLANET_FREEWAY,
                                  THESIS_SOKOBAN, THESIS_WORLD_MODELS, Reference, best_atari_100k)
@@ -37,7 +38,7 @@ class Headline(NamedTuple):
 HEADLINES = (
     Headline("sokoban-wm", None, "World Models on Sokoban (controller's return)", "5.3", "01", THESIS_SOKOBAN, None),
     Headline("boxing-wm", BOXING_WM.folder_name(None), "World Models on Boxing", "5.4.1", "02", THESIS_WORLD_MODELS, best_atari_100k("boxing")),
-    Headline("boxing-wm-alphazero", "imitation", "World Models + AlphaZero on Boxing", "5.4.2", "03", THESIS_ALPHAZERO,
+    Headline("boxing-wm-alphazero", ALPHAZERO.default.name, "World Models + AlphaZero on Boxing", "5.4.2", "03", THESIS_ALPHAZERO,
              best_atari_100k("boxing")),
     Headline("planet-boxing-agent", None, "PlaNet on Boxing (KL scale 0.03, free nats 12)", "5.6.4", "05",
              THESIS_PLANET_BOXING, best_atari_100k("boxing")),

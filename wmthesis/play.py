@@ -105,7 +105,8 @@ def _play_alphazero(profile: str, seed: int, variant: str | None, bouts: int, re
     ``bouts`` of its evaluation games (:func:`~wmthesis.alphazero.evaluation.evaluation_seeds`)."""
     from wmthesis.alphazero.agent import agent_name, load_agent
     from wmthesis.alphazero.evaluation import evaluation_seeds
-    from wmthesis.alphazero.selfplay import VARIANTS, play as play_game
+    from wmthesis.alphazero.selfplay import play as play_game
+    from wmthesis.alphazero.variants import VARIANTS
     from wmthesis.envs.atari import boxing_env
     from wmthesis.runs import work_folder
 

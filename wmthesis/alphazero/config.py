@@ -24,15 +24,20 @@ class AlphaZeroConfig:
     search's rewards come from an MLP classifier (``reward_hidden`` units, rewards
     ``-reward_range..reward_range``) of the reward ``reward_delay`` steps after each action,
     pretrained for ``reward_pretrain_epochs`` on the random rollouts, then ``reward_epochs``
-    on them and the self-play replay after every training round (Adam ``reward_lr``). The
+    on them and the self-play replay after every training round (Adam ``reward_lr``), its
+    rare rewards weighted up in the loss (``reward_weighted``). The
     ``imitation`` variant sets ``expert_games``: before self-play, the heads train for
     ``expert_epochs`` on that many greedy games (of ``eval_max_steps``) of an expert, notebook
     02's controller, as AlphaGo's policy started from expert games; they stay in the replay.
+    The ``own-reward`` variant is imitation with a reward model of the step's own reward
+    (``reward_delay=0``) trained with a plain loss (``reward_weighted=False``: calibrated
+    expected rewards) on the random rollouts and the agent's own games, the expert's included.
     """
 
     c: float = 1.0
     simulations: int = 50
     timeout: float | None = None
+    search_depth: int | None = None      # beyond the thesis: the tree grows at most this many edges deep
     gamma: float = 0.99
     dirichlet_alpha: float = 0.3
     noise_ratio: float = 0.25
@@ -63,6 +68,7 @@ class AlphaZeroConfig:
     reward_lr: float = 1e-3
     reward_pretrain_epochs: int = 6
     reward_epochs: int = 2
+    reward_weighted: bool = True         # class weights sqrt(N / (K N_k)) in the reward model's loss
     expert_games: int = 0                # imitation variant: pretrain the heads on this many expert games
     expert_epochs: int = 30
 

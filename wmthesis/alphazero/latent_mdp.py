@@ -189,10 +189,11 @@ def stack_rows(rows) -> tuple:
 
 
 def train_reward_model(model: RewardModel, optimiser, rows: tuple, epochs: int, batch_size: int,
-                       rng: np.random.Generator) -> float:
-    """``epochs`` of class-weighted cross-entropy (weights ``sqrt(N / (K N_k))``: rare rewards
-    count more) on ``rows = (features (N, F), actions (N,), rewards (N,))``; the first call sets
-    the feature standardisation. Returns the last epoch's mean loss."""
+                       rng: np.random.Generator, weighted: bool = True) -> float:
+    """``epochs`` of cross-entropy on ``rows = (features (N, F), actions (N,), rewards (N,))``,
+    class-weighted where ``weighted`` (weights ``sqrt(N / (K N_k))``: rare rewards count more,
+    and the expected reward leans toward them; unweighted, it is calibrated); the first call
+    sets the feature standardisation. Returns the last epoch's mean loss."""
     features, actions = torch.as_tensor(rows[0], dtype=torch.float32), torch.as_tensor(rows[1], dtype=torch.long)
     targets = model.classes(rows[2])
     if bool((model.std == 1).all() and (model.mean == 0).all()):
@@ -200,6 +201,7 @@ def train_reward_model(model: RewardModel, optimiser, rows: tuple, epochs: int, 
         model.std.copy_(features.std(0) + 1e-3)
     counts = torch.bincount(targets, minlength=len(model.values)).float()
     weight = torch.where(counts > 0, (counts.sum() / (len(counts) * counts.clamp(min=1))).sqrt(), torch.ones(1))
+    weight = weight if weighted else None
     update = 0
     for _ in range(epochs):
         total = 0.0

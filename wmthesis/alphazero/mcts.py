@@ -61,10 +61,11 @@ class Node:
     expanded; ``visits``: N(s) = sum of ``N``. A terminal node has no edges (``P`` is None).
     """
 
-    __slots__ = ("state", "terminal", "P", "N", "Q", "R", "children", "visits")
+    __slots__ = ("state", "terminal", "P", "N", "Q", "R", "children", "visits", "value")
 
-    def __init__(self, state, priors: np.ndarray | None):
+    def __init__(self, state, priors: np.ndarray | None, value: float = 0.0):
         self.state = state
+        self.value = value  # the evaluator's value of the state (0 if terminal)
         self.terminal = priors is None
         self.P = priors
         self.visits = 0
@@ -80,7 +81,8 @@ class MCTS(Mind, Callback):
     ``mdp`` is the model (:class:`~wmthesis.core.MDP`, ``action_space`` Discrete(A));
     ``evaluator(state) -> (priors, value)``. Author's values: ``c=1``, 50 simulations,
     Dirichlet noise 0.3 mixed in at ratio 0.25 on the root priors (``train_mode`` only, drawn
-    from the ``seed``-ed generator), ``gamma=0.99``.
+    from the ``seed``-ed generator), ``gamma=0.99``. Beyond the thesis: ``max_depth`` caps how
+    many edges below the root the tree grows (None: no cap; :meth:`_simulate`).
 
     As a callback it forgets the tree when an episode starts and follows the action taken
     after each step (:meth:`advance`); register it in ``loop(..., callbacks=[mcts])`` to reuse
@@ -91,8 +93,11 @@ class MCTS(Mind, Callback):
     def __init__(self, mdp: MDP, evaluator: Evaluator, *, c: float = 1.0, n_simulations: int = 50,
                  timeout: float | None = None, gamma: float = 0.99, dirichlet_alpha: float = 0.3,
                  noise_ratio: float = 0.25, normalize_q: bool = False, reuse_tree: bool = True,
-                 seed: int | np.random.SeedSequence | None = None):
+                 max_depth: int | None = None, seed: int | np.random.SeedSequence | None = None):
         _check_options(c, n_simulations, timeout, gamma, dirichlet_alpha, noise_ratio)
+        if max_depth is not None and max_depth < 1:
+            raise ValueError(f"max_depth must be >= 1 or None, got {max_depth}")
+        self.max_depth = max_depth
         self.mdp, self.evaluator = mdp, evaluator
         self.n_actions = int(mdp.action_space.n)
         self.c, self.n_simulations, self.timeout, self.gamma = c, int(n_simulations), timeout, gamma
@@ -118,17 +123,17 @@ class MCTS(Mind, Callback):
         if train_mode and not root.terminal and self.noise_ratio > 0:
             noise = self.rng.dirichlet(np.full(self.n_actions, self.dirichlet_alpha))
             root.P = (1 - self.noise_ratio) * root.P + self.noise_ratio * noise
-        simulations, max_depth = 0, 0
+        simulations, deepest = 0, 0
         while True:
             path, value = self._simulate(root)
             self._backup(path, value)
-            simulations, max_depth = simulations + 1, max(max_depth, len(path))
+            simulations, deepest = simulations + 1, max(deepest, len(path))
             if simulations >= self.n_simulations or time.perf_counter() >= deadline:
                 break
         counts = np.zeros(self.n_actions) if root.terminal else root.N.copy()
         if not debug_mode:
             return counts
-        return counts, self._info(root, simulations, max_depth, time.perf_counter() - start, reused)
+        return counts, self._info(root, simulations, deepest, time.perf_counter() - start, reused)
 
     def _query_tree(self, state) -> tuple[Node, bool]:
         """The root for ``state``: the subtree kept by :meth:`advance` with its state replaced
@@ -145,10 +150,15 @@ class MCTS(Mind, Callback):
     def _simulate(self, root: Node) -> tuple[list[tuple[Node, int]], float]:
         """Select edges from ``root`` down to a leaf and expand it.
 
-        Returns the path as (node, action) pairs and the leaf's value V (0 if terminal).
+        Returns the path as (node, action) pairs and the leaf's value V (0 if terminal). With
+        ``max_depth``, a node that many edges below the root is a leaf for good: its value is
+        backed up again and it is never expanded (more simulations widen the tree near the root
+        instead of deepening it into states the model has not learned).
         """
         node, path = root, []
         while not node.terminal:
+            if self.max_depth is not None and len(path) >= self.max_depth:
+                return path, node.value
             action = self._select(node)
             path.append((node, action))
             child = node.children[action]
@@ -175,7 +185,7 @@ class MCTS(Mind, Callback):
         if self.mdp.is_terminal(state):
             return Node(state, None), 0.0
         priors, value = self.evaluator(state)
-        return Node(state, self._normalized_priors(priors)), float(value)
+        return Node(state, self._normalized_priors(priors), float(value)), float(value)
 
     def _backup(self, path: list[tuple[Node, int]], value: float) -> None:
         """``G_k = R_k + gamma * G_{k+1}`` from the leaf up; Q += (G - Q) / N on each edge."""

@@ -23,7 +23,7 @@ import functools
 import multiprocessing
 import os
 
-from wmthesis.alphazero.selfplay import VARIANTS as ALPHAZERO_VARIANTS
+from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.experiments.alphazero import ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS, boxing_wm_alphazero
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,

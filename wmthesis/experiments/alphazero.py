@@ -13,7 +13,8 @@ from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.evaluation import (RECORDING_STEPS, boxing_baselines, controller_minds, evaluation_games,
                                            policy_head_returns, score_figure)
 from wmthesis.alphazero.latent_mdp import LatentMDP
-from wmthesis.alphazero.selfplay import VARIANTS, train_alphazero
+from wmthesis.alphazero.selfplay import train_alphazero
+from wmthesis.alphazero.variants import VARIANTS
 from wmthesis.config import CollectConfig, for_profile, profile_name
 from wmthesis.data import EpisodeStore
 from wmthesis.envs.atari import boxing_env
@@ -39,7 +40,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     Reuses the boxing-wm pipeline's random rollouts, vision and latents (the same artifacts
     under ``data/<profile>/boxing-wm/seed<seed>/``, cached), trains a deterministic memory in
     its own folder ``data/<profile>/boxing-wm-alphazero/seed<seed>/``, then self-play for each
-    variant of :data:`~wmthesis.alphazero.selfplay.VARIANTS` (``variant=None``: all of them, side
+    variant of :data:`~wmthesis.alphazero.variants.VARIANTS` (``variant=None``: all of them, side
     by side; one name: that one only), each resumable from its checkpoint. Every variant, the
     boxing-wm controller (when its run exists) and random play then play the same greedy
     evaluation games (same no-op starts). Diagnosis: the memory's reward error along the search

@@ -3,7 +3,7 @@ search budget on a seed's trained models, the same bouts or levels for every bud
 
 - the Sokoban agent (``sokoban-search``) on the first Boxoban medium report levels, without search
   and under each node budget of :data:`SOKOBAN_BUDGETS`;
-- MCTS in the World Models memory (``boxing-wm-alphazero``'s ``imitation`` run) on Boxing: its
+- MCTS in the World Models memory (``boxing-wm-alphazero``'s default run) on Boxing: its
   policy head alone, then each number of simulations of :data:`MCTS_BUDGETS`;
 - CEM in PlaNet's model with the learned value (``planet-boxing-value``'s default) on Boxing: the
   value alone, then each horizon x candidates x iterations of :data:`CEM_BUDGETS`.
@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from wmthesis.alphazero.evaluation import evaluation_games, policy_head_games, trained_run
+from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
 from wmthesis.budget_curves import PLANNERS, check_planners, plot_budget_curves, write_budget_table
 from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
@@ -100,18 +101,19 @@ def sokoban_curve(profile: str, seed: int, progress: bool, budgets: tuple | None
 
 
 def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
-    """MCTS in the World Models memory on Boxing: the ``imitation`` run's policy head alone (budget
+    """MCTS in the World Models memory on Boxing: the default variant's policy head alone (budget
     0), then its search under each number of simulations of ``budgets`` (default the profile's
     :data:`MCTS_BUDGETS`), on the same :data:`BOXING_BOUTS` bouts."""
-    built_on("boxing-wm-alphazero", profile, seed, "imitation", progress)
+    name = ALPHAZERO.default.name
+    built_on("boxing-wm-alphazero", profile, seed, name, progress)
     work = work_folder(profile, "boxing-wm-alphazero", seed)
-    run, vision, memory, cfg = trained_run(work_folder(profile, "boxing-wm", seed), work, "imitation")
+    run, vision, memory, cfg = trained_run(work_folder(profile, "boxing-wm", seed), work, name)
     cfg = dataclasses.replace(cfg, eval_episodes=BOXING_BOUTS[profile])
-    head = policy_head_games(run, vision, memory, cfg, work / "imitation", seed)
+    head = policy_head_games(run, vision, memory, cfg, work / name, seed)
     without = np.array(head["returns"])
     rows = [_row("mcts", "boxing", NO_SEARCH, seed, without, without, head["ms_per_action"])]
     for budget in budgets or MCTS_BUDGETS[profile]:
-        games = evaluation_games(run, vision, memory, cfg, work / "imitation", seed, simulations=budget)
+        games = evaluation_games(run, vision, memory, cfg, work / name, seed, simulations=budget)
         ms = 1000 * sum(g.seconds for g in games) / max(1, sum(len(g.actions) for g in games))
         rows.append(_row("mcts", "boxing", budget, seed, np.array([g.score for g in games]), without, ms))
     return rows
