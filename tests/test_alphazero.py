@@ -532,6 +532,14 @@ def test_evaluation_games_start_with_different_noop_counts():
     seeds = evaluation_seeds(0, 10, noop_max=30)
     assert len({noop_count(game_seeds(s)[0], 30) for s in seeds}) == 10  # a greedy agent would replay a repeat
     assert len(evaluation_seeds(0, 5, noop_max=3)) == 5  # more games than no-op counts: repeats allowed
+    from wmthesis.alphazero.evaluation import validation_seeds
+
+    counts = lambda seeds: [noop_count(game_seeds(s)[0], 30) for s in seeds]  # noqa: E731
+    for seed in (0, 1):
+        chosen_on = counts(validation_seeds(seed, 20))
+        assert len(set(chosen_on)) == 20 and not set(chosen_on) & set(counts(evaluation_seeds(seed, 10)))
+    with pytest.raises(ValueError, match="no-op counts"):
+        validation_seeds(0, 21)
     env = NoopStart(Corridor(), noop_max=30)
     for seed in (7, 8):
         env.reset(seed=seed)

@@ -45,6 +45,26 @@ def evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]:
     return seeds
 
 
+def validation_seeds(seed: int, episodes: int, noop_max: int = 30, reserved: int = 10) -> list[int]:
+    """Seeds of games to choose a recipe on: each with a no-op count of its own that none of the
+    first ``reserved`` :func:`evaluation_seeds` uses (Boxing is deterministic, so a game is its
+    no-op count: a choice made on these never sees a reported bout). ValueError where fewer than
+    ``episodes`` counts are left."""
+    taken = {noop_count(game_seeds(s)[0], noop_max) for s in evaluation_seeds(seed, reserved, noop_max)}
+    if episodes > max(noop_max, 1) - len(taken):
+        raise ValueError(f"{episodes} validation games need {episodes} no-op counts apart from the evaluation's "
+                         f"{len(taken)}; there are {max(noop_max, 1)}")
+    seeds, k = [], 0
+    while len(seeds) < episodes:
+        game_seed = int(derive_seeds(seed, 10, k)[0])
+        count = noop_count(game_seeds(game_seed)[0], noop_max)
+        if count not in taken:
+            seeds.append(game_seed)
+            taken.add(count)
+        k += 1
+    return seeds
+
+
 def greedy_returns(env, make_mind: Callable[[int], Mind], seeds, *, max_steps: int | None,
                    as_callback: bool = True, steps: list | None = None) -> list[float]:
     """The return of one greedy game per seed in ``seeds``: the env is reset with the first of
