@@ -52,6 +52,8 @@ def main(argv=None) -> None:
     env_seed, search_seed = game_seeds(evaluation_seeds(0, 1, agent.config.noop_max)[0])
     env, rows = boxing_env(agent.config.noop_max), []
     try:
+        warm = PolicyHeadMind(agent.vision, agent.mdp, agent.heads)  # the first frames pay for lazy setup: untimed
+        loop(env, warm, policy="deterministic", callbacks=[warm], max_steps=20, seed=env_seed, train_mode=False)
         for budget in args.budgets:
             if budget == 0:
                 mind = PolicyHeadMind(agent.vision, agent.mdp, agent.heads)
