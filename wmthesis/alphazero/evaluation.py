@@ -34,15 +34,7 @@ def evaluation_seeds(seed: int, episodes: int, noop_max: int = 30) -> list[int]:
     :func:`~wmthesis.alphazero.replay.game_seeds`: the same no-op starts). Seeds whose no-op
     count repeats an earlier game's are skipped: Boxing is deterministic, so a greedy agent
     would replay the same game."""
-    seeds, counts, k = [], set(), 0
-    while len(seeds) < episodes:
-        game_seed = int(derive_seeds(seed, 3, k)[0])
-        count = noop_count(game_seeds(game_seed)[0], noop_max)
-        if count not in counts or len(counts) >= max(noop_max, 1):
-            seeds.append(game_seed)
-            counts.add(count)
-        k += 1
-    return seeds
+    return _new_count_seeds(seed, 3, episodes, noop_max, set())
 
 
 def validation_seeds(seed: int, episodes: int, noop_max: int = 30, reserved: int = 10) -> list[int]:
@@ -54,11 +46,17 @@ def validation_seeds(seed: int, episodes: int, noop_max: int = 30, reserved: int
     if episodes > max(noop_max, 1) - len(taken):
         raise ValueError(f"{episodes} validation games need {episodes} no-op counts apart from the evaluation's "
                          f"{len(taken)}; there are {max(noop_max, 1)}")
+    return _new_count_seeds(seed, 10, episodes, noop_max, taken)
+
+
+def _new_count_seeds(seed: int, stream: int, episodes: int, noop_max: int, taken: set) -> list[int]:
+    """``episodes`` game seeds drawn from ``(seed, stream, k)``, k = 0, 1, ..., each kept only where
+    its no-op count is not in ``taken`` (which it joins), until every count is taken: then repeats."""
     seeds, k = [], 0
     while len(seeds) < episodes:
-        game_seed = int(derive_seeds(seed, 10, k)[0])
+        game_seed = int(derive_seeds(seed, stream, k)[0])
         count = noop_count(game_seeds(game_seed)[0], noop_max)
-        if count not in taken:
+        if count not in taken or len(taken) >= max(noop_max, 1):
             seeds.append(game_seed)
             taken.add(count)
         k += 1
