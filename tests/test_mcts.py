@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from wmthesis.alphazero.mcts import MCTS
+from wmthesis.alphazero.mcts import MCTS, most_probable
 from wmthesis.core import Callback, loop
 
 LEFT, RIGHT = 0, 1
@@ -287,7 +287,24 @@ def test_a_depth_cap_keeps_the_tree_shallow_and_backs_up_the_capped_leaf_value()
     assert free["max_depth"] > 2  # no cap: an endless line is followed deeper
 
 
+def test_root_actions_keep_the_root_to_its_most_probable_actions_however_many_simulations():
+    """With ``root_actions=2`` the root never visits its least probable action, even where that
+    action leads to the big reward, and even with the normalised Q that gives an unvisited edge
+    the node's mean; without it, the search tries that action."""
+    priors = lambda state: (np.array([0.5, 0.3, 0.2]) if state == () else np.ones(3), 0.0)  # noqa: E731
+    for normalize_q in (False, True):
+        counts, info = search(TreeMDP(small=0.1, big=1.0), priors, (), 400, gamma=0.9, root_actions=2,
+                              normalize_q=normalize_q)
+        assert counts[2] == 0 and counts.sum() == 400 and np.isnan(info["q"][2])
+        assert np.argmax(counts) == 0  # the small reward is the best of the two allowed
+        free, _ = search(TreeMDP(small=0.1, big=1.0), priors, (), 400, gamma=0.9, normalize_q=normalize_q)
+        assert free[2] > 0
+    # the k most probable after the root's noise; ties to the lower index
+    np.testing.assert_array_equal(most_probable(np.array([0.2, 0.5, 0.2, 0.1]), 2), [True, True, False, False])
+
+
 @pytest.mark.parametrize("option", [dict(n_simulations=0), dict(timeout=0.0), dict(c=-1.0), dict(max_depth=0),
+                                    dict(root_actions=0),
                                     dict(gamma=1.5), dict(dirichlet_alpha=0.0), dict(noise_ratio=2.0)])
 def test_invalid_options_raise(option):
     with pytest.raises(ValueError):

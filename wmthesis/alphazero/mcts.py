@@ -82,7 +82,11 @@ class MCTS(Mind, Callback):
     ``evaluator(state) -> (priors, value)``. Author's values: ``c=1``, 50 simulations,
     Dirichlet noise 0.3 mixed in at ratio 0.25 on the root priors (``train_mode`` only, drawn
     from the ``seed``-ed generator), ``gamma=0.99``. Beyond the thesis: ``max_depth`` caps how
-    many edges below the root the tree grows (None: no cap; :meth:`_simulate`).
+    many edges below the root the tree grows (None: no cap; :meth:`_simulate`); ``root_actions``
+    = k lets the root choose only among its k most probable actions (after noise; None: all of
+    them), as Gumbel MuZero's root considers only its top-k sampled actions: more simulations
+    then estimate those k actions better instead of finding an unlikely action whose learned value
+    or reward the model gets wrong (the optimiser's curse; ``docs/findings/planning-budget.md``).
 
     As a callback it forgets the tree when an episode starts and follows the action taken
     after each step (:meth:`advance`); register it in ``loop(..., callbacks=[mcts])`` to reuse
@@ -93,11 +97,13 @@ class MCTS(Mind, Callback):
     def __init__(self, mdp: MDP, evaluator: Evaluator, *, c: float = 1.0, n_simulations: int = 50,
                  timeout: float | None = None, gamma: float = 0.99, dirichlet_alpha: float = 0.3,
                  noise_ratio: float = 0.25, normalize_q: bool = False, reuse_tree: bool = True,
-                 max_depth: int | None = None, seed: int | np.random.SeedSequence | None = None):
+                 max_depth: int | None = None, root_actions: int | None = None,
+                 seed: int | np.random.SeedSequence | None = None):
         _check_options(c, n_simulations, timeout, gamma, dirichlet_alpha, noise_ratio)
-        if max_depth is not None and max_depth < 1:
-            raise ValueError(f"max_depth must be >= 1 or None, got {max_depth}")
-        self.max_depth = max_depth
+        for name, value in (("max_depth", max_depth), ("root_actions", root_actions)):
+            if value is not None and value < 1:
+                raise ValueError(f"{name} must be >= 1 or None, got {value}")
+        self.max_depth, self.root_actions = max_depth, root_actions
         self.mdp, self.evaluator = mdp, evaluator
         self.n_actions = int(mdp.action_space.n)
         self.c, self.n_simulations, self.timeout, self.gamma = c, int(n_simulations), timeout, gamma
@@ -123,14 +129,15 @@ class MCTS(Mind, Callback):
         if train_mode and not root.terminal and self.noise_ratio > 0:
             noise = self.rng.dirichlet(np.full(self.n_actions, self.dirichlet_alpha))
             root.P = (1 - self.noise_ratio) * root.P + self.noise_ratio * noise
+        allowed = None if root.terminal or self.root_actions is None else most_probable(root.P, self.root_actions)
         simulations, deepest = 0, 0
         while True:
-            path, value = self._simulate(root)
+            path, value = self._simulate(root, allowed)
             self._backup(path, value)
             simulations, deepest = simulations + 1, max(deepest, len(path))
             if simulations >= self.n_simulations or time.perf_counter() >= deadline:
                 break
-        counts = np.zeros(self.n_actions) if root.terminal else root.N.copy()
+        counts = np.zeros(self.n_actions) if root.terminal else root.N * (1.0 if allowed is None else allowed)
         if not debug_mode:
             return counts
         return counts, self._info(root, simulations, deepest, time.perf_counter() - start, reused)
@@ -147,8 +154,9 @@ class MCTS(Mind, Callback):
         self.root, _ = self._new_node(state)
         return self.root, False
 
-    def _simulate(self, root: Node) -> tuple[list[tuple[Node, int]], float]:
-        """Select edges from ``root`` down to a leaf and expand it.
+    def _simulate(self, root: Node, allowed: np.ndarray | None = None) -> tuple[list[tuple[Node, int]], float]:
+        """Select edges from ``root`` down to a leaf and expand it; at the root only the
+        ``allowed`` actions (bool (A,); None: all).
 
         Returns the path as (node, action) pairs and the leaf's value V (0 if terminal). With
         ``max_depth``, a node that many edges below the root is a leaf for good: its value is
@@ -159,7 +167,7 @@ class MCTS(Mind, Callback):
         while not node.terminal:
             if self.max_depth is not None and len(path) >= self.max_depth:
                 return path, node.value
-            action = self._select(node)
+            action = self._select(node, allowed if node is root else None)
             path.append((node, action))
             child = node.children[action]
             if child is None:
@@ -167,11 +175,13 @@ class MCTS(Mind, Callback):
             node = child
         return path, 0.0
 
-    def _select(self, node: Node) -> int:
-        """``argmax_a Q + c * P * sqrt(max(N(s), 1)) / (1 + N)`` (lowest index on ties)."""
+    def _select(self, node: Node, allowed: np.ndarray | None = None) -> int:
+        """``argmax_a Q + c * P * sqrt(max(N(s), 1)) / (1 + N)`` over the ``allowed`` actions (bool
+        (A,); None: all), the lowest index on ties."""
         q = self._normalized(node.Q, node.N) if self.normalize_q else node.Q
         u = (self.c * math.sqrt(max(node.visits, 1))) * node.P / (1.0 + node.N)
-        return int((q + u).argmax())
+        score = q + u if allowed is None else np.where(allowed, q + u, -np.inf)
+        return int(score.argmax())
 
     def _expand(self, node: Node, action: int) -> float:
         """Take edge (node, action) in the model, attach the new node; return its value."""
@@ -256,6 +266,13 @@ class MCTS(Mind, Callback):
         self.advance(transition.action)
 
 
+def most_probable(priors: np.ndarray, k: int) -> np.ndarray:
+    """Bool (A,): True on the ``k`` largest ``priors`` (A,), the lower index first among equals."""
+    allowed = np.zeros(len(priors), bool)
+    allowed[np.argsort(-priors, kind="stable")[:k]] = True
+    return allowed
+
+
 def _check_options(c, n_simulations, timeout, gamma, dirichlet_alpha, noise_ratio) -> None:
     if c < 0:
         raise ValueError(f"c must be >= 0, got {c}")
@@ -271,4 +288,4 @@ def _check_options(c, n_simulations, timeout, gamma, dirichlet_alpha, noise_rati
         raise ValueError(f"noise_ratio must be in [0, 1], got {noise_ratio}")
 
 
-__all__ = ["MCTS", "Node", "Evaluator"]
+__all__ = ["MCTS", "Node", "Evaluator", "most_probable"]

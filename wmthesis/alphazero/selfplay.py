@@ -109,7 +109,7 @@ class AlphaZeroMind(Mind, Callback):
         self.mcts = MCTS(self.mdp, self.evaluator, c=cfg.c, n_simulations=cfg.simulations, timeout=cfg.timeout,
                          gamma=cfg.gamma, dirichlet_alpha=cfg.dirichlet_alpha, noise_ratio=cfg.noise_ratio,
                          normalize_q=cfg.normalize_q, reuse_tree=cfg.reuse_tree, max_depth=cfg.search_depth,
-                         seed=seed)
+                         root_actions=cfg.root_actions, seed=seed)
         self.index = index
 
     @torch.inference_mode()

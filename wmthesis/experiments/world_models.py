@@ -44,8 +44,10 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     work, store, vae, vision, memory = wm.work, wm.store, wm.vae, wm.vision, wm.memory
     out = results_folder("boxing-wm", profile, seed, BOXING_WM.folder_name(chosen.name))
     controller_cfg = controller_config(profile, seed, chosen.name)
+    evolving = time.time()
     run = train_controller("boxing", vision, memory, controller_cfg, out_dir=controller_folder(work, chosen.name),
                            progress=progress)
+    evolving = time.time() - evolving  # this call's evolution: a resumed run evolved its first generations before
     cached = read_json(out / "metrics.json")
     if (cached is not None and cached.get("controller_curve") == json.loads(json.dumps(run.curve, default=float))
             and all(Path(f).is_file() for f in [*cached["files"]["figures"], cached["files"]["recording"],
@@ -77,7 +79,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
         "files": {"figures": [str(f) for f in figures], "recording": str(recording), "agent": str(agent)},
     }
     evolved = json.loads(json.dumps(run.curve, default=float))  # an earlier file of another controller keeps no time
-    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"],
+    earlier_generations = max(0.0, sum(g["seconds"] for g in run.curve) - evolving)
+    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"] + earlier_generations,
                                                           lambda earlier: earlier.get("controller_curve") == evolved)
     write_json(out / "metrics.json", metrics, default=float)
     return metrics
