@@ -3,6 +3,7 @@ import csv
 
 import numpy as np
 
+from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
 from wmthesis.envs.levels import parse_levels
 from wmthesis.runs import read_json
 from wmthesis.sokoban_search.agent import SearchAgent
@@ -62,7 +63,7 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
         [("cem", "boxing", r["budget"]) for r in cem] + [("mcts", "boxing", b) for b in (0, *MCTS_BUDGETS["smoke"])] + \
         [("sokoban-search", "boxoban-medium", b) for b in (0, *SOKOBAN_BUDGETS["smoke"])]
     saved = sorted((tmp_path / "smoke" / "planning-budget" / "seed0").glob("budget-*.json"))
-    saved += sorted((tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / "imitation").glob("*-simulations-*.pkl"))
+    saved += sorted((tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / ALPHAZERO.default.name).glob("*-simulations-*.pkl"))
     assert len(saved) == 2 * len(sokoban) + len(MCTS_BUDGETS["smoke"])  # Sokoban's budgets in two parts each
     stamps = [p.stat().st_mtime_ns for p in saved]
     again = reproduce("planning-budget", "smoke", 0, progress=False)

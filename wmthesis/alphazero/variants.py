@@ -14,7 +14,7 @@ VARIANTS = Variants(
     Variant("learned-reward", "improved, with a reward model trained on self-play data (ours)", dict(reward_model=True),
             builds_on="improved"),
     Variant("imitation", "improved, with heads pretrained on the World Models controller's games (ours)",
-            dict(expert_games=8), builds_on="improved", default=True),
+            dict(expert_games=8), builds_on="improved"),
     Variant("own-reward", "imitation, the search's rewards from a reward model trained on the agent's own games (ours)",
-            dict(reward_model=True, reward_delay=0, reward_weighted=False), builds_on="imitation"),
+            dict(reward_model=True, reward_delay=0, reward_weighted=False), builds_on="imitation", default=True),
 )
