@@ -72,6 +72,10 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     # a budget cut off after its first game plays only the rest; one planner's new budgets keep the others' rows
     import wmthesis.alphazero.evaluation as evaluation
     from wmthesis.__main__ import main
+    from wmthesis.alphazero.config import AlphaZeroConfig
+    from wmthesis.alphazero.replay import game_seeds
+    from wmthesis.config import for_profile
+    from wmthesis.envs.atari import noop_count
     from wmthesis.utils import read_pickle
 
     last = saved[-1]  # the top MCTS budget's games
@@ -87,6 +91,25 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     assert [b for p, b in after if p == "mcts"] == [0, MCTS_BUDGETS["smoke"][-1], 3]
     assert after[("mcts", MCTS_BUDGETS["smoke"][-1])]["score"] == mcts[-1]["score"]  # the resumed games score the same
     assert [after[(r["planner"], r["budget"])]["score"] for r in sokoban + cem] == [r["score"] for r in sokoban + cem]
+
+    # the validation bouts: games the evaluation never plays, written apart from the report's rows
+    report = (tmp_path / "results" / "planning_budget-smoke.csv").read_text()
+    assert main(["budget-curve", "mcts", "--validation", "--profile", "smoke"]) == 0
+    validation = read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0" / "validation.json")
+    assert validation["variant"] == ALPHAZERO.default.name and validation["bouts"] == "validation"
+    assert [r["budget"] for r in validation["rows"]] == [0, *MCTS_BUDGETS["smoke"]]
+    work = tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / ALPHAZERO.default.name
+    budget = MCTS_BUDGETS["smoke"][0]
+    noop_max = for_profile(AlphaZeroConfig, "smoke").noop_max  # 3 counts: 2 evaluation bouts leave 1 to validate on
+    counts = {split: [noop_count(game_seeds(s)[0], noop_max) for s in read_pickle(
+        work / f"{split}-{budget}-simulations-{BOXING_BOUTS['smoke']}.pkl")["key"]["seeds"]]
+        for split in ("evaluation", "validation")}
+    assert len(counts["evaluation"]) == 2 and len(counts["validation"]) == 1
+    assert not set(counts["validation"]) & set(counts["evaluation"])
+    assert (tmp_path / "results" / "planning_budget-smoke.csv").read_text() == report
+    assert read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0" / "metrics.json")["rows"] == \
+        list(after.values())
+    assert main(["budget-curve", "cem", "--validation", "--profile", "smoke"]) == 2
 
 
 def test_bad_planners_and_budgets_are_refused_in_one_line_before_anything_plays(capsys):

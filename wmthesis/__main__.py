@@ -11,7 +11,7 @@
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
         writes a JSON list of {level, solved, steps, actions}.
-    budget-curve PLANNER [--budgets B,...] [--profile P] [--seed S]
+    budget-curve PLANNER [--budgets B,...] [--profile P] [--seed S] [--validation]
         One planner's score against its search budget on the seed's trained models (mcts,
         cem, sokoban-search; `reproduce planning-budget` measures all three at the profile's
         budgets), with its row without search; resumable; rows into data/results/planning_budget.csv.
@@ -166,15 +166,23 @@ def cmd_budget_curve(args) -> int:
     from wmthesis.budget_curves import check_planners, parse_budgets
 
     check_planners([args.planner])  # bad input refused before anything loads or plays
+    if args.validation and args.planner != "mcts":
+        raise ValueError(f"--validation plays MCTS's validation bouts; {args.planner} chooses on its own validation "
+                         "(sokoban-search: `validate`; cem: planet-boxing-value's validation bouts)")
     budgets = None if args.budgets is None else {args.planner: parse_budgets(args.planner, args.budgets)}
     import matplotlib
 
     matplotlib.use("Agg")
-    from wmthesis.experiments.planning_budget import planning_budget
+    from wmthesis.experiments.planning_budget import mcts_validation, planning_budget
 
-    metrics = planning_budget(args.profile, args.seed, planners=(args.planner,), budgets=budgets)
+    if args.validation:
+        metrics = mcts_validation(args.profile, args.seed, budgets=(budgets or {}).get("mcts"))
+        print(f"validation bouts, {metrics['variant']}:")
+    else:
+        metrics = planning_budget(args.profile, args.seed, planners=(args.planner,), budgets=budgets)
     for row in (r for r in metrics["rows"] if r["planner"] == args.planner):
-        gain = "" if row["budget"] == 0 else f", gain {row['gain']:+.1f} [{row['gain_ci_low']:+.1f}, {row['gain_ci_high']:+.1f}]"
+        interval = "" if row["gain_ci_low"] is None else f" [{row['gain_ci_low']:+.1f}, {row['gain_ci_high']:+.1f}]"
+        gain = "" if row["budget"] == 0 else f", gain {row['gain']:+.1f}{interval}"
         print(f"{args.planner} on {row['game']}, budget {row['budget']:,}: {row['score']:.1f}{gain}, "
               f"{row['ms_per_action']:.1f} ms an action")
     return 0
@@ -326,6 +334,8 @@ def parser() -> argparse.ArgumentParser:
                                           "sokoban-search: nodes) or 6x100x3,12x100x3 (cem: horizon x candidates x iterations)")
     budget.add_argument("--profile", choices=PROFILES)
     budget.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained models")
+    budget.add_argument("--validation", action="store_true",
+                        help="mcts: play the validation bouts (to choose on; written to validation.json, not reported)")
     budget.set_defaults(run=cmd_budget_curve)
 
     player = commands.add_parser("play", help="a trained agent plays, with no training")

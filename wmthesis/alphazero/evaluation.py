@@ -21,7 +21,7 @@ from wmthesis.envs.atari import boxing_env, noop_count
 from wmthesis.references import human, random_play
 from wmthesis.runs import atomic_path, read_json, write_json
 from wmthesis.training import load_weights
-from wmthesis.utils import derive_seeds, fingerprint, read_pickle
+from wmthesis.utils import check_choice, derive_seeds, fingerprint, read_pickle
 from wmthesis.world_models.config import MemoryConfig
 from wmthesis.world_models.controller import ControllerMind
 from wmthesis.world_models.evolution import load_run
@@ -84,20 +84,35 @@ def greedy_returns(env, make_mind: Callable[[int], Mind], seeds, *, max_steps: i
 RECORDING_STEPS = 400  # the rerun recording shows the first steps of one evaluation game
 
 
+BOUTS = ("evaluation", "validation")
+
+
+def bout_seeds(split: str, seed: int, episodes: int, noop_max: int) -> list[int]:
+    """The seeds of ``episodes`` games of ``split``: :func:`evaluation_seeds`, or
+    :func:`validation_seeds` apart from the first 10 evaluation games' no-op counts (fewer where
+    the counts run out: smoke's 3 counts leave one validation game beside 2 evaluation games)."""
+    check_choice("bouts", split, BOUTS)
+    if split == "evaluation":
+        return evaluation_seeds(seed, episodes, noop_max)
+    reserved = min(10, max(noop_max, 1) - 1)
+    return validation_seeds(seed, min(episodes, max(noop_max, 1) - reserved), noop_max, reserved)
+
+
 def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False,
-                     simulations: int | None = None) -> list:
+                     simulations: int | None = None, split: str = "evaluation") -> list:
     """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
     cached in ``evaluation.pkl`` for the run's number of games. ``pretrained``: the heads
     after imitation, before self-play (``evaluation-pretrained.pkl``); ``simulations``: the
-    search's budget in place of ``cfg.simulations`` (``evaluation-S-simulations-N.pkl`` for N games).
-    Each game is saved as it ends (``*.partial.pkl``): a cut-off evaluation plays only the rest."""
+    search's budget in place of ``cfg.simulations`` (``evaluation-S-simulations-N.pkl`` for N games);
+    ``split="validation"``: validation games instead (:func:`bout_seeds`; ``validation-...``), to
+    choose on. Each game is saved as it ends (``*.partial.pkl``): a cut-off evaluation plays only the rest."""
     if simulations is not None:
         cfg = dataclasses.replace(cfg, simulations=int(simulations))
     name = ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl" if simulations is None
             else f"evaluation-{simulations}-simulations-{cfg.eval_episodes}.pkl")
-    path = work / name
+    path = work / (name if split == "evaluation" else name.replace("evaluation", split))
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
+           "seeds": bout_seeds(split, seed, cfg.eval_episodes, cfg.noop_max),
            **({} if simulations is None else {"simulations": cfg.simulations})}
     cached = _cached_games(path, key)  # a missing or corrupt cache is played again
     if cached is not None:
@@ -136,13 +151,14 @@ def _save_games(path: Path, key: dict, games: list) -> None:
         pickle.dump({"key": key, "games": games}, f)
 
 
-def policy_head_games(run, vision, memory, cfg, work: Path, seed: int) -> dict:
-    """The trained policy head played greedily without search on ``cfg.eval_episodes`` evaluation
-    games: ``returns`` and ``ms_per_action`` (the head's thinking, the game's stepping and the
-    vision's encoding together); cached in ``policy-head-N.json`` for N games."""
+def policy_head_games(run, vision, memory, cfg, work: Path, seed: int, split: str = "evaluation") -> dict:
+    """The trained policy head played greedily without search on ``cfg.eval_episodes`` games of
+    ``split`` (:func:`bout_seeds`): ``returns`` and ``ms_per_action`` (the head's thinking, the game's
+    stepping and the vision's encoding together); cached in ``policy-head-N.json`` for N games
+    (``validation-policy-head-N.json``)."""
     key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
-    path = work / f"policy-head-{cfg.eval_episodes}.json"
+           "seeds": bout_seeds(split, seed, cfg.eval_episodes, cfg.noop_max)}
+    path = work / f"{'' if split == 'evaluation' else split + '-'}policy-head-{cfg.eval_episodes}.json"
     cached = read_json(path)
     if cached is not None and cached["key"] == key:
         return cached

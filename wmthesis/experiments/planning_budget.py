@@ -68,6 +68,19 @@ def planning_budget(profile: str | None = None, seed: int = 0, variant: str | No
     return metrics
 
 
+def mcts_validation(profile: str | None = None, seed: int = 0, progress: bool = True,
+                    budgets: tuple | None = None) -> dict:
+    """The MCTS curve (:func:`mcts_curve`) on the validation bouts, the evidence a choice of the
+    search or its budget is made on: written to the run's ``validation.json`` (with the variant it
+    searched), never to the report's rows, the CSV or the summary. Resumable bout by bout."""
+    profile, started = profile_name(profile), time.time()
+    rows = mcts_curve(profile, seed, progress, budgets, split="validation")
+    result = {**run_header("planning-budget", profile, seed, time.time() - started,
+                           variant=ALPHAZERO.default.name, bouts="validation"), "rows": rows}
+    write_json(results_folder("planning-budget", profile, seed) / "validation.json", result)
+    return result
+
+
 def _write_run(rows: list[dict], profile: str, seed: int, seconds: float) -> dict:
     """The run's ``metrics.json`` (its rows so far, a summary line, the figure) and the profile's CSV."""
     out = results_folder("planning-budget", profile, seed)
@@ -100,20 +113,22 @@ def sokoban_curve(profile: str, seed: int, progress: bool, budgets: tuple | None
                  ms_per_action(plays[budget])) for budget in budgets]
 
 
-def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
+def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None,
+               split: str = "evaluation") -> list[dict]:
     """MCTS in the World Models memory on Boxing: the default variant's policy head alone (budget
     0), then its search under each number of simulations of ``budgets`` (default the profile's
-    :data:`MCTS_BUDGETS`), on the same :data:`BOXING_BOUTS` bouts."""
+    :data:`MCTS_BUDGETS`), on the same :data:`BOXING_BOUTS` bouts of ``split`` (``"validation"``:
+    games none of the evaluation bouts plays, to choose on)."""
     name = ALPHAZERO.default.name
     built_on("boxing-wm-alphazero", profile, seed, name, progress)
     work = work_folder(profile, "boxing-wm-alphazero", seed)
     run, vision, memory, cfg = trained_run(work_folder(profile, "boxing-wm", seed), work, name)
     cfg = dataclasses.replace(cfg, eval_episodes=BOXING_BOUTS[profile])
-    head = policy_head_games(run, vision, memory, cfg, work / name, seed)
+    head = policy_head_games(run, vision, memory, cfg, work / name, seed, split)
     without = np.array(head["returns"])
     rows = [_row("mcts", "boxing", NO_SEARCH, seed, without, without, head["ms_per_action"])]
     for budget in budgets or MCTS_BUDGETS[profile]:
-        games = evaluation_games(run, vision, memory, cfg, work / name, seed, simulations=budget)
+        games = evaluation_games(run, vision, memory, cfg, work / name, seed, simulations=budget, split=split)
         ms = 1000 * sum(g.seconds for g in games) / max(1, sum(len(g.actions) for g in games))
         rows.append(_row("mcts", "boxing", budget, seed, np.array([g.score for g in games]), without, ms))
     return rows
@@ -146,5 +161,5 @@ def _row(planner: str, game: str, budget: int, seed: int, scores: np.ndarray, wi
             "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(scores)}
 
 
-__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "cem_curve", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS",
+__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "mcts_validation", "cem_curve", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS",
            "MCTS_BUDGETS", "BOXING_BOUTS", "CEM_BUDGETS"]
