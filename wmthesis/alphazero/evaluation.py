@@ -98,6 +98,11 @@ def bout_seeds(split: str, seed: int, episodes: int, noop_max: int) -> list[int]
     return validation_seeds(seed, min(episodes, max(noop_max, 1) - reserved), noop_max, reserved)
 
 
+def _cache_name(split: str, name: str) -> str:
+    """The cache file ``name`` of the evaluation games, for ``split``'s games (``validation-...``)."""
+    return name if split == "evaluation" else f"{split}-{name.removeprefix('evaluation-')}"
+
+
 def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False,
                      simulations: int | None = None, split: str = "evaluation") -> list:
     """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
@@ -110,7 +115,7 @@ def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained
         cfg = dataclasses.replace(cfg, simulations=int(simulations))
     name = ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl" if simulations is None
             else f"evaluation-{simulations}-simulations-{cfg.eval_episodes}.pkl")
-    path = work / (name if split == "evaluation" else name.replace("evaluation", split))
+    path = work / _cache_name(split, name)
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": bout_seeds(split, seed, cfg.eval_episodes, cfg.noop_max),
            **({} if simulations is None else {"simulations": cfg.simulations})}
@@ -158,7 +163,7 @@ def policy_head_games(run, vision, memory, cfg, work: Path, seed: int, split: st
     (``validation-policy-head-N.json``)."""
     key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": bout_seeds(split, seed, cfg.eval_episodes, cfg.noop_max)}
-    path = work / f"{'' if split == 'evaluation' else split + '-'}policy-head-{cfg.eval_episodes}.json"
+    path = work / _cache_name(split, f"policy-head-{cfg.eval_episodes}.json")
     cached = read_json(path)
     if cached is not None and cached["key"] == key:
         return cached
