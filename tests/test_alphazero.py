@@ -398,6 +398,45 @@ def test_expert_games_record_the_experts_actions_with_the_searchs_features():
     np.testing.assert_allclose(game.last_features[:L], np.eye(L)[1])  # cell 2 --left--> cell 1
 
 
+def test_the_own_memory_learns_the_random_rollouts_and_then_the_experts_games(tmp_path):
+    """The own-memory variant's latents: the random rollouts unchanged, then each expert game's z
+    (its features' first L entries), actions, rewards and end, last, so the memory validates on them."""
+    from wmthesis.alphazero.expert_memory import expert_latents, memory_folder
+    from wmthesis.world_models.train import LatentStore, split_episodes
+
+    rng = np.random.default_rng(0)
+    rollouts = tmp_path / "latents.h5"
+    with h5py.File(rollouts, "w") as f:
+        f.attrs["identity"] = json.dumps({"env": "corridor"})
+        f["mu"] = rng.normal(size=(12, L)).astype(np.float32)
+        f["logvar"] = rng.normal(-2, 0.5, size=(12, L)).astype(np.float32)
+        f["actions"] = rng.integers(0, A, 12)
+        f["rewards"] = np.zeros(12, np.float32)
+        f["terminals"] = np.isin(np.arange(12), [4, 11])
+        f["episode_ends"] = np.array([5, 12])
+    games = [expert_games(Corridor(), lambda agent_seed: ZigZag(turn), vision, LatentMDP(small_memory()), seeds=[0],
+                          max_steps=9, progress=False)[0] for turn in (2, 9)]  # the second walks to the goal
+    assert [len(g) for g in games] == [9, 4] and [g.terminated for g in games] == [False, True]
+    store = LatentStore(expert_latents(rollouts, games, tmp_path / "with-expert.h5", {"env": "corridor", "games": 2}))
+    before = LatentStore(rollouts)
+    assert len(store) == 4 and store.identity == {"env": "corridor", "games": 2}
+    for k in (0, 1):
+        for name in ("mu", "logvar", "actions", "rewards", "terminals"):
+            np.testing.assert_array_equal(store.episode(k)[name].numpy(), before.episode(k)[name].numpy())
+    for k, game in enumerate(games, start=2):
+        episode = {name: value.numpy() for name, value in store.episode(k).items()}
+        np.testing.assert_array_equal(episode["mu"], game.features[:, :L])
+        np.testing.assert_array_equal(episode["actions"], game.actions)
+        np.testing.assert_array_equal(episode["rewards"], game.rewards)
+        np.testing.assert_array_equal(episode["terminals"], np.arange(len(game)) == len(game) - 1 if game.terminated
+                                      else np.zeros(len(game), bool))
+        np.testing.assert_allclose(episode["logvar"], np.broadcast_to(before.data["logvar"].numpy().mean(0), (len(game), L)))
+    assert games[1].score == 1 and store.episode(3)["rewards"].numpy()[-1] == 1
+    assert list(split_episodes(len(store), 0.25)[1]) == [3]  # the memory validates on an expert game
+    assert memory_folder(tmp_path, tiny_config()) == tmp_path
+    assert memory_folder(tmp_path, tiny_config(memory_games=20)) == tmp_path / "memory-expert-20"
+
+
 def test_imitation_pretrains_the_heads_to_play_like_the_expert(tmp_path):
     config = tiny_config(**{**VARIANTS.changes("imitation"), "expert_games": 3}, games=0, eval_max_steps=12)
     with pytest.raises(ValueError, match="expert"):
@@ -563,7 +602,8 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     from wmthesis.experiments import reproduce
 
     metrics = reproduce("boxing-wm-alphazero", "smoke", progress=False)
-    assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward", "imitation", "own-reward"}
+    assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward", "imitation", "own-reward",
+                                        "own-memory"}
     for name in ("AlphaZero unchanged", "AlphaZero improved", "AlphaZero learned-reward", "AlphaZero imitation",
                  "AlphaZero imitation: policy head alone, no search", "AlphaZero imitation: before self-play (search)",
                  "AlphaZero own-reward", "AlphaZero own-reward: policy head alone, no search", "random"):
@@ -575,12 +615,29 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     assert len(metrics["diagnosis"]["reward_error"]["reward_mse"]) == 5
     assert len(metrics["runs"]["learned-reward"]["reward_fits"]) == 3
     assert len(metrics["runs"]["own-reward"]["reward_fits"]) == 4  # and once more on the expert's games
-    for name in ("unchanged", "improved", "learned-reward", "imitation", "own-reward"):
+    for name in ("unchanged", "improved", "learned-reward", "imitation", "own-reward", "own-memory"):
         assert metrics["runs"][name]["games"] == 4 and len(metrics["runs"][name]["rounds"]) == 2
+    _the_own_memory_is_searched_and_shipped()
     expert = metrics["runs"]["imitation"]["expert"]
     assert expert["games"] == 8 and expert["steps"] == 8 * 20 and 0 <= expert["agreement"] <= 1
     again = reproduce("boxing-wm-alphazero", "smoke", progress=False)  # cached: evaluates nothing again
     assert again["scores"] == metrics["scores"]
+
+
+def _the_own_memory_is_searched_and_shipped():
+    """own-memory's run, its agent file and the budget curve's loader all hold the memory that
+    learned the expert's bouts, not the random-play memory the other variants search in."""
+    from wmthesis.alphazero.agent import load_agent
+    from wmthesis.alphazero.evaluation import trained_run
+    from wmthesis.runs import work_folder
+
+    wm, work = work_folder("smoke", "boxing-wm", 0), work_folder("smoke", "boxing-wm-alphazero", 0)
+    own, base = trained_run(wm, work, "own-memory"), trained_run(wm, work, "own-reward")
+    assert (work / "memory-expert-20" / "latents-with-expert.h5").exists()
+    gates = [LatentMDP(own[2]).w_gates, LatentMDP(base[2]).w_gates, load_agent(work / "agent-own-memory.pt").mdp.w_gates]
+    assert not np.array_equal(gates[0], gates[1])
+    np.testing.assert_array_equal(gates[0], gates[2])
+    assert own[0].task["memory"] != base[0].task["memory"]  # the heads learned in the own memory
 
 
 def test_a_corrupt_cached_result_is_computed_again(tmp_path):

@@ -95,7 +95,8 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     # the validation bouts: games the evaluation never plays, written apart from the report's rows
     report = (tmp_path / "results" / "planning_budget-smoke.csv").read_text()
     assert main(["budget-curve", "mcts", "--validation", "--profile", "smoke"]) == 0
-    validation = read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0" / "validation.json")
+    validation = read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0" /
+                           f"validation-{ALPHAZERO.default.name}.json")
     assert validation["variant"] == ALPHAZERO.default.name and validation["bouts"] == "validation"
     assert [r["budget"] for r in validation["rows"]] == [0, *MCTS_BUDGETS["smoke"]]
     work = tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / ALPHAZERO.default.name
@@ -120,7 +121,8 @@ def test_bad_planners_and_budgets_are_refused_in_one_line_before_anything_plays(
     for argv, words in [(["chess"], "unknown planner 'chess'"), (["mcts", "--budgets", "0"], "budget 0 is the row without"),
                         (["mcts", "--budgets", "16,-4"], "'-4' is negative"), (["sokoban-search", "--budgets", "1e3"], "not an integer"),
                         (["cem", "--budgets", "1x100x3"], "horizon 1 is the value alone"), (["cem", "--budgets", "6x100"], "not HxJxI"),
-                        (["cem", "--budgets", "6x0x3"], "has a 0")]:
+                        (["cem", "--budgets", "6x0x3"], "has a 0"), (["mcts", "--variant", "own-memory"], "with --validation"),
+                        (["mcts", "--validation", "--variant", "chess"], "unknown variant 'chess'")]:
         assert main(["budget-curve", *argv, "--profile", "smoke"]) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err

@@ -11,7 +11,7 @@
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
         writes a JSON list of {level, solved, steps, actions}.
-    budget-curve PLANNER [--budgets B,...] [--profile P] [--seed S] [--validation]
+    budget-curve PLANNER [--budgets B,...] [--profile P] [--seed S] [--validation [--variant V]]
         One planner's score against its search budget on the seed's trained models (mcts,
         cem, sokoban-search; `reproduce planning-budget` measures all three at the profile's
         budgets), with its row without search; resumable; rows into data/results/planning_budget.csv.
@@ -166,6 +166,13 @@ def cmd_budget_curve(args) -> int:
     from wmthesis.budget_curves import check_planners, parse_budgets
 
     check_planners([args.planner])  # bad input refused before anything loads or plays
+    if args.variant and not args.validation:
+        raise ValueError("--variant chooses what the validation bouts measure (with --validation); the report's "
+                         "curve is the default variant's")
+    if args.variant:
+        from wmthesis.alphazero.variants import VARIANTS
+
+        VARIANTS.check(args.variant)
     if args.validation and args.planner != "mcts":
         raise ValueError(f"--validation plays MCTS's validation bouts; {args.planner} chooses on its own validation "
                          "(sokoban-search: `validate`; cem: planet-boxing-value's validation bouts)")
@@ -176,7 +183,7 @@ def cmd_budget_curve(args) -> int:
     from wmthesis.experiments.planning_budget import mcts_validation, planning_budget
 
     if args.validation:
-        metrics = mcts_validation(args.profile, args.seed, budgets=(budgets or {}).get("mcts"))
+        metrics = mcts_validation(args.profile, args.seed, budgets=(budgets or {}).get("mcts"), variant=args.variant)
         print(f"validation bouts, {metrics['variant']}:")
     else:
         metrics = planning_budget(args.profile, args.seed, planners=(args.planner,), budgets=budgets)
@@ -335,7 +342,10 @@ def parser() -> argparse.ArgumentParser:
     budget.add_argument("--profile", choices=PROFILES)
     budget.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained models")
     budget.add_argument("--validation", action="store_true",
-                        help="mcts: play the validation bouts (to choose on; written to validation.json, not reported)")
+                        help="mcts: play the validation bouts (to choose on; written to validation-VARIANT.json, "
+                             "not reported)")
+    budget.add_argument("--variant", help="with --validation: the boxing-wm-alphazero variant searched (default: "
+                                          "the default)")
     budget.set_defaults(run=cmd_budget_curve)
 
     player = commands.add_parser("play", help="a trained agent plays, with no training")

@@ -33,6 +33,9 @@ class AlphaZeroConfig:
     The ``own-reward`` variant is imitation with a reward model of the step's own reward
     (``reward_delay=0``) trained with a plain loss (``reward_weighted=False``: calibrated
     expected rewards) on the random rollouts and the agent's own games, the expert's included.
+    The ``own-memory`` variant sets ``memory_games``: the expert first plays that many greedy bouts
+    and the search's memory learns from them and the random rollouts together
+    (:mod:`wmthesis.alphazero.expert_memory`).
     """
 
     c: float = 1.0
@@ -73,6 +76,7 @@ class AlphaZeroConfig:
     reward_weighted: bool = True         # class weights sqrt(N / (K N_k)) in the reward model's loss
     expert_games: int = 0                # imitation variant: pretrain the heads on this many expert games
     expert_epochs: int = 30
+    memory_games: int = 0                # own-memory variant: the memory also learns this many expert bouts
 
 
 __all__ = ["AlphaZeroConfig"]

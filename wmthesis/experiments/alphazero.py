@@ -1,6 +1,7 @@
 """World Models + AlphaZero on Boxing (thesis 5.4.2), and why the thesis's version fails."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -12,6 +13,7 @@ from wmthesis.alphazero.agent import agent_name, save_agent
 from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.evaluation import (RECORDING_STEPS, boxing_baselines, controller_minds, evaluation_games,
                                            policy_head_returns, score_figure)
+from wmthesis.alphazero.expert_memory import train_expert_memory
 from wmthesis.alphazero.latent_mdp import LatentMDP
 from wmthesis.alphazero.selfplay import train_alphazero
 from wmthesis.alphazero.variants import VARIANTS
@@ -74,28 +76,33 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     memory, memory_history = train_memory(latents, work, memory_cfg, n_actions=18, seed=seed, progress=progress)
     vision = VAEVision(vae)
 
-    configs, runs, games, ablations = {}, {}, {}, {}
+    configs, runs, games, ablations, memories = {}, {}, {}, {}, {}
     for name in variants:
         configs[name] = cfg = for_profile(AlphaZeroConfig, profile, **VARIANTS.changes(name))
-        expert = _expert(profile, seed, wm, vision, progress) if cfg.expert_games else None
-        run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, memory, cfg, out_dir=work / name,
+        expert = _expert(profile, seed, wm, vision, progress) if cfg.expert_games or cfg.memory_games else None
+        searched = memory  # own-memory: a memory that also learned the expert's bouts
+        if cfg.memory_games:
+            searched, _ = train_expert_memory(boxing_env(cfg.noop_max), expert, vision, memory, latents, work,
+                                              memory_cfg, cfg, seed, progress)
+        memories[name] = searched
+        run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, searched, cfg, out_dir=work / name,
                                  seed=seed, progress=progress, rollouts=LatentStore(latents), expert=expert)
         runs[name] = run.summary()
-        save_agent(work / agent_name(name), name, vae, memory, run, memory_cfg, git_commit())  # what `play` plays
-        games[name] = evaluation_games(run, vision, memory, cfg, work / name, seed)
+        save_agent(work / agent_name(name), name, vae, searched, run, memory_cfg, git_commit())  # what `play` plays
+        games[name] = evaluation_games(run, vision, searched, cfg, work / name, seed)
         if cfg.expert_games:
             ablations[f"AlphaZero {name}: policy head alone, no search"] = \
-                policy_head_returns(run, vision, memory, cfg, work / name, seed)
+                policy_head_returns(run, vision, searched, cfg, work / name, seed)
             if run.pretrained is not None:  # (checkpoints written before it was kept have none)
-                pretrained = evaluation_games(run, vision, memory, cfg, work / name, seed, pretrained=True)
+                pretrained = evaluation_games(run, vision, searched, cfg, work / name, seed, pretrained=True)
                 ablations[f"AlphaZero {name}: before self-play (search)"] = [g.score for g in pretrained]
     cfg = configs[variants[-1]]
     baselines = boxing_baselines(profile, wm, work, vision, cfg, seed)
     with EpisodeStore(store) as episodes:  # random play over the self-play games' length, for the curve
         random_in_store = [float(episodes.episode(i)["rewards"][:cfg.max_steps].sum()) for i in range(len(episodes))]
 
-    mdp = LatentMDP(memory)
-    all_games = [game for name in variants for game in games[name]]
+    mdp = LatentMDP(memories[variants[-1]])  # the diagnosis reads the last variant's games in its own memory
+    all_games = [game for name in variants if memories[name] is memories[variants[-1]] for game in games[name]]
     depth = ALPHAZERO_DIAGNOSIS_DEPTH[profile]
     reward_error = diagnosis.reward_error_by_depth(mdp, all_games, depth)
     value_fit = diagnosis.value_predictability(mdp, LatentStore(latents), cfg.gamma, cfg.n_step)
@@ -146,8 +153,10 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
 
 def _played(runs: dict) -> dict:
     """What decides a set of self-play runs (their configs, games and each game's return), not
-    how long they took: two runs the same here trained the same heads."""
-    return json.loads(json.dumps({name: [run["config"], run["games"], [g["return"] for g in run["curve"]]]
+    how long they took: two runs the same here trained the same heads. A config written before a
+    field existed reads that field's default."""
+    defaults = dataclasses.asdict(AlphaZeroConfig())
+    return json.loads(json.dumps({name: [{**defaults, **run["config"]}, run["games"], [g["return"] for g in run["curve"]]]
                                   for name, run in runs.items()}, default=float))
 
 

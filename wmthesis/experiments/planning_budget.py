@@ -69,15 +69,17 @@ def planning_budget(profile: str | None = None, seed: int = 0, variant: str | No
 
 
 def mcts_validation(profile: str | None = None, seed: int = 0, progress: bool = True,
-                    budgets: tuple | None = None) -> dict:
-    """The MCTS curve (:func:`mcts_curve`) on the validation bouts, the evidence a choice of the
-    search or its budget is made on: written to the run's ``validation.json`` (with the variant it
-    searched), never to the report's rows, the CSV or the summary. Resumable bout by bout."""
+                    budgets: tuple | None = None, variant: str | None = None) -> dict:
+    """The MCTS curve (:func:`mcts_curve`) of ``variant`` (default: the default) on the validation
+    bouts, the evidence a choice of the search, its variant or its budget is made on: written to the
+    run's ``validation-<variant>.json``, never to the report's rows, the CSV or the summary.
+    Resumable bout by bout."""
     profile, started = profile_name(profile), time.time()
-    rows = mcts_curve(profile, seed, progress, budgets, split="validation")
+    variant = ALPHAZERO.check(variant).name
+    rows = mcts_curve(profile, seed, progress, budgets, split="validation", variant=variant)
     result = {**run_header("planning-budget", profile, seed, time.time() - started,
-                           variant=ALPHAZERO.default.name, bouts="validation"), "rows": rows}
-    write_json(results_folder("planning-budget", profile, seed) / "validation.json", result)
+                           variant=variant, bouts="validation"), "rows": rows}
+    write_json(results_folder("planning-budget", profile, seed) / f"validation-{variant}.json", result)
     return result
 
 
@@ -114,12 +116,12 @@ def sokoban_curve(profile: str, seed: int, progress: bool, budgets: tuple | None
 
 
 def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None,
-               split: str = "evaluation") -> list[dict]:
-    """MCTS in the World Models memory on Boxing: the default variant's policy head alone (budget
-    0), then its search under each number of simulations of ``budgets`` (default the profile's
-    :data:`MCTS_BUDGETS`), on the same :data:`BOXING_BOUTS` bouts of ``split`` (``"validation"``:
-    games none of the evaluation bouts plays, to choose on)."""
-    name = ALPHAZERO.default.name
+               split: str = "evaluation", variant: str | None = None) -> list[dict]:
+    """MCTS in the World Models memory on Boxing: the policy head alone (budget 0) of ``variant``
+    (default: the default variant), then its search under each number of simulations of
+    ``budgets`` (default the profile's :data:`MCTS_BUDGETS`), on the same :data:`BOXING_BOUTS`
+    bouts of ``split`` (``"validation"``: games none of the evaluation bouts plays, to choose on)."""
+    name = variant or ALPHAZERO.default.name
     built_on("boxing-wm-alphazero", profile, seed, name, progress)
     work = work_folder(profile, "boxing-wm-alphazero", seed)
     run, vision, memory, cfg = trained_run(work_folder(profile, "boxing-wm", seed), work, name)
