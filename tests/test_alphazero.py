@@ -20,7 +20,7 @@ from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator, alphazero_loss, 
 from wmthesis.alphazero.imitation import PolicyHeadMind, agreement, expert_games
 from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, RewardView, State, reward_fit, reward_rows,
                                            train_reward_model)
-from wmthesis.alphazero.selfplay import AlphaZeroMind, load_run, play, train_alphazero
+from wmthesis.alphazero.selfplay import AlphaZeroMind, load_run, play, prior_and_q, train_alphazero
 from wmthesis.alphazero.variants import VARIANTS
 from wmthesis.config import for_profile
 from wmthesis.core import Mind, loop
@@ -194,6 +194,30 @@ def test_mind_steps_the_memory_on_the_real_actions():
     assert errors["zero_mse"][0] == pytest.approx(np.mean(game.rewards ** 2))
     stats = search_statistics([game], 0.99, 1.0, config.simulations)
     assert stats["root_value"].shape == stats["returns"].shape == (T,)
+
+
+def test_a_greedy_game_with_decision_beta_moves_the_priors_choice_by_q_alone():
+    """In a model where stepping right pays 1 and the prior leans left, the most visited action is
+    right at any budget; decision_beta = 0 plays the prior's choice, left, whatever the budget; a
+    large beta the higher Q, right. The visit counts (the policy targets) are recorded as before."""
+    priors, q = np.array([0.6, 0.3, 0.1]), np.array([1.0, 1.2, np.nan])
+    assert prior_and_q(priors, q, 1.1, 0.0).argmax() == 0 and prior_and_q(priors, q, 1.1, 10.0).argmax() == 1
+    np.testing.assert_allclose(prior_and_q(priors, q, 1.1, 10.0), np.log(priors) + 10.0 * np.array([-0.1, 0.1, 0.0]))
+
+    class RightPays(LatentMDP):
+        def transition(self, state, action):
+            return super().transition(state, action)[0], float(action == 1)
+
+    mdp, evaluator = RightPays(small_memory()), lambda state: (np.array([0.6, 0.4]), 0.0)
+    for simulations in (8, 40):
+        actions = {}
+        for beta in (None, 0.0, 50.0):
+            config = tiny_config(simulations=simulations, decision_beta=beta, reuse_tree=False, normalize_q=True)
+            game = play(Corridor(), AlphaZeroMind(vision, mdp, evaluator, config), seed=3, index=0, train_mode=False,
+                        max_steps=3)
+            actions[beta] = game.actions.tolist()
+            assert (game.policies.argmax(1) == 1).all()  # the search's visits favour the paying action
+        assert actions == {None: [1, 1, 1], 0.0: [0, 0, 0], 50.0: [1, 1, 1]}
 
 
 def test_noop_start_draws_its_noops_from_the_reset_seed():

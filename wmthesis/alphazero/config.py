@@ -18,7 +18,8 @@ class AlphaZeroConfig:
     agent steps), the no-op starts (as the controller's evaluation), greedy tests every
     ``test_every`` games, ``eval_episodes`` after training (of ``eval_max_steps``). Beyond the
     thesis: ``search_depth`` and ``root_actions`` (:class:`~wmthesis.alphazero.mcts.MCTS`'s
-    ``max_depth`` and ``root_actions``); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
+    ``max_depth`` and ``root_actions``) and ``decision_beta`` (greedy games choose by
+    :func:`~wmthesis.alphazero.selfplay.prior_and_q`, not by visit counts); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
     (equal visit counts go to the higher root Q, not to the first action),
     ``value_target="n-step"`` (``n_step``-step bootstrapped targets instead of ``"monte-carlo"``
     returns) and ``reuse_tree=False``. The ``learned-reward`` variant adds ``reward_model``: the
@@ -43,6 +44,7 @@ class AlphaZeroConfig:
     timeout: float | None = None
     search_depth: int | None = None      # beyond the thesis: the tree grows at most this many edges deep
     root_actions: int | None = None      # beyond the thesis: the root chooses among its k most probable actions
+    decision_beta: float | None = None   # beyond the thesis: greedy games play argmax log P + beta (Q - V), not the most visited
     gamma: float = 0.99
     dirichlet_alpha: float = 0.3
     noise_ratio: float = 0.25

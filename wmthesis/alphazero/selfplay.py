@@ -134,6 +134,8 @@ class AlphaZeroMind(Mind, Callback):
         if self.keep_frames:
             record["frames"].append(np.asarray(state))
         scores = counts + tie_breaker(info["q"]) if self.config.tie_break == "q" else counts
+        if not train_mode and self.config.decision_beta is not None:
+            scores = prior_and_q(info["priors"], info["q"], info["root_value"], self.config.decision_beta)
         return (scores, info) if debug_mode else scores
 
     def on_episode_start(self, episode: int, train_mode: bool) -> None:
@@ -181,6 +183,16 @@ def tie_breaker(q: np.ndarray) -> np.ndarray:
     visited = np.isfinite(q)
     ranks = np.argsort(np.argsort(np.where(visited, q, -np.inf)))
     return np.where(visited, 0.5 * ranks / len(q), 0.0)
+
+
+def prior_and_q(priors: np.ndarray, q: np.ndarray, value: float, beta: float) -> np.ndarray:
+    """A greedy game's action scores with ``decision_beta``: ``log P(a) + beta * (Q(a) - V)`` over
+    the root's priors P, its Q (nan where unvisited, completed with V, the root's value, as Gumbel
+    MuZero completes Q) and ``beta`` per point of return. The search moves the prior's choice by
+    its Q differences at a fixed rate, where the most visited action follows argmax Q ever more
+    closely as the budget grows. (A,) -> (A,)."""
+    completed = np.where(np.isfinite(q), q, value)
+    return np.log(np.maximum(np.asarray(priors, np.float64), 1e-12)) + beta * (completed - value)
 
 
 def play(env, mind: AlphaZeroMind, seed: int, index: int, *, train_mode: bool, max_steps: int | None) -> Game:
