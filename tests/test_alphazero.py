@@ -609,6 +609,23 @@ def test_evaluation_games_start_with_different_noop_counts():
         assert env.unwrapped.steps == noop_count(seed, 30)
 
 
+def test_cached_evaluation_games_are_replayed_when_the_decision_rule_changes(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from wmthesis.alphazero import evaluation
+
+    played = []
+    monkeypatch.setattr(evaluation, "boxing_env", lambda noop_max: SimpleNamespace(close=lambda: None))
+    monkeypatch.setattr(evaluation, "play", lambda env, mind, seed, k, **kw: played.append(
+        mind.config.decision_beta) or SimpleNamespace(frames=None, score=float(k)))
+    run = SimpleNamespace(games=4, heads=AlphaZeroHeads(L, H, A), mdp=lambda memory: LatentMDP(memory))
+    for beta in (None, None, 5.0, 5.0, None):
+        config = tiny_config(eval_episodes=2, decision_beta=beta)
+        games = evaluation.evaluation_games(run, vision, small_memory(), config, tmp_path, 0, simulations=8)
+        assert [g.score for g in games] == [0.0, 1.0]
+    assert played == [None, None, 5.0, 5.0]  # each rule played once, then read from its cache
+
+
 def test_profiles_keep_the_thesis_values():
     thesis = for_profile(AlphaZeroConfig, "thesis")
     assert (thesis.c, thesis.simulations, thesis.dirichlet_alpha, thesis.noise_ratio, thesis.gamma) == (1.0, 50, 0.3,

@@ -111,15 +111,19 @@ def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained
     after imitation, before self-play (``evaluation-pretrained.pkl``); ``simulations``: the
     search's budget in place of ``cfg.simulations`` (``evaluation-S-simulations-N.pkl`` for N games);
     ``split="validation"``: validation games instead (:func:`bout_seeds`; ``validation-...``), to
-    choose on. Each game is saved as it ends (``*.partial.pkl``): a cut-off evaluation plays only the rest."""
+    choose on. A search deciding by ``decision_beta`` B keeps its games apart (``...-beta-B.pkl``). Each
+    game is saved as it ends (``*.partial.pkl``): a cut-off evaluation plays only the rest."""
     if simulations is not None:
         cfg = dataclasses.replace(cfg, simulations=int(simulations))
     name = ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl" if simulations is None
             else f"evaluation-{simulations}-simulations-{cfg.eval_episodes}.pkl")
+    if cfg.decision_beta is not None:
+        name = name.replace(".pkl", f"-beta-{cfg.decision_beta:g}.pkl")
     path = work / _cache_name(split, name)
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
            "seeds": bout_seeds(split, seed, cfg.eval_episodes, cfg.noop_max),
-           **({} if simulations is None else {"simulations": cfg.simulations})}
+           **({} if simulations is None else {"simulations": cfg.simulations}),
+           **({} if cfg.decision_beta is None else {"decision_beta": cfg.decision_beta})}
     cached = _cached_games(path, key)  # a missing or corrupt cache is played again
     if cached is not None:
         return cached
