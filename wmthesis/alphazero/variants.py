@@ -16,7 +16,7 @@ VARIANTS = Variants(
     Variant("imitation", "improved, with heads pretrained on the World Models controller's games (ours)",
             dict(expert_games=8), builds_on="improved"),
     Variant("own-reward", "imitation, the search's rewards from a reward model trained on the agent's own games (ours)",
-            dict(reward_model=True, reward_delay=0, reward_weighted=False), builds_on="imitation", default=True),
+            dict(reward_model=True, reward_delay=0, reward_weighted=False), builds_on="imitation"),
     Variant("own-memory", "own-reward, searching in a memory that learned the expert's bouts beside random play (ours)",
-            dict(memory_games=20), builds_on="own-reward"),
+            dict(memory_games=20), builds_on="own-reward", default=True),
 )
