@@ -17,7 +17,7 @@
         budgets), with its row without search; resumable; rows into data/results/planning_budget.csv.
     play EXPERIMENT [--profile P] [--seed S] [--bouts N] [--record FILE.rrd] [--video FILE.mp4]
         A trained agent plays its experiment's evaluation levels or bouts, with no training
-        (sokoban-search, boxing-wm, boxing-wm-alphazero; quick's seed-0 agents of the first two
+        (sokoban-search, boxing-wm, boxing-wm-alphazero; quick's seed-0 agents of all three
         ship); prints each play and the score.
     validate EXPERIMENT LEVER ... [--variant V] [--seeds 0,1] [--count N] [--workers K] [--profile P]
         Levers of sokoban-search (its agent's config), planet-boxing-value or planet-freeway-value
