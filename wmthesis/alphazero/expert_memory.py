@@ -10,7 +10,7 @@ first plays ``memory_games`` greedy bouts, seeded from ``(seed, 7, k)``; a fresh
 learns from the random rollouts and those bouts together, and the search runs in it.
 
     folder = memory_folder(work, config)         # where that memory and its latents live
-    memory, history = train_expert_memory(env, expert, vision, memory, latents, work, memory_cfg, config, seed)
+    memory, history = train_expert_memory(make_env, expert, vision, memory, latents, work, memory_cfg, config, seed)
 """
 from __future__ import annotations
 
@@ -70,14 +70,14 @@ def expert_latents(latents_path: str | Path, games: list, out_path: str | Path, 
     return Path(out_path)
 
 
-def train_expert_memory(env, expert: Callable, vision: Callable, memory, latents_path: str | Path, work: Path,
-                        memory_config, config, seed: int, progress: bool = True) -> tuple:
+def train_expert_memory(make_env: Callable, expert: Callable, vision: Callable, memory, latents_path: str | Path,
+                        work: Path, memory_config, config, seed: int, progress: bool = True) -> tuple:
     """The memory of the ``own-memory`` variant: ``config.memory_games`` greedy bouts of
-    ``expert(agent_seed)`` (of ``config.eval_max_steps`` steps; recorded through ``memory``, the
-    random-play memory, whose h the games' features carry but which only their z and actions
-    use), written beside the random rollouts of ``latents_path``
-    (:func:`expert_latents`), then a fresh memory of ``memory_config`` trained on both, seeded
-    with ``seed``. Both are cached in :func:`memory_folder`; returns ``(memory, history)``."""
+    ``expert(agent_seed)`` in ``make_env()`` (made only when the bouts are not cached yet), each of
+    ``config.eval_max_steps`` steps and recorded through ``memory`` (the random-play memory: the
+    games keep its h, only their z and actions are used), written beside the random rollouts of
+    ``latents_path`` (:func:`expert_latents`); then a fresh memory of ``memory_config`` trained on
+    both, seeded with ``seed``. Both are cached in :func:`memory_folder`; returns ``(memory, history)``."""
     folder = memory_folder(work, config)
     path = folder / LATENTS_NAME
     rollouts = LatentStore(latents_path)
@@ -85,8 +85,12 @@ def train_expert_memory(env, expert: Callable, vision: Callable, memory, latents
                 "seed": seed}
     if not (path.exists() and LatentStore(path).identity == identity):
         seeds = [int(derive_seeds(seed, 7, k)[0]) for k in range(config.memory_games)]
-        games = expert_games(env, expert, vision, LatentMDP(memory), seeds, max_steps=config.eval_max_steps,
-                             progress=progress)
+        env = make_env()
+        try:
+            games = expert_games(env, expert, vision, LatentMDP(memory), seeds, max_steps=config.eval_max_steps,
+                                 progress=progress)
+        finally:
+            env.close()
         folder.mkdir(parents=True, exist_ok=True)
         expert_latents(latents_path, games, path, identity)
     return train_memory(path, folder, memory_config, n_actions=LatentMDP(memory).n_actions, seed=seed,

@@ -82,7 +82,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         expert = _expert(profile, seed, wm, vision, progress) if cfg.expert_games or cfg.memory_games else None
         searched = memory  # own-memory: a memory that also learned the expert's bouts
         if cfg.memory_games:
-            searched, _ = train_expert_memory(boxing_env(cfg.noop_max), expert, vision, memory, latents, work,
+            searched, _ = train_expert_memory(lambda: boxing_env(cfg.noop_max), expert, vision, memory, latents, work,
                                               memory_cfg, cfg, seed, progress)
         memories[name] = searched
         run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, searched, cfg, out_dir=work / name,
