@@ -24,6 +24,7 @@ from wmthesis.sokoban_search.iteration import training_batches, fit_model, load_
 from wmthesis.sokoban_search.model import SokobanModel
 from wmthesis.sokoban_search.search import Simulator, best_first
 from wmthesis.utils import half_precision
+from wmthesis.runs import machine_name
 
 # A Boxoban-style file: two levels after "; N" lines (level 0: generated, seed 1 of a 10x10 room
 # with 2 boxes; level 1: a small classic-style level, rows indented with outside floor).
@@ -781,6 +782,10 @@ def test_the_closing_evaluation_plays_more_report_levels_and_only_those_a_smalle
         assert row["replayed"] == row["solved"]
     saved = json.loads((tmp_path / "results" / "sokoban-search" / "smoke-seed3" / "boxoban-report-5.json").read_text())
     assert saved["rows"]["medium"]["levels"] == 5 and saved["levels"] == 5 and saved["search"]["budget"] == cfg.budget
+    history = load_run(experiment.work_folder("smoke", 3) / "pixels", cfg).history
+    assert saved["training_wall_seconds"] > 0
+    assert saved["training_wall_seconds"] == pytest.approx(sum(h["wall_seconds"] for h in history), abs=0.1)
+    assert saved["machine"] == machine_name()  # this machine, as every metrics.json names it
     # twice the budget at evaluation: a play that stayed under the old budget is the same, any other is played again
     work = experiment.work_folder("smoke", 3)
     for count, part in ((2, 0), (2, 1), (5, 0), (5, 1)):

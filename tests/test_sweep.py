@@ -177,8 +177,11 @@ def test_the_summary_aggregates_the_sokoban_agents_report_evaluations_over_seeds
     for seed, (unfiltered, medium) in enumerate([(0.99, 0.86), (0.97, 0.80), (0.98, 0.83)]):
         folder = tmp_path / "results" / "sokoban-search" / f"quick-seed{seed}"
         folder.mkdir(parents=True)
-        rows = {"unfiltered": {"solve_rate": unfiltered}, "medium": {"solve_rate": medium}}
-        (folder / "boxoban-report-1000.json").write_text(json.dumps({"profile": "quick", "seed": seed, "levels": 1000, "rows": rows}))
+        rows = {kind: {"solve_rate": rate, "levels": 1000, "seconds_per_level": 2.0}
+                for kind, rate in (("unfiltered", unfiltered), ("medium", medium))}
+        timed = {"training_wall_seconds": 600.0 * (seed + 1), "machine": "vm (x86_64, 2 cores)"} if seed < 2 else {}
+        (folder / "boxoban-report-1000.json").write_text(json.dumps({"profile": "quick", "seed": seed, "levels": 1000,
+                                                                    "rows": rows, **timed}))
     broken = tmp_path / "results" / "sokoban-search" / "quick-seed3" / "boxoban-report-1000.json"
     broken.parent.mkdir()
     broken.write_text(json.dumps({"profile": "quick", "seed": 3, "levels": 1000, "rows": ["unfiltered"]}))
@@ -190,6 +193,10 @@ def test_the_summary_aggregates_the_sokoban_agents_report_evaluations_over_seeds
     assert (medium["mean"], medium["std"]) == (pytest.approx(83.0), pytest.approx(3.0))
     assert medium["ci_high"] == pytest.approx(83.0 + 4.302652729911275 * 3.0 / math.sqrt(3))
     assert rows["boxoban-unfiltered, 1000 report levels"]["mean"] == pytest.approx(98.0)
+    # a seed's minutes: its training, then that kind's levels one after another (1000 x 2 s); none
+    # where the report predates the training time (seed 2)
+    assert medium["wall_seconds"] == [2600.0, 3200.0, None]
+    assert medium["machines"] == ["x86_64, 2 cores", "x86_64, 2 cores", None]
 
 
 def test_a_run_called_again_keeps_the_wall_time_of_the_run_that_computed_it(tmp_path):

@@ -115,6 +115,11 @@ def cached(path: Path, fn: Callable, *args):
 
 
 # ----------------------------------------------------------------------------- the header of a metrics.json
+def machine_name() -> str:
+    """This machine as the results name it: ``host (arch, N cores)``."""
+    return f"{platform.node()} ({platform.machine()}, {os.cpu_count()} cores)"
+
+
 def run_header(experiment: str, profile: str, seed: int, seconds: float, **run) -> dict:
     """The first entries of a ``metrics.json``: the experiment, ``run``'s own (its variant, ...),
     profile and seed, today's date, this machine, its torch threads (a seed repeats its curve on
@@ -122,7 +127,7 @@ def run_header(experiment: str, profile: str, seed: int, seconds: float, **run) 
     import torch  # heavy: loaded when a run writes its metrics, not when the command line starts
 
     return {"experiment": experiment, **run, "profile": profile, "seed": seed, "date": date.today().isoformat(),
-            "machine": f"{platform.node()} ({platform.machine()}, {os.cpu_count()} cores)",
+            "machine": machine_name(),
             "threads": torch.get_num_threads(), "wall_seconds": round(seconds, 1)}
 
 

@@ -110,8 +110,7 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             warnings.warn(f"{path.parent}: skipped, written by variant {gone[0]!r}, no longer in the code (its numbers: "
                           f"{registry.findings})", stacklevel=2)
             continue
-        machine = metrics.get("machine")
-        machine = machine[machine.find("(") + 1:-1] if isinstance(machine, str) and "(" in machine else machine
+        machine = machine_kind(metrics.get("machine"))
         if header[1] in VALIDATION_SEEDS.get(metrics["experiment"], ()):  # the choice's evidence: a row apart
             scores = {f"{variant or 'first recipe'}, validation seeds": score for variant, score in scores.items()}
         for variant, score in scores.items():
@@ -132,12 +131,26 @@ def report_runs(folder: Path) -> list[Run]:
         try:
             report = json.loads(path.read_text())
             runs += [Run("sokoban-search", f"boxoban-{kind}, {int(report['levels'])} report levels",
-                         str(report["profile"]), int(report["seed"]), 100.0 * float(row["solve_rate"]), None, str(path))
+                         str(report["profile"]), int(report["seed"]), 100.0 * float(row["solve_rate"]),
+                         report_seconds(report, row), str(path), machine_kind(report.get("machine")))
                      for kind, row in report["rows"].items()]
         except (ValueError, KeyError, TypeError, AttributeError) as error:
             warnings.warn(f"{path}: skipped, not a Boxoban report ({type(error).__name__}: {error})", stacklevel=2)
     return runs
 
+
+
+def report_seconds(report: dict, row: dict) -> float | None:
+    """A Boxoban report run's time: its agent's training (``training_wall_seconds``, absent from
+    reports written before 2026-11-28) and the search on that kind's levels, one level after
+    another (``seconds_per_level`` x ``levels``); None where the training time is not recorded."""
+    training = report.get("training_wall_seconds")
+    return None if training is None else round(float(training) + float(row["seconds_per_level"]) * int(row["levels"]), 1)
+
+
+def machine_kind(machine: str | None) -> str | None:
+    """``"host (x86_64, 2 cores)"`` -> ``"x86_64, 2 cores"``: the kind of machine, not its name."""
+    return machine[machine.find("(") + 1:-1] if isinstance(machine, str) and "(" in machine else machine
 
 
 def summarise(runs: list[Run]) -> list[dict]:

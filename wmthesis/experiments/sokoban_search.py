@@ -11,8 +11,8 @@ from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS, load_levels
 from wmthesis.metrics import score_summary
 from wmthesis.references import BOXOBAN, published
-from wmthesis.runs import (cached, first_run_seconds, hold, jsonable, read_json, releasing_holds, results_folder,
-                           run_header, run_jobs, work_folder as run_folder, write_json)
+from wmthesis.runs import (cached, first_run_seconds, hold, jsonable, machine_name, read_json, releasing_holds,
+                           results_folder, run_header, run_jobs, work_folder as run_folder, write_json)
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table, render_cells
@@ -185,6 +185,8 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
     run_jobs(jobs, progress)
     result = {"profile": profile, "seed": seed, "levels": levels, "search": evaluation_record(cfg),
               "env_steps": int(sum(h["env_steps"] for h in run.history)),
+              "training_wall_seconds": round(sum(h.get("wall_seconds", 0.0) for h in run.history), 1),
+              "machine": machine_name(),
               "rows": {kind: boxoban_row(level_plays(jobs, "pixels", kind), source, load_levels(source))
                        for kind, source in BOXOBAN_SPLITS["report"].items()}}
     out = results_folder("sokoban-search", profile, seed)
