@@ -225,6 +225,24 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
                               tmp_path / "data/smoke/planet-boxing-value/lean-seed0", ValuePlannerConfig(**planner),
                               *rewarded["bouts"][0])
     assert rewarded["value_planner"]["returns"][0] == bout["return"]
+    # own-rewards: lean's value, CEM's imagined rewards from the reward head refit on the run's bouts;
+    # the head is refit once in its folder, its bouts and its shipped agent plan with it
+    from wmthesis.planet.agent_file import load_agent
+    import torch
+    from wmthesis.planet.own_rewards import OWN_REWARDS
+
+    assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "own-rewards"]) == 0
+    own = json.loads((results / "own-rewards" / "metrics.json").read_text())
+    assert own["curve"] == lean["curve"] and own["value_planner"]["config"] == {**lean["value_planner"]["config"],
+                                                                                "reward_head": "own"}
+    folder = tmp_path / "data/smoke/planet-boxing-value/own-rewards-seed0"
+    head = torch.load(folder / OWN_REWARDS, weights_only=True)
+    assert head["bouts"] > 0 and head["fit"]["after"] < head["fit"]["before"]
+    bout = value_planner_bout(tmp_path / "data/smoke/planet-boxing-agent/seed0", folder,
+                              ValuePlannerConfig(**own["value_planner"]["config"]), *own["bouts"][0])
+    assert own["value_planner"]["returns"][0] == bout["return"]
+    shipped = load_agent(folder / "agent.pt").model.reward_net.state_dict()
+    assert all(torch.equal(shipped[k], v) for k, v in head["state"].items())
     # the planner's levers on the lean value's validation bouts, cached in its folder
     from wmthesis.planet import value_bouts
     from wmthesis.experiments.planet_boxing_value import validate_planners

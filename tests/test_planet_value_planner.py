@@ -239,7 +239,7 @@ def test_a_planner_variant_copies_a_run_fitted_with_its_own_value_config():
     from wmthesis.planet.value_variants import VALUE_VARIANTS, value_run
 
     planners = [name for name, v in VALUE_VARIANTS.items() if set(v.changes) == {"planner"}]
-    assert planners == ["lean-value-rewards-0.7"]
+    assert planners == ["lean-value-rewards-0.7", "own-rewards"]
     for variant in planners:  # its value is copied, not fitted: the copy must be the value it names
         copied = value_run(variant)
         assert copied != variant and VALUE_VARIANTS.changes(variant, "value") == VALUE_VARIANTS.changes(copied, "value")
@@ -294,3 +294,57 @@ def test_the_agent_rules_table_names_each_rules_rounds_and_pairs_them():
                        "mean of the last 3": scores([8, 9, 10], [4.0, 12.0])})
     assert rows[0][:2] == ["round chosen on validation", "round 6"] and rows[0][-1] == "+0.0 ± 0.0"
     assert rows[1] == ["mean of the last 3", "rounds 8-10", "8.0 ± 4.0", "8.0", "+3.0 ± 1.0"]
+
+
+def test_the_reward_head_refit_on_a_run_s_own_bouts_learns_them_once_and_is_what_the_planner_plans_with(tmp_path, monkeypatch):
+    import gymnasium as gym
+    from wmthesis.data import EpisodeStore
+    from wmthesis.planet import own_rewards
+    from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+    from wmthesis.rollouts import play_random_episode
+
+    class PunchNow(gym.Env):  # action 1 of 3 pays at once: the features after it tell it apart
+        observation_space = gym.spaces.Box(0, 255, (64, 64, 3), np.uint8)
+        action_space = gym.spaces.Discrete(3)
+
+        def reset(self, *, seed=None, options=None):
+            super().reset(seed=seed)
+            self.t = 0
+            return np.zeros((64, 64, 3), np.uint8), {}
+
+        def step(self, action):
+            self.t += 1
+            return np.zeros((64, 64, 3), np.uint8), float(action == 1), False, self.t >= 24, {}
+
+    torch.manual_seed(0)
+    model = RSSM(3, belief_size=16, state_size=4, hidden_size=16, reward_hidden_size=8).eval()
+    env = PunchNow()
+    with EpisodeStore(tmp_path / "episodes.h5", "a", preprocessing="planet", seed=0, obs_shape=(64, 64, 3)) as store:
+        for index in range(6):
+            store.append_episode(**play_random_episode(env, 0, index))
+    config = LatentValueConfig(fit_updates=300, batch_size=64, lr=1e-2)
+    before = {k: v.clone() for k, v in model.reward_net.state_dict().items()}
+    record = own_rewards.own_reward_head(model, tmp_path, 5, config, seed=0)
+    assert record["bouts"] == 6 and record["fit"]["steps"] == 6 * 24
+    assert record["fit"]["after"] < 0.2 * record["fit"]["before"]  # it learnt which action pays
+    assert all(torch.equal(before[k], v) for k, v in model.reward_net.state_dict().items())  # the model untouched
+    # kept: asked again for the same bouts, nothing is refit; a bout more, it is
+    monkeypatch.setattr(own_rewards, "reward_dataset", lambda *a: pytest.fail("refit for the same bouts"))
+    assert own_rewards.own_reward_head(model, tmp_path, 5, config, seed=0)["fit"] == record["fit"]
+    monkeypatch.undo()
+    with EpisodeStore(tmp_path / "episodes.h5", "a", preprocessing="planet", seed=0, obs_shape=(64, 64, 3)) as store:
+        store.append_episode(**play_random_episode(env, 0, 6))
+    assert own_rewards.own_reward_head(model, tmp_path, 5, config, seed=0)["bouts"] == 7
+    # the planner's imagined rewards are the refit head's: action 1 now scores above the others
+    own_rewards.with_own_rewards(model, tmp_path)
+    belief, state = torch.zeros(1, 16), torch.zeros(1, 4)
+    with torch.no_grad():
+        rewards = value_returns(model, None, belief, state, torch.eye(3)[:, None], imagine="mean")
+    assert int(rewards.argmax()) == 1 and float(rewards[1] - rewards[[0, 2]].max()) > 0.5
+    # bad input: a run with no refit head; an unknown head; the own head with the value's rewards
+    with pytest.raises(FileNotFoundError, match="own-rewards.pt"):
+        own_rewards.with_own_rewards(model, tmp_path / "elsewhere")
+    with pytest.raises(ValueError, match="reward_head must be one of"):
+        own_rewards.check_reward_head(ValuePlannerConfig(reward_head="mine"))
+    with pytest.raises(ValueError, match="rewards must be 'model'"):
+        own_rewards.check_reward_head(ValuePlannerConfig(reward_head="own", rewards="value"))

@@ -78,7 +78,8 @@ PLANNER_LEVERS = {"value seeds CEM": {}, "the value's rewards": dict(rewards="va
                   "the value's rewards, discount 0.5": dict(rewards="value", discount=0.5),
                   "the value's rewards, discount 0.7": dict(rewards="value", discount=0.7),
                   "the value's rewards, discount 0.5, prior's mean": dict(rewards="value", discount=0.5, imagine="mean"),
-                  "H1: the value agent": dict(horizon=1)}
+                  "H1: the value agent": dict(horizon=1), "the reward head refit on own bouts": dict(reward_head="own"),
+                  "the reward head refit on own bouts, H6": dict(reward_head="own", horizon=6)}
 LEVER_BOUTS = {"smoke": 1, "quick": 10, "thesis": 10}  # validation bouts per lever
 
 

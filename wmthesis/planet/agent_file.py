@@ -18,10 +18,10 @@ from typing import NamedTuple
 from wmthesis.planet.agent import play_greedy
 from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.train import build_model, load_planet, make_planet_env
+from wmthesis.planet.own_rewards import planner_model
+from wmthesis.planet.train import build_model, make_planet_env
 from wmthesis.planet.value import LatentValue
 from wmthesis.planet.value_planner import play_value_planner
-from wmthesis.planet.value_rounds import load_value
 from wmthesis.runs import read_agent_file, save_agent_file
 from wmthesis.training import with_added_defaults
 
@@ -47,8 +47,7 @@ def save_agent(path: str | os.PathLike, game: str, planet_run: Path, bouts: list
     """Write the agent of the PlaNet run in ``planet_run`` (with the chosen value of the value run
     in ``value_run`` and CEM ``planner`` ending in it, where given) for ``game`` to ``path``,
     atomically, with the ``bouts`` ((env seed, mind seed) pairs) it was scored on; returns the path."""
-    model, planet, _ = load_planet(planet_run)
-    value = None if value_run is None else load_value(value_run, model)
+    model, planet, value = planner_model(planet_run, value_run, planner)  # with the reward head it plans with
     return save_agent_file(
         path, FORMAT, FORMAT_VERSION, game=game, n_actions=model.n_actions, planet=dataclasses.asdict(planet),
         bouts=[list(map(int, b)) for b in bouts], commit=commit,

@@ -9,10 +9,11 @@ from pathlib import Path
 
 from wmthesis.planet.bouts import bout_result, bout_scores
 from wmthesis.planet.config import ValuePlannerConfig
+from wmthesis.planet.own_rewards import planner_model
 from wmthesis.planet.train import load_planet, make_planet_env
 from wmthesis.planet.value_planner import play_value_planner
 from wmthesis.planet.value_play import play_value
-from wmthesis.planet.value_rounds import load_rounds, load_value
+from wmthesis.planet.value_rounds import load_rounds
 from wmthesis.runs import cached_for, played_groups, write_json
 from wmthesis.training import with_added_defaults
 
@@ -23,11 +24,11 @@ def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int
     (:func:`~wmthesis.planet.value_planner.play_value_planner`) on the frozen model of
     ``planet_run``: its ``return``, the return of its first :data:`FIRST_STEPS` steps, its
     ``steps`` and the ``seconds`` it took (the planner's thinking, the game and the encoding)."""
-    model, planet, _ = load_planet(planet_run)
+    model, planet, value = planner_model(planet_run, value_run, planner)
     env = make_planet_env(game, planet)
     try:
         start = time.perf_counter()
-        rewards = play_value_planner(env, model, load_value(value_run, model), planet, planner, env_seed, mind_seed)
+        rewards = play_value_planner(env, model, value, planet, planner, env_seed, mind_seed)
         seconds = time.perf_counter() - start
     finally:
         env.close()

@@ -18,6 +18,7 @@ from wmthesis.planet.bouts import FIRST_STEPS
 from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
 from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.figures import learning_curve_figure, plan_choices_figure
+from wmthesis.planet.own_rewards import fit_for_planners
 from wmthesis.planet.train import load_planet, make_planet_env
 from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value_planners_scores
 from wmthesis.planet.value_planner import PLANNERS, plan_choices
@@ -52,6 +53,7 @@ def lever_scores(planet_run: Path, work: Path, metrics: dict, planners: dict, bo
     name -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
     agent = agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config)
+    fit_for_planners(planet_run, work, planners.values(), config, int(metrics["seed"]))
     caches = [(planner, work / folder / slug(name) / "scores.json") for name, planner in planners.items()]
     return dict(zip(planners, value_planners_scores(planet_run, work, caches, bouts, agent, progress, game, executor)))
 
@@ -96,6 +98,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
         env.close()
     chosen = run["agent"]
     returns = chosen["returns"]
+    fit_for_planners(planet_run, work, [planner], config, seed)
     scores = value_planner_scores(planet_run, work, planner, bouts, agent_key(chosen["rounds"], config),
                                   progress, game=game)
     save_agent(work / AGENT_NAME, game, planet_run, bouts, git_commit(), value_run=work, planner=planner)  # for `play`

@@ -22,6 +22,9 @@ VALUE_VARIANTS = Variants(
     Variant("lean-value-rewards-0.7", "lean's value; CEM scores every imagined step by the value's Q, discount 0.7 "
             "(chosen on two seeds' validation bouts)", dict(planner=dict(rewards="value", discount=0.7)),
             builds_on="lean", default=True),
+    Variant("own-rewards", "lean's value; CEM's imagined rewards from the reward head refit on the run's own bouts "
+            "(issue 57: the model taught the fights the planner plans)", dict(planner=dict(reward_head="own")),
+            builds_on="lean"),
     root="scored-rounds")  # the first recipe: its runs keep the experiment's own folders (``seedS``, ``PROFILE-seedS``)
 ROOT = VALUE_VARIANTS.root
 
