@@ -341,6 +341,8 @@ def test_the_reward_head_refit_on_a_run_s_own_bouts_learns_them_once_and_is_what
     with torch.no_grad():
         rewards = value_returns(model, None, belief, state, torch.eye(3)[:, None], imagine="mean")
     assert int(rewards.argmax()) == 1 and float(rewards[1] - rewards[[0, 2]].max()) > 0.5
+    other = RSSM(3, belief_size=16, state_size=4, hidden_size=16, reward_hidden_size=8).eval()  # another model's weights
+    assert own_rewards.own_reward_head(other, tmp_path, 5, config, seed=0)["model"] != record["model"]  # refit for it
     # bad input: a run with no refit head; an unknown head; the own head with the value's rewards
     with pytest.raises(FileNotFoundError, match="own-rewards.pt"):
         own_rewards.with_own_rewards(model, tmp_path / "elsewhere")

@@ -185,7 +185,7 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
     run_jobs(jobs, progress)
     result = {"profile": profile, "seed": seed, "levels": levels, "search": evaluation_record(cfg),
               "env_steps": int(sum(h["env_steps"] for h in run.history)),
-              "training_wall_seconds": round(sum(h.get("wall_seconds", 0.0) for h in run.history), 1),
+              "training_wall_seconds": training_seconds(run.history),
               "machine": machine_name(),
               "rows": {kind: boxoban_row(level_plays(jobs, "pixels", kind), source, load_levels(source))
                        for kind, source in BOXOBAN_SPLITS["report"].items()}}

@@ -29,6 +29,7 @@ from wmthesis.planet.value import LatentValue, episode_features
 from wmthesis.planet.value_rounds import STORE, load_value
 from wmthesis.runs import atomic_path
 from wmthesis.training import gradient_step
+from wmthesis.utils import fingerprint
 
 OWN_REWARDS = "own-rewards.pt"
 REWARD_HEADS = ("planet", "own")  # ValuePlannerConfig.reward_head: the model's own, or refit here
@@ -71,19 +72,20 @@ def refit_reward_head(model: RSSM, features: torch.Tensor, rewards: torch.Tensor
 
 def own_reward_head(model: RSSM, run_dir: str | Path, bits: int, config: LatentValueConfig, seed: int) -> dict:
     """The reward head refit on the bouts of the value run in ``run_dir``, saved there as
-    :data:`OWN_REWARDS` and refit only when the run holds other bouts than it was fitted on.
+    :data:`OWN_REWARDS` and refit only when the run holds other bouts, or the model other weights
+    (their fingerprint), than it was fitted on.
     Returns the saved record: ``state``, ``bouts``, ``fit`` (the error before and after)."""
     run_dir = Path(run_dir)
     with EpisodeStore(run_dir / STORE, "r") as store:
         bouts = len(store)
-    path = run_dir / OWN_REWARDS
+    path, weights = run_dir / OWN_REWARDS, fingerprint(model)
     if path.exists():
         saved = torch.load(path, map_location="cpu", weights_only=True)
-        if saved["bouts"] == bouts:
+        if saved["bouts"] == bouts and saved.get("model") == weights:
             return saved
     features, rewards = reward_dataset(model, run_dir / STORE, bits)
     state, fit = refit_reward_head(model, features, rewards, config, seed)
-    record = {"state": {k: v.cpu() for k, v in state.items()}, "bouts": bouts, "fit": fit}
+    record = {"state": {k: v.cpu() for k, v in state.items()}, "bouts": bouts, "model": weights, "fit": fit}
     with atomic_path(path) as tmp:
         torch.save(record, tmp)
     return record
