@@ -346,6 +346,10 @@ def test_the_reward_head_refit_on_a_run_s_own_bouts_learns_them_once_and_is_what
     # bad input: a run with no refit head; an unknown head; the own head with the value's rewards
     with pytest.raises(FileNotFoundError, match="own-rewards.pt"):
         own_rewards.with_own_rewards(model, tmp_path / "elsewhere")
+    (tmp_path / "corrupt").mkdir()
+    (tmp_path / "corrupt" / own_rewards.OWN_REWARDS).write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="corrupt/own-rewards.pt: not a refit reward head"):
+        own_rewards.with_own_rewards(model, tmp_path / "corrupt")
     with pytest.raises(ValueError, match="reward_head must be one of"):
         own_rewards.check_reward_head(ValuePlannerConfig(reward_head="mine"))
     with pytest.raises(ValueError, match="rewards must be 'model'"):

@@ -80,7 +80,7 @@ def own_reward_head(model: RSSM, run_dir: str | Path, bits: int, config: LatentV
         bouts = len(store)
     path, weights = run_dir / OWN_REWARDS, fingerprint(model)
     if path.exists():
-        saved = torch.load(path, map_location="cpu", weights_only=True)
+        saved = _read(path)
         if saved["bouts"] == bouts and saved.get("model") == weights:
             return saved
     features, rewards = reward_dataset(model, run_dir / STORE, bits)
@@ -97,8 +97,17 @@ def with_own_rewards(model: RSSM, run_dir: str | Path) -> RSSM:
     path = Path(run_dir) / OWN_REWARDS
     if not path.exists():
         raise FileNotFoundError(f"{path}: no reward head refit in this value run (own_reward_head makes it)")
-    model.reward_net.load_state_dict(torch.load(path, map_location="cpu", weights_only=True)["state"])
+    model.reward_net.load_state_dict(_read(path)["state"])
     return model
+
+
+def _read(path: Path) -> dict:
+    """A saved refit head; a file that is not one is an error naming it (delete it to refit)."""
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)
+        return {"state": saved["state"], "bouts": saved["bouts"], "model": saved.get("model"), "fit": saved["fit"]}
+    except Exception as error:  # torch raises several kinds on a truncated or foreign file
+        raise ValueError(f"{path}: not a refit reward head ({type(error).__name__}: {error}); delete it to refit") from error
 
 
 def check_reward_head(planner: ValuePlannerConfig) -> None:
