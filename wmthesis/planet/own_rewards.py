@@ -14,10 +14,8 @@ model's head. ``ValuePlannerConfig.reward_head="own"`` plays CEM with it.
 """
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -25,10 +23,9 @@ from wmthesis.data import EpisodeStore
 from wmthesis.planet.config import LatentValueConfig, PlaNetConfig, ValuePlannerConfig
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.train import load_planet
-from wmthesis.planet.value import LatentValue, episode_features
+from wmthesis.planet.value import LatentValue, episode_features, fit_value
 from wmthesis.planet.value_rounds import STORE, load_value
 from wmthesis.runs import atomic_path
-from wmthesis.training import gradient_step
 from wmthesis.utils import fingerprint
 
 OWN_REWARDS = "own-rewards.pt"
@@ -50,24 +47,20 @@ def reward_dataset(model: RSSM, store_path: str | Path, bits: int) -> tuple[torc
 
 def refit_reward_head(model: RSSM, features: torch.Tensor, rewards: torch.Tensor, config: LatentValueConfig,
                       seed: int) -> tuple[dict, dict]:
-    """A copy of the model's reward head fitted by ``config.fit_updates`` Adam steps (the value's
-    ``batch_size`` and ``lr``) of mean squared error on ``features`` (N, H + S) and ``rewards``
-    (N,). Returns its state dict and the mean squared error on the data before and after."""
-    head = copy.deepcopy(model.reward_net).train()
-    for parameter in head.parameters():
-        parameter.requires_grad_(True)
-    optimizer = torch.optim.Adam(head.parameters(), lr=config.lr)
-    rng = np.random.default_rng(seed)
-    error = lambda: float(F.mse_loss(head(features).squeeze(-1), rewards))  # noqa: E731
+    """A copy of the model's reward head fitted as the value is fitted (:func:`~wmthesis.planet.value.fit_value`:
+    ``config.fit_updates`` Adam steps of mean squared error, the value's ``batch_size`` and ``lr``)
+    on ``features`` (N, H + S) and ``rewards`` (N,): the head has the shape of a one-head
+    :class:`~wmthesis.planet.value.LatentValue`. Returns its state dict and the mean squared error
+    on the data before and after."""
+    head = LatentValue(features.shape[-1], model.reward_net[0].out_features).to(features.device)
+    head.heads[0].load_state_dict(model.reward_net.state_dict())
+    error = lambda: float(F.mse_loss(head(features), rewards))  # noqa: E731
     with torch.no_grad():
         before = error()
-    for update in range(1, config.fit_updates + 1):
-        batch = torch.as_tensor(rng.integers(len(rewards), size=config.batch_size), device=rewards.device)
-        loss = F.mse_loss(head(features[batch]).squeeze(-1), rewards[batch])
-        gradient_step("own reward head", update, {"loss": loss}, optimizer, head.parameters())
+    fit_value(head, features, rewards, config, seed)
     with torch.no_grad():
         after = error()
-    return head.state_dict(), {"before": before, "after": after, "steps": len(rewards)}
+    return head.heads[0].state_dict(), {"before": before, "after": after, "steps": len(rewards)}
 
 
 def own_reward_head(model: RSSM, run_dir: str | Path, bits: int, config: LatentValueConfig, seed: int) -> dict:
