@@ -124,7 +124,7 @@ class ValuePlannerConfig:
     ``docs/findings/planet-boxing-value.md``).
     ``rewards``: the imagined steps' rewards from the model's reward head (``model``, the
     thesis's) or each step scored by the value's Q of its action (``value``); ``reward_head``: the
-    model's reward head as PlaNet trained it (``planet``) or refit on the value run's own bouts
+    model's reward head as PlaNet trained it (None) or refit on the value run's own bouts
     (``own``, :mod:`~wmthesis.planet.own_rewards`; with ``rewards="model"``). ``candidates`` and
     ``iterations`` replace the PlaNet config's where set (a search budget of H x J x I imagined steps
     an action: ``reproduce planning-budget``)."""
@@ -134,7 +134,7 @@ class ValuePlannerConfig:
     imagine: str = "sample"
     value_prior: float = 1.0
     rewards: str = "model"
-    reward_head: str = "planet"
+    reward_head: str | None = None       # None: PlaNet's own reward head; "own": refit (own_rewards)
     candidates: int | None = None        # CEM's candidates J (None: the PlaNet config's)
     iterations: int | None = None        # CEM's iterations I (None: the PlaNet config's)
     # what a run saved before a field was added did, where the field's default has changed since

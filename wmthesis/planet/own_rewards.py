@@ -29,7 +29,7 @@ from wmthesis.runs import atomic_path
 from wmthesis.utils import fingerprint
 
 OWN_REWARDS = "own-rewards.pt"
-REWARD_HEADS = ("planet", "own")  # ValuePlannerConfig.reward_head: the model's own, or refit here
+REWARD_HEADS = (None, "own")  # ValuePlannerConfig.reward_head: PlaNet's own head, or the one refit here
 
 
 @torch.inference_mode()
@@ -127,7 +127,7 @@ def planner_model(planet_run: str | Path, value_run: str | Path | None,
                   planner: ValuePlannerConfig | None) -> tuple[RSSM, PlaNetConfig, LatentValue | None]:
     """The frozen model of ``planet_run``, its config and the value of ``value_run`` (None without
     one, checked against the model as PlaNet trained it); the model with the reward head that
-    ``planner`` plans with: PlaNet's (``reward_head="planet"``) or the one refit in ``value_run``
+    ``planner`` plans with: PlaNet's (``reward_head=None``) or the one refit in ``value_run``
     (``"own"``)."""
     model, planet, _ = load_planet(planet_run)
     value = None if value_run is None else load_value(value_run, model)
