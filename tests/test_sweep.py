@@ -100,6 +100,7 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     for seed, score in enumerate([10.0, 14.0, 21.0]):  # seed 2 was resumed: its first run's time counts
         _write_run(tmp_path, "boxing-wm", seed, score, variant="separable-64",  # the default recipe
+                   machine="vm (x86_64, 2 cores)", threads=2 if seed == 0 else 1,  # seeds 1, 2 on one core each
                    **({"first_run_wall_seconds": 3600.0} if seed == 2 else {}))
     _write_run(tmp_path, "planet-freeway", 0, 23.0, variant="freeway-tuned")
     value = _write_run(tmp_path, "planet-boxing-value", 4, 0.0)  # its headline is the value's score, not "score"
@@ -126,6 +127,7 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert "| World Models on Boxing | 5.4.1 | above 18 on average across 5 runs | 15.0 [1.2, 28.8] (3 seeds) | 93.5 (Simulus" \
         in headline and "[^1]: leor-c/Simulus results/data/atari/Simulus.json" in headline
     assert "| World Models on Sokoban (controller's return) | 5.3 | 0 levels solved | not run yet |" in headline
+    assert "| 02 | 0 with 2 threads, 1-60 with 1 (x86_64, 2 cores) |" in headline  # minutes a seed, by thread count
     csv_lines = (tmp_path / "results" / "summary.csv").read_text().splitlines()
     assert csv_lines[0].startswith("experiment,variant,profile,n,mean,std,ci_low,ci_high")
     assert csv_lines[1].startswith("boxing-wm,separable-64,quick,3,15.0,")

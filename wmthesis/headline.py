@@ -66,14 +66,28 @@ def _ours(row: dict | None) -> str:
 
 
 def _minutes(row: dict | None) -> str:
+    """A row's minutes a seed, ``"51-97 (x86_64, 2 cores)"``; where its seeds ran with different
+    numbers of torch threads, each number's range: ``"51 with 2 threads, 73-97 with 1 (...)"``."""
     if row is None:
         return ""
-    walls = [w for w in row["wall_seconds"] if w is not None]
     machines = sorted(set(row.get("machines", [])) - {None})
-    if not walls:
+    runs = [(w, t) for w, t in zip(row["wall_seconds"], row.get("threads") or [None] * len(row["wall_seconds"]))
+            if w is not None]
+    if not runs:
         return "not recorded"
-    time = f"{min(walls) / 60:.0f}-{max(walls) / 60:.0f}" if len(walls) > 1 else f"{walls[0] / 60:.0f}"
+    counts = sorted({t for _, t in runs}, key=lambda t: -(t or 0))
+    if len(counts) == 1 or None in counts:
+        time = _range([w for w, _ in runs])
+    else:
+        time = ", ".join(f"{_range([w for w, t in runs if t == n])} with {n}" + (" threads" if k == 0 else "")
+                         for k, n in enumerate(counts))
     return f"{time}" + (f" ({'; '.join(machines)})" if machines else "")
+
+
+def _range(walls: list[float]) -> str:
+    """Wall times in seconds as minutes: ``"51"`` or ``"73-97"``."""
+    low, high = f"{min(walls) / 60:.0f}", f"{max(walls) / 60:.0f}"
+    return low if low == high else f"{low}-{high}"
 
 
 def headline_rows(rows: list[dict], profile: str = "quick") -> list[dict]:

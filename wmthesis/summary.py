@@ -50,7 +50,7 @@ BOUNDS = {"sokoban-search": (0.0, 100.0)}
 
 class Run(NamedTuple):
     """One run's headline: which experiment, variant (None: it has none), profile and seed, its
-    score, wall time and file."""
+    score, wall time and file, the kind of machine and the torch threads it ran with."""
     experiment: str
     variant: str | None
     profile: str
@@ -59,6 +59,7 @@ class Run(NamedTuple):
     wall_seconds: float | None
     path: str
     machine: str | None = None
+    threads: int | None = None
 
 
 def run_scores(metrics: dict) -> dict[str | None, float]:
@@ -110,11 +111,11 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             warnings.warn(f"{path.parent}: skipped, written by variant {gone[0]!r}, no longer in the code (its numbers: "
                           f"{registry.findings})", stacklevel=2)
             continue
-        machine = machine_kind(metrics.get("machine"))
+        machine, threads = machine_kind(metrics.get("machine")), metrics.get("threads")
         if header[1] in VALIDATION_SEEDS.get(metrics["experiment"], ()):  # the choice's evidence: a row apart
             scores = {f"{variant or 'first recipe'}, validation seeds": score for variant, score in scores.items()}
         for variant, score in scores.items():
-            run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine)
+            run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine, threads)
             runs[run[:4]] = run
     for run in report_runs(folder):
         runs[run[:4]] = run
@@ -164,7 +165,8 @@ def summarise(runs: list[Run]) -> list[dict]:
              "measure": MEASURE.get(experiment, DEFAULT_MEASURE),
              **aggregate([r.score for r in group], BOUNDS.get(experiment)),
              "seeds": [r.seed for r in group], "scores": [r.score for r in group],
-             "wall_seconds": [r.wall_seconds for r in group], "machines": [r.machine for r in group]}
+             "wall_seconds": [r.wall_seconds for r in group], "machines": [r.machine for r in group],
+             "threads": [r.threads for r in group]}
             for (experiment, variant, profile), group in groups.items()]
 
 
