@@ -71,16 +71,16 @@ def _minutes(row: dict | None) -> str:
     if row is None:
         return ""
     machines = sorted(set(row.get("machines", [])) - {None})
-    runs = [(w, t) for w, t in zip(row["wall_seconds"], row.get("threads") or [None] * len(row["wall_seconds"]))
-            if w is not None]
+    threads = row.get("threads") or [None] * len(row["wall_seconds"])
+    runs = [(w, t) for w, t in zip(row["wall_seconds"], threads) if w is not None]
     if not runs:
         return "not recorded"
-    counts = sorted({t for _, t in runs}, key=lambda t: -(t or 0))
+    counts = {t for _, t in runs}
     if len(counts) == 1 or None in counts:
         time = _range([w for w, _ in runs])
-    else:
+    else:  # the most threads first: "51 with 2 threads, 73-97 with 1"
         time = ", ".join(f"{_range([w for w, t in runs if t == n])} with {n}" + (" threads" if k == 0 else "")
-                         for k, n in enumerate(counts))
+                         for k, n in enumerate(sorted(counts, reverse=True)))
     return f"{time}" + (f" ({'; '.join(machines)})" if machines else "")
 
 
