@@ -24,6 +24,9 @@ from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plan
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
 from wmthesis.runs import hold, played_bouts, releasing_holds
 
+REFERENCES = {"human": human(GAME), "thesis PlaNet (around 30)": THESIS_PLANET_BOXING_SCORE}  # lines in its figures
+
+
 @releasing_holds
 def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str | None = None,
                         progress: bool = True) -> dict:
@@ -52,10 +55,9 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
         start_from(work, value_folder(profile, seed, chosen.builds_on))
     discount = {"discount": config.discount} if config.target != "reward-sum" else {}
     planner = for_profile(ValuePlannerConfig, profile, **{**discount, **VALUE_VARIANTS.changes(chosen.name, "planner")})
-    references = {"human": human(GAME), "thesis PlaNet (around 30)": THESIS_PLANET_BOXING_SCORE}
     return fit_and_compare("planet-boxing-value", GAME, planet_run, work, out, config, planner,
                            {"random": agent["random"], "planet": agent["agent"]}, agent["bouts"], profile=profile,
-                           seed=seed, progress=progress, references=references, variant=VALUE_VARIANTS.folder_name(chosen.name), started=started)
+                           seed=seed, progress=progress, references=REFERENCES, variant=VALUE_VARIANTS.folder_name(chosen.name), started=started)
 
 
 def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True,
@@ -140,5 +142,5 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     return results
 
 
-__all__ = ["planet_boxing_value", "value_plan_choices", "validate_planners", "PLANNER_LEVERS", "LEVER_BOUTS",
+__all__ = ["planet_boxing_value", "REFERENCES", "value_plan_choices", "validate_planners", "PLANNER_LEVERS", "LEVER_BOUTS",
            "AGENT_RULES", "validate_agents"]

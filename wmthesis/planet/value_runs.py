@@ -102,12 +102,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     scores = value_planner_scores(planet_run, work, planner, bouts, agent_key(chosen["rounds"], config),
                                   progress, game=game)
     save_agent(work / AGENT_NAME, game, planet_run, bouts, git_commit(), value_run=work, planner=planner)  # for `play`
-    lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in baselines.items()}
-    lines.update({f"CEM, H{planner.horizon}, with the value at its end": scores["full"]["mean"], **references})
     value, unit = score_summary(returns), "bouts" if game == "boxing" else "episodes"
-    figure = save_figure(learning_curve_figure(_value_curves(run["curve"], chosen, value), references=lines, x="episodes",
-                                               title=f"{game.capitalize()}: the value agent after each round"),
-                         out / "value_curve.png")
     seconds = time.time() - started
     metrics = {**run_header(experiment, profile, seed, seconds, env=game,
                              **({} if variant is None else {"variant": variant})),
@@ -123,15 +118,27 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                              for name, b in baselines.items()},
                "bouts": [list(b) for b in bouts], "curve": run["curve"], "best_round": run["best_round"],
                "agent_rounds": chosen["rounds"],
-               "config": dataclasses.asdict(config), "files": {"figures": [str(figure)]}}
+               "config": dataclasses.asdict(config)}
+    metrics["files"] = {"figures": [str(save_figure(value_curve_figure(metrics, references), out / "value_curve.png"))]}
     write_json(out / "metrics.json", metrics)
     return metrics
 
 
-def _value_curves(curve: list[dict], agent: dict, value: dict) -> dict[str, dict]:
-    """The rounds that were scored (a lean run scores none) and the agent, when it is a mean of
-    rounds, as :func:`~wmthesis.planet.figures.learning_curve_figure`'s curves."""
-    rounds = agent["rounds"]
+def value_curve_figure(metrics: dict, references: dict[str, float]):
+    """The value agent after each round of a value run (its ``metrics``, :func:`fit_and_compare`'s):
+    the rounds that were scored, the agent where it is a mean of rounds, and as lines the baselines,
+    CEM with the value and ``references`` (label -> score)."""
+    planner = metrics["value_planner"]
+    lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in metrics["baselines"].items()}
+    lines.update({f"CEM, H{planner['config']['horizon']}, with the value at its end": planner["full"]["mean"], **references})
+    return learning_curve_figure(_value_curves(metrics["curve"], metrics["agent_rounds"], metrics["value"]),
+                                 references=lines, x="episodes",
+                                 title=f"{metrics['env'].capitalize()}: the value agent after each round")
+
+
+def _value_curves(curve: list[dict], rounds: list[int], value: dict) -> dict[str, dict]:
+    """The rounds that were scored (a lean run scores none) and the agent, when it is the mean of
+    ``rounds``, as :func:`~wmthesis.planet.figures.learning_curve_figure`'s curves."""
     curves = {"latent value on the PlaNet model": {"test": [entry for entry in curve if "mean" in entry]}}
     if len(rounds) > 1:
         curves[f"the mean of rounds {rounds[0]}-{rounds[-1]}"] = {
@@ -197,5 +204,5 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "agent_key", "checked_levers", "compare_plans", "fit_and_compare",
+__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "agent_key", "checked_levers", "compare_plans", "fit_and_compare", "value_curve_figure",
            "lever_scores", "slug", "start_from"]
