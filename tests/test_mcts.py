@@ -65,12 +65,6 @@ class LineMDP:
         return False
 
 
-class ThreeLine(LineMDP):
-    """:class:`LineMDP` with three actions."""
-
-    action_space = gym.spaces.Discrete(3)
-
-
 class ChainEnv(gym.Env):
     """The gymnasium twin of :class:`ChainMDP` (reward 1 on reaching the end)."""
 
@@ -309,35 +303,8 @@ def test_root_actions_keep_the_root_to_its_most_probable_actions_however_many_si
     np.testing.assert_array_equal(most_probable(np.array([0.2, 0.5, 0.2, 0.1]), 2), [True, True, False, False])
 
 
-def test_root_halving_plays_the_prior_on_a_small_budget_and_the_big_reward_on_a_large_one():
-    """Gumbel MuZero's root: with one simulation it plays the prior's choice; with enough it finds
-    the big reward behind the least probable action (the Q it earned outweighs the prior), every
-    budget spent exactly, only the m most probable actions visited, and the policy it returns is
-    the prior moved towards that action."""
-    priors = lambda state: (np.array([0.6, 0.3, 0.1]) if state == () else np.ones(3), 0.0)  # noqa: E731
-    for n in (1, 2):
-        counts, info = search(TreeMDP(small=0.1, big=1.0), priors, (), n, gamma=0.9, root_halving=3)
-        assert info["chosen"] == 0 and info["simulations"] == n
-    counts, info = search(TreeMDP(small=0.1, big=1.0), priors, (), 200, gamma=0.9, root_halving=3)
-    assert info["chosen"] == 2 and info["simulations"] == 200
-    assert counts.sum() == pytest.approx(1.0) and counts[2] > 0.1  # above its prior
-    _, two = search(TreeMDP(small=0.1, big=1.0), priors, (), 200, gamma=0.9, root_halving=2)
-    assert two["chosen"] == 0 and np.isnan(two["q"][2])  # outside the top 2: never visited
-    _, puct = search(TreeMDP(small=0.1, big=1.0), priors, (), 200, gamma=0.9)
-    assert puct["chosen"] is None  # under PUCT the visits decide
-
-
-def test_root_halving_samples_its_candidates_with_gumbel_noise_while_training():
-    """While training the root's candidates are drawn by Gumbel top-k, so a seeded search plays
-    the less probable actions too, in proportion to their priors (no Dirichlet noise beside)."""
-    priors = lambda state: (np.array([0.6, 0.3, 0.1]), 0.0)  # noqa: E731
-    mcts = MCTS(ThreeLine(), priors, n_simulations=1, root_halving=1, noise_ratio=0.0, seed=0)
-    chosen = [mcts.plan(0, train_mode=True, debug_mode=True)[1]["chosen"] for _ in range(600)]
-    np.testing.assert_allclose(np.bincount(chosen, minlength=3) / 600, [0.6, 0.3, 0.1], atol=0.06)
-
-
 @pytest.mark.parametrize("option", [dict(n_simulations=0), dict(timeout=0.0), dict(c=-1.0), dict(max_depth=0),
-                                    dict(root_actions=0), dict(root_halving=0),
+                                    dict(root_actions=0),
                                     dict(gamma=1.5), dict(dirichlet_alpha=0.0), dict(noise_ratio=2.0)])
 def test_invalid_options_raise(option):
     with pytest.raises(ValueError):

@@ -18,7 +18,7 @@ class AlphaZeroConfig:
     agent steps), the no-op starts (as the controller's evaluation), greedy tests every
     ``test_every`` games, ``eval_episodes`` after training (of ``eval_max_steps``). Beyond the
     thesis: ``search_depth`` and ``root_actions`` (:class:`~wmthesis.alphazero.mcts.MCTS`'s
-    ``max_depth``, ``root_actions`` and ``root_halving``) and ``decision_beta`` (greedy games choose by
+    ``max_depth`` and ``root_actions``) and ``decision_beta`` (greedy games choose by
     :func:`~wmthesis.alphazero.selfplay.prior_and_q`, not by visit counts); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
     (equal visit counts go to the higher root Q, not to the first action),
     ``value_target="n-step"`` (``n_step``-step bootstrapped targets instead of ``"monte-carlo"``
@@ -45,7 +45,6 @@ class AlphaZeroConfig:
     search_depth: int | None = None      # beyond the thesis: the tree grows at most this many edges deep
     root_actions: int | None = None      # beyond the thesis: the root chooses among its k most probable actions
     decision_beta: float | None = None   # beyond the thesis: greedy games play argmax log P + beta (Q - V), not the most visited
-    root_halving: int | None = None      # beyond the thesis: Gumbel MuZero's root, sequential halving over k actions
     gamma: float = 0.99
     dirichlet_alpha: float = 0.3
     noise_ratio: float = 0.25

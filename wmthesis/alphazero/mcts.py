@@ -51,7 +51,6 @@ import numpy as np
 from wmthesis.core import MDP, Callback, Mind, Transition
 
 Evaluator = Callable[[Any], tuple[Any, float]]
-GUMBEL_C_VISIT, GUMBEL_C_SCALE = 50.0, 0.1  # Gumbel MuZero's sigma (Danihelka et al. 2022, as mctx)
 
 
 class Node:
@@ -88,9 +87,6 @@ class MCTS(Mind, Callback):
     them), as Gumbel MuZero's root considers only its top-k sampled actions: more simulations
     then estimate those k actions better instead of finding an unlikely action whose learned value
     or reward the model gets wrong (the optimiser's curse; ``docs/findings/planning-budget.md``).
-    ``root_halving`` = m replaces the root's PUCT by Gumbel MuZero's sequential halving over m
-    actions (:meth:`_halve`): ``plan`` then returns the improved policy, and ``info["chosen"]``
-    the action to play (None under PUCT, where the visits decide).
 
     As a callback it forgets the tree when an episode starts and follows the action taken
     after each step (:meth:`advance`); register it in ``loop(..., callbacks=[mcts])`` to reuse
@@ -101,13 +97,13 @@ class MCTS(Mind, Callback):
     def __init__(self, mdp: MDP, evaluator: Evaluator, *, c: float = 1.0, n_simulations: int = 50,
                  timeout: float | None = None, gamma: float = 0.99, dirichlet_alpha: float = 0.3,
                  noise_ratio: float = 0.25, normalize_q: bool = False, reuse_tree: bool = True,
-                 max_depth: int | None = None, root_actions: int | None = None, root_halving: int | None = None,
+                 max_depth: int | None = None, root_actions: int | None = None,
                  seed: int | np.random.SeedSequence | None = None):
         _check_options(c, n_simulations, timeout, gamma, dirichlet_alpha, noise_ratio)
-        for name, value in (("max_depth", max_depth), ("root_actions", root_actions), ("root_halving", root_halving)):
+        for name, value in (("max_depth", max_depth), ("root_actions", root_actions)):
             if value is not None and value < 1:
                 raise ValueError(f"{name} must be >= 1 or None, got {value}")
-        self.max_depth, self.root_actions, self.root_halving = max_depth, root_actions, root_halving
+        self.max_depth, self.root_actions = max_depth, root_actions
         self.mdp, self.evaluator = mdp, evaluator
         self.n_actions = int(mdp.action_space.n)
         self.c, self.n_simulations, self.timeout, self.gamma = c, int(n_simulations), timeout, gamma
@@ -133,18 +129,6 @@ class MCTS(Mind, Callback):
         if train_mode and not root.terminal and self.noise_ratio > 0:
             noise = self.rng.dirichlet(np.full(self.n_actions, self.dirichlet_alpha))
             root.P = (1 - self.noise_ratio) * root.P + self.noise_ratio * noise
-        if self.root_halving is not None and not root.terminal:
-            counts, chosen, simulations, deepest = self._halve(root, train_mode, deadline)
-        else:
-            counts, chosen, simulations, deepest = self._puct(root, deadline)
-        if not debug_mode:
-            return counts
-        return counts, {**self._info(root, simulations, deepest, time.perf_counter() - start, reused), "chosen": chosen}
-
-    def _puct(self, root: Node, deadline: float) -> tuple[np.ndarray, None, int, int]:
-        """AlphaZero's search: simulations from ``root`` until the budget or the clock runs out.
-        Returns the root visit counts (A,) (0 outside ``root_actions``), None (the visits decide),
-        the simulations run and the deepest path."""
         allowed = None if root.terminal or self.root_actions is None else most_probable(root.P, self.root_actions)
         simulations, deepest = 0, 0
         while True:
@@ -154,53 +138,9 @@ class MCTS(Mind, Callback):
             if simulations >= self.n_simulations or time.perf_counter() >= deadline:
                 break
         counts = np.zeros(self.n_actions) if root.terminal else root.N * (1.0 if allowed is None else allowed)
-        return counts, None, simulations, deepest
-
-    def _halve(self, root: Node, train_mode: bool, deadline: float) -> tuple[np.ndarray, int, int, int]:
-        """Gumbel MuZero's root (Danihelka et al. 2022): the ``root_halving`` = m actions of
-        highest ``g + log P`` (g Gumbel noise while training, 0 in greedy games) share the budget
-        by sequential halving: ceil(log2 m) phases, each giving every remaining action an equal
-        share of what is left, then keeping the better half by ``g + log P + sigma(Q)``
-        (:meth:`_sigma`). Below the root the search is PUCT's. Returns the improved policy
-        ``softmax(log P + sigma(Q))`` (A,) (the policy target), the action chosen (the best
-        remaining), the simulations run and the deepest path. A prior better than its Q gains,
-        and Q gains on the prior only as its visits grow, at every budget."""
-        logits = np.log(np.maximum(root.P, 1e-12))
-        g = self.rng.gumbel(size=self.n_actions) if train_mode else np.zeros(self.n_actions)
-        m = min(self.root_halving, self.n_actions, self.n_simulations)
-        remaining = np.argsort(-(g + logits), kind="stable")[:m]
-        phases = max(1, math.ceil(math.log2(m)))
-        simulations, deepest = 0, 0
-        for phase in range(phases):
-            share = max(1, (self.n_simulations - simulations) // ((phases - phase) * len(remaining)))
-            for _ in range(share):
-                for action in remaining:
-                    if simulations >= self.n_simulations or time.perf_counter() >= deadline:
-                        break
-                    path, value = self._simulate(root, np.arange(self.n_actions) == action)
-                    self._backup(path, value)
-                    simulations, deepest = simulations + 1, max(deepest, len(path))
-            score = (g + logits + self._sigma(root))[remaining]
-            remaining = remaining[np.argsort(-score, kind="stable")[:max(1, len(remaining) // 2)]]
-        improved = logits + self._sigma(root)
-        policy = np.exp(improved - improved.max())
-        return policy / policy.sum(), int(remaining[0]), simulations, deepest
-
-    def _sigma(self, node: Node) -> np.ndarray:
-        """Gumbel MuZero's ``sigma(q) = (c_visit + max_a N(a)) * c_scale * q`` (c_visit 50, c_scale
-        0.1) of the node's completed Q (A,): Q where visited, else the value mixed from the
-        evaluator's V and the prior-weighted Q of the visited actions; min-max scaled over the
-        node's actions (0 while they are all equal)."""
-        visited = node.N > 0
-        if visited.any():
-            mean_q = (node.P[visited] @ node.Q[visited]) / max(node.P[visited].sum(), 1e-12)
-            mixed = (node.value + node.visits * mean_q) / (1 + node.visits)
-        else:
-            mixed = node.value
-        completed = np.where(visited, node.Q, mixed)
-        span = completed.max() - completed.min()
-        scaled = (completed - completed.min()) / span if span > 0 else np.zeros_like(completed)
-        return (GUMBEL_C_VISIT + node.N.max()) * GUMBEL_C_SCALE * scaled
+        if not debug_mode:
+            return counts
+        return counts, self._info(root, simulations, deepest, time.perf_counter() - start, reused)
 
     def _query_tree(self, state) -> tuple[Node, bool]:
         """The root for ``state``: the subtree kept by :meth:`advance` with its state replaced

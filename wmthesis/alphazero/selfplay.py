@@ -109,7 +109,7 @@ class AlphaZeroMind(Mind, Callback):
         self.mcts = MCTS(self.mdp, self.evaluator, c=cfg.c, n_simulations=cfg.simulations, timeout=cfg.timeout,
                          gamma=cfg.gamma, dirichlet_alpha=cfg.dirichlet_alpha, noise_ratio=cfg.noise_ratio,
                          normalize_q=cfg.normalize_q, reuse_tree=cfg.reuse_tree, max_depth=cfg.search_depth,
-                         root_actions=cfg.root_actions, root_halving=cfg.root_halving, seed=seed)
+                         root_actions=cfg.root_actions, seed=seed)
         self.index = index
 
     @torch.inference_mode()
@@ -136,8 +136,6 @@ class AlphaZeroMind(Mind, Callback):
         scores = counts + tie_breaker(info["q"]) if self.config.tie_break == "q" else counts
         if not train_mode and self.config.decision_beta is not None:
             scores = prior_and_q(info["priors"], info["q"], info["root_value"], self.config.decision_beta)
-        if info["chosen"] is not None:  # Gumbel MuZero's root chose (its noise samples while training)
-            scores = np.eye(len(counts))[info["chosen"]]
         return (scores, info) if debug_mode else scores
 
     def on_episode_start(self, episode: int, train_mode: bool) -> None:
