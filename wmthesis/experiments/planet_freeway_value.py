@@ -50,6 +50,7 @@ from wmthesis.variants import Variant, Variants
 from wmthesis.viz import save_figure
 
 GAME, VARIANT = "freeway", "freeway-tuned"
+REFERENCES = {"human": human(GAME)}  # lines in its figures
 FREEWAY_VALUE = dict(target="discounted-sum", reward_steps=150, discount=0.97)
 EPISODES = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation episodes
 UP = 1  # Freeway's actions: NOOP, UP, DOWN
@@ -166,9 +167,8 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, variant: str
     bouts = [evaluation_seeds(seed, k) for k in range(EPISODES[profile])]
     baselines = baseline_scores(planet_run, bouts, work, progress)
     planner = for_profile(ValuePlannerConfig, profile, discount=config.discount, **changes.get("planner", {}))
-    references = {"human": human(GAME)}
     return fit_and_compare("planet-freeway-value", GAME, planet_run, work, out, config, planner, baselines, bouts,
-                           profile=profile, seed=seed, progress=progress, references=references, variant=variant,
+                           profile=profile, seed=seed, progress=progress, references=REFERENCES, variant=variant,
                            started=started)
 
 
@@ -374,4 +374,4 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
 
 
 __all__ = ["planet_freeway_value", "value_folders", "model_variant", "base_variant", "value_variant", "validate_planners",
-           "PLANNER_LEVERS", "LEVER_EPISODES", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "hold_back_shares", "LOOKAHEAD_HORIZONS", "LOOKAHEAD_EPISODES", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT"]
+           "PLANNER_LEVERS", "LEVER_EPISODES", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "hold_back_shares", "LOOKAHEAD_HORIZONS", "LOOKAHEAD_EPISODES", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT", "REFERENCES"]
