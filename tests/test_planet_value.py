@@ -2,6 +2,7 @@
 transition, and a known answer: in a game where action 1 pays one step later than it is taken
 plus one, the value agent learns to take it, and a run resumes where it stopped."""
 import dataclasses
+import json
 
 import gymnasium as gym
 import numpy as np
@@ -413,3 +414,23 @@ def test_a_model_on_the_gpu_plays_its_bouts_in_this_process_and_learns_as_on_the
     run = train_value(model, 5, env, config, tmp_path, seed=0, progress=False, make_env=(DelayedPunch,))
     assert run["agent"]["rounds"] == [1, 2] and run["agent"]["returns"] == [22.0] * 3  # always punching
     assert next(load_value(tmp_path, model).parameters()).is_cuda
+
+
+def test_the_value_curve_is_drawn_from_a_run_s_metrics_alone():
+    """A value run's figure comes from its metrics as ``metrics.json`` holds them (what a fresh
+    clone has): the scored rounds as the line, the agent as the mean of its rounds, and the
+    baselines, CEM with the value and the references as labelled lines at their scores."""
+    from wmthesis.planet.value_runs import value_curve_figure
+
+    full = lambda mean: {"full": {"mean": mean}}  # noqa: E731
+    metrics = {"env": "boxing", "agent_rounds": [2, 3], "value": {"mean": 7.0, "std": 1.0},
+               "curve": [{"round": 0, "episodes": 0, "loss": 1.0}, {"round": 1, "episodes": 20, "mean": 4.0, "std": 2.0},
+                         {"round": 2, "episodes": 40, "mean": 6.0, "std": 2.0}, {"round": 3, "episodes": 60, "loss": 0.5}],
+               "baselines": {"random": full(-1.0), "planet": full(2.0)},
+               "value_planner": {"config": {"horizon": 3}, **full(9.0)}}
+    ax = value_curve_figure(json.loads(json.dumps(metrics)), {"human": 12.1}).axes[0]
+    scored, agent = (line for line in ax.lines if line.get_marker() == ".")
+    assert list(scored.get_xdata()) == [20, 40] and list(scored.get_ydata()) == [4.0, 6.0]
+    assert list(agent.get_xdata()) == [60] and list(agent.get_ydata()) == [7.0]
+    labels = {t.get_text(): t.xy[1] for t in ax.texts}
+    assert labels == {"random play": -1.0, "PlaNet (CEM)": 2.0, "CEM, H3, with the value at its end": 9.0, "human": 12.1}
