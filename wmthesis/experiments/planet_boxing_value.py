@@ -19,8 +19,8 @@ from wmthesis.planet.value_play import validation_seeds
 from wmthesis.planet.value_rounds import agent_rounds, round_values
 from wmthesis.planet.value_variants import (GAME, VALUE_VARIANTS, results_folder, value_folder,
                                             value_run)
-from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, lever_scores, slug,
-                                        start_from)
+from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, frozen_agent,
+                                        lever_scores, slug, start_from)
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
 from wmthesis.runs import hold, played_bouts, releasing_holds
 
@@ -45,8 +45,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
     chosen = VALUE_VARIANTS.check(variant)  # its folders: value_folder, results_folder (None: the default)
     profile = profile_name(profile)
     started = time.time()
-    agent = run_store.built_on("planet-boxing-agent", profile, seed, progress=progress)
-    planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
+    agent, planet_run = frozen_agent("planet-boxing-agent", profile, seed, progress=progress)  # the shipped one, or trained
     work = hold(value_folder(profile, seed, chosen.name))
     out = results_folder(profile, seed, chosen.name)
     config = for_profile(LatentValueConfig, profile, test_bouts=len(agent["bouts"]),

@@ -14,6 +14,7 @@ import os
 from pathlib import Path
 from typing import NamedTuple
 
+from torch import nn
 
 from wmthesis.planet.agent import play_greedy
 from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
@@ -29,6 +30,18 @@ FORMAT = "wmthesis-planet-agent"
 FORMAT_VERSION = 1
 AGENT_NAME = "agent.pt"
 DECODER = "decoder."  # the observation model's keys in the RSSM's state: not shipped
+
+
+class NoDecoder(nn.Module):
+    """Where a shipped model's observation decoder was: decoding raises an error naming the file."""
+
+    def __init__(self, path: Path):
+        super().__init__()
+        self.path = str(path)
+
+    def forward(self, features):
+        raise RuntimeError(f"{self.path} ships no observation decoder (planning never decodes): "
+                           "train the PlaNet run here to decode frames")
 
 
 class Agent(NamedTuple):
@@ -66,6 +79,7 @@ def load_agent(path: str | os.PathLike) -> Agent:
     missing, unexpected = model.load_state_dict(saved["model"], strict=False)
     if unexpected or any(not k.startswith(DECODER) for k in missing):
         raise ValueError(f"{path}: its model does not fit the RSSM (missing {missing}, unexpected {unexpected})")
+    model.decoder = NoDecoder(path)
     value, planner = None, None
     if saved["value"] is not None:
         v = saved["value"]

@@ -367,9 +367,17 @@ def _load_checkpoint(path: Path, model, optimizer, run: _RunState, env_name, see
 
 def load_planet(run_dir) -> tuple[RSSM, PlaNetConfig, dict]:
     """The trained model (eval mode), its config and the checkpoint's metadata (``env``,
-    ``seed``, ``updates``, ``episodes``, ``curve``) from a run folder."""
+    ``seed``, ``updates``, ``episodes``, ``curve``) from a run folder. A folder without a
+    checkpoint that holds the run's agent file (what ships, :mod:`~wmthesis.planet.agent_file`)
+    gives that agent's model, its observation decoder left behind (enough to plan and to fit a
+    value on, not to decode), with ``shipped`` (the file) as its metadata."""
     path = Path(run_dir) / CHECKPOINT
     if not path.exists():
+        from wmthesis.planet.agent_file import AGENT_NAME, load_agent  # it builds on this module
+
+        if (Path(run_dir) / AGENT_NAME).is_file():
+            agent = load_agent(Path(run_dir) / AGENT_NAME)
+            return agent.model, agent.planet, {"shipped": str(Path(run_dir) / AGENT_NAME)}
         raise FileNotFoundError(f"{path}: no PlaNet checkpoint (train with train_planet first)")
     state = torch.load(path, map_location=device(), weights_only=False)
     config = PlaNetConfig(**state["config"])

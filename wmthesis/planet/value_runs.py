@@ -19,15 +19,29 @@ from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
 from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.figures import learning_curve_figure, plan_choices_figure
 from wmthesis.planet.own_rewards import fit_for_planners
-from wmthesis.planet.train import load_planet, make_planet_env
+from wmthesis.planet.train import CHECKPOINT as PLANET_CHECKPOINT, load_planet, make_planet_env
 from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value_planners_scores
 from wmthesis.planet.value_planner import PLANNERS, plan_choices
 from wmthesis.planet.value_rounds import CHECKPOINT, STORE, load_value, train_value
-from wmthesis.runs import atomic_path, first_run_seconds, run_header, write_json
+from wmthesis import runs as run_store
+from wmthesis.runs import atomic_path, first_run_seconds, read_json, run_header, write_json
 from wmthesis.stamp import git_commit
 from wmthesis.training import with_added_defaults
 from wmthesis.utils import check_choice
 from wmthesis.viz import image_grid, save_figure
+
+
+def frozen_agent(experiment: str, profile: str, seed: int, variant: str | None = None,
+                 progress: bool = True) -> tuple[dict, Path]:
+    """The metrics and work folder of the PlaNet run (``experiment``'s ``variant``) a value is
+    fitted on: the agent that ships where its training checkpoint is not here (its agent file and
+    committed metrics: a fresh clone fits a value without training PlaNet again), else the run,
+    made first or resumed (:func:`~wmthesis.runs.built_on`)."""
+    work = run_store.work_folder(profile, experiment, seed, variant)
+    metrics = read_json(run_store.results_folder(experiment, profile, seed, variant) / "metrics.json")
+    if metrics is None or (work / PLANET_CHECKPOINT).exists() or not (work / AGENT_NAME).is_file():
+        metrics = run_store.built_on(experiment, profile, seed, variant, progress)
+    return metrics, work
 
 
 def checked_levers(kind: str, names: tuple[str, ...] | None, choices: dict, count: int | None,
@@ -204,5 +218,5 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "agent_key", "checked_levers", "compare_plans", "fit_and_compare", "value_curve_figure",
+__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "agent_key", "checked_levers", "compare_plans", "fit_and_compare", "frozen_agent", "value_curve_figure",
            "lever_scores", "slug", "start_from"]
