@@ -2,6 +2,7 @@
 refuses what it cannot do before anything loads or plays."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -123,3 +124,37 @@ def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path
     cem = reproduce("planet-boxing-agent", "smoke", 0, progress=False)  # the model's own agent (made first, cached)
     alone = play_module.play("planet-boxing-agent", profile="smoke", bouts=2, on_play=lambda line: None)
     assert [p["return"] for p in alone["plays"]] == cem["agent"]["returns"][:2]
+    saved = torch.load(path, weights_only=False)  # rides on the PlaNet agent's file; the value in half precision
+    assert saved["model"] == {} and saved["model_file"]["path"] == str(Path("..", "..", "planet-boxing-agent", "seed0", "agent.pt"))
+    assert {t.dtype for t in saved["value"]["state"].values()} == {torch.float16}
+    base = tmp_path / "smoke" / "planet-boxing-agent" / "seed0" / "agent.pt"
+    base.write_bytes(base.read_bytes() + b"changed")
+    with pytest.raises(ValueError, match="not the file it was fitted on"):
+        load_agent(path)
+
+
+def test_a_fresh_clone_fits_a_value_on_the_planet_agent_that_ships(tmp_path, monkeypatch):
+    """Where a PlaNet run's agent file and metrics ship but its checkpoint is not here, a value
+    builds on that agent (no PlaNet training), whose model plans but refuses to decode."""
+    import wmthesis.runs as run_store
+    from wmthesis.experiments import reproduce
+    from wmthesis.planet.train import load_planet
+    from wmthesis.planet.value_runs import frozen_agent
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path / "trained"))
+    metrics = reproduce("planet-boxing-agent", "smoke", 0, progress=False)
+    clone = tmp_path / "clone"
+    for part in ("smoke/planet-boxing-agent/seed0/agent.pt", "results/planet-boxing-agent/smoke-seed0/metrics.json"):
+        (clone / part).parent.mkdir(parents=True)
+        (clone / part).write_bytes((tmp_path / "trained" / part).read_bytes())
+    monkeypatch.setenv("WMTHESIS_DATA", str(clone))
+    monkeypatch.setattr(run_store, "built_on", lambda *args, **kwargs: pytest.fail("PlaNet trained again"))
+    found, work = frozen_agent("planet-boxing-agent", "smoke", 0)
+    assert found == json.loads(json.dumps(metrics)) and work == clone / "smoke" / "planet-boxing-agent" / "seed0"
+    model, _, meta = load_planet(work)
+    assert meta == {"shipped": str(work / "agent.pt")}
+    belief, state = torch.zeros(1, model.belief_size), torch.zeros(1, model.state_size)
+    trained, _, _ = load_planet(tmp_path / "trained" / "smoke" / "planet-boxing-agent" / "seed0")
+    assert torch.equal(model.reward(belief, state), trained.reward(belief, state))
+    with pytest.raises(RuntimeError, match="agent.pt ships no observation decoder"):
+        model.decode(belief, state)

@@ -10,10 +10,12 @@ version.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 from pathlib import Path
 from typing import NamedTuple
 
+import torch
 from torch import nn
 
 from wmthesis.planet.agent import play_greedy
@@ -59,24 +61,46 @@ def save_agent(path: str | os.PathLike, game: str, planet_run: Path, bouts: list
                value_run: Path | None = None, planner: ValuePlannerConfig | None = None) -> Path:
     """Write the agent of the PlaNet run in ``planet_run`` (with the chosen value of the value run
     in ``value_run`` and CEM ``planner`` ending in it, where given) for ``game`` to ``path``,
-    atomically, with the ``bouts`` ((env seed, mind seed) pairs) it was scored on; returns the path."""
+    atomically, with the ``bouts`` ((env seed, mind seed) pairs) it was scored on; returns the path.
+    A value's agent names the PlaNet run's own agent file (its SHA-256 checked when read) and keeps
+    only the model's weights that differ from it (a refit reward head), the value in half precision."""
+    path = Path(path)
     model, planet, value = planner_model(planet_run, value_run, planner)  # with the reward head it plans with
+    state = {k: v for k, v in model.state_dict().items() if not k.startswith(DECODER)}
+    base = Path(planet_run) / AGENT_NAME
+    shared = {} if value is None or not base.is_file() else load_agent(base).model.state_dict()
     return save_agent_file(
         path, FORMAT, FORMAT_VERSION, game=game, n_actions=model.n_actions, planet=dataclasses.asdict(planet),
         bouts=[list(map(int, b)) for b in bouts], commit=commit,
-        model={k: v for k, v in model.state_dict().items() if not k.startswith(DECODER)},
-        value=None if value is None else {"state": value.state_dict(), "hidden": value.heads[0][0].out_features,
-                                          "heads": len(value.heads), "log": value.log},
+        model={k: v for k, v in state.items() if k not in shared or not torch.equal(v, shared[k])},
+        model_file=None if not shared else {"path": os.path.relpath(base, path.parent), "sha256": sha256(base)},
+        value=None if value is None else {"state": {k: v.half() for k, v in value.state_dict().items()},
+                                          "hidden": value.heads[0][0].out_features, "heads": len(value.heads),
+                                          "log": value.log},
         planner=None if planner is None else dataclasses.asdict(planner))
 
 
+def sha256(path: Path) -> str:
+    """The SHA-256 of the file at ``path``, in hex."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def load_agent(path: str | os.PathLike) -> Agent:
-    """The agent saved at ``path``; a missing, corrupt or foreign file raises an error naming it."""
+    """The agent saved at ``path``; a missing, corrupt or foreign file raises an error naming it,
+    and so does a value's agent whose PlaNet agent file is missing or has changed since."""
     path = Path(path)
     saved = read_agent_file(path, "PlaNet", FORMAT, FORMAT_VERSION)
     planet = PlaNetConfig(**with_added_defaults(PlaNetConfig, saved["planet"]))
     model = build_model(planet, saved["n_actions"])
-    missing, unexpected = model.load_state_dict(saved["model"], strict=False)
+    weights = dict(saved["model"])
+    if saved.get("model_file"):  # the PlaNet agent this value was fitted on
+        base = path.parent / saved["model_file"]["path"]
+        if not base.is_file() or sha256(base) != saved["model_file"]["sha256"]:
+            raise ValueError(f"{path} plans with the model of {base}, which is "
+                             f"{'missing' if not base.is_file() else 'not the file it was fitted on (its SHA-256 differs)'}")
+        weights = {**load_agent(base).model.state_dict(), **weights}
+    weights = {k: v for k, v in weights.items() if not k.startswith(DECODER)}
+    missing, unexpected = model.load_state_dict(weights, strict=False)
     if unexpected or any(not k.startswith(DECODER) for k in missing):
         raise ValueError(f"{path}: its model does not fit the RSSM (missing {missing}, unexpected {unexpected})")
     model.decoder = NoDecoder(path)
@@ -84,7 +108,7 @@ def load_agent(path: str | os.PathLike) -> Agent:
     if saved["value"] is not None:
         v = saved["value"]
         value = LatentValue(model.belief_size + model.state_size, v["hidden"], v["heads"], v["log"])
-        value.load_state_dict(v["state"])
+        value.load_state_dict({k: t.float() for k, t in v["state"].items()})
         value = value.to(next(model.parameters()).device).eval()
         planner = ValuePlannerConfig(**with_added_defaults(ValuePlannerConfig, saved["planner"]))
     return Agent(model.eval(), planet, value, planner, {k: saved[k] for k in ("game", "bouts", "commit")})
@@ -103,4 +127,4 @@ def play_agent(agent: Agent, env_seed: int, mind_seed: int, frames: list | None 
         env.close()
 
 
-__all__ = ["Agent", "AGENT_NAME", "FORMAT", "FORMAT_VERSION", "save_agent", "load_agent", "play_agent"]
+__all__ = ["Agent", "AGENT_NAME", "FORMAT", "FORMAT_VERSION", "save_agent", "sha256", "load_agent", "play_agent"]
