@@ -169,7 +169,10 @@ def test_seed_runs_reads_each_seeds_committed_run_of_a_variant(tmp_path, monkeyp
         _write_run(tmp_path, "boxing-wm", seed, 30.0 + seed, variant="separable-64")
     _write_run(tmp_path, "sokoban-wm", 2, -5.0)
     assert {s: m["score"]["mean"] for s, m in seed_runs("boxing-wm", "quick", range(5)).items()} == {1: 31.0, 3: 33.0}
-    assert list(seed_runs("boxing-wm", "quick", range(5), "population-16")) == [0]
+    told = []
+    assert list(seed_runs("boxing-wm", "quick", range(3), "population-16", say=told.append)) == [0]
+    assert told == ["no committed quick run of boxing-wm population-16 for seed(s) 1, 2: TRAIN = True, or "
+                    "`python -m wmthesis reproduce boxing-wm --profile quick --seed 1 --variant population-16`"]
     assert list(seed_runs("sokoban-wm", "quick", (2, 4))) == [2] and seed_runs("boxing-wm", "thesis", (0,)) == {}
     with pytest.raises(ValueError, match="has no variants"):
         seed_runs("sokoban-wm", "quick", (2,), "nope")

@@ -22,6 +22,7 @@ import concurrent.futures
 import functools
 import multiprocessing
 import os
+from typing import Callable
 
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.config import EXPERIMENTS, profile_name
@@ -84,10 +85,12 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
 register_runner(reproduce)
 
 
-def seed_runs(name: str, profile: str | None, seeds, variant: str | None = None, train: bool = False) -> dict:
+def seed_runs(name: str, profile: str | None, seeds, variant: str | None = None, train: bool = False,
+              say: Callable[[str], None] | None = None) -> dict:
     """``{seed: metrics}`` of experiment ``name``'s ``variant`` (None: the default) for each of
     ``seeds``: with ``train``, each run here (resuming; :func:`reproduce`); without, the metrics
-    each committed run wrote (``data/results/``), the seeds without one left out."""
+    each committed run wrote (``data/results/``), the seeds without one left out, and ``say``
+    (``print`` in a notebook) told which and the command that runs them."""
     check_choice("experiment", name, EXPERIMENTS)
     profile = profile_name(profile)
     if train:
@@ -96,6 +99,11 @@ def seed_runs(name: str, profile: str | None, seeds, variant: str | None = None,
         no_variant(name, variant)
     folder = VARIANTS[name].folder_name(variant) if name in VARIANTS else None
     found = {seed: read_json(results_folder(name, profile, seed, folder) / "metrics.json") for seed in seeds}
+    missing = [seed for seed, metrics in found.items() if metrics is None]
+    if missing and say is not None:
+        say(f"no committed {profile} run of {name}{f' {variant}' if variant else ''} for seed(s) "
+            f"{', '.join(map(str, missing))}: TRAIN = True, or `python -m wmthesis reproduce {name} --profile {profile} "
+            f"--seed {missing[0]}{f' --variant {variant}' if variant else ''}`")
     return {seed: metrics for seed, metrics in found.items() if metrics is not None}
 
 
