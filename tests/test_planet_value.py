@@ -434,3 +434,6 @@ def test_the_value_curve_is_drawn_from_a_run_s_metrics_alone():
     assert list(agent.get_xdata()) == [60] and list(agent.get_ydata()) == [7.0]
     labels = {t.get_text(): t.xy[1] for t in ax.texts}
     assert labels == {"random play": -1.0, "PlaNet (CEM)": 2.0, "CEM, H3, with the value at its end": 9.0, "human": 12.1}
+    earlier = {**{k: v for k, v in metrics.items() if k != "agent_rounds"}, "best_round": 2}  # a run of 26 November
+    ax = value_curve_figure(earlier, {}).axes[0]
+    assert [list(line.get_ydata()) for line in ax.lines if line.get_marker() == "."] == [[4.0, 6.0]]  # one round: no mean

@@ -66,7 +66,7 @@ def lever_scores(planet_run: Path, work: Path, metrics: dict, planners: dict, bo
     ``work/<folder>/<the lever's name, lower case, dashes>/scores.json``. Returns
     name -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
     config = LatentValueConfig(**with_added_defaults(LatentValueConfig, metrics["config"]))
-    agent = agent_key(metrics.get("agent_rounds", [metrics["best_round"]]), config)
+    agent = agent_key(chosen_rounds(metrics), config)
     fit_for_planners(planet_run, work, planners.values(), config, int(metrics["seed"]))
     caches = [(planner, work / folder / slug(name) / "scores.json") for name, planner in planners.items()]
     return dict(zip(planners, value_planners_scores(planet_run, work, caches, bouts, agent, progress, game, executor)))
@@ -145,7 +145,7 @@ def value_curve_figure(metrics: dict, references: dict[str, float]):
     planner = metrics["value_planner"]
     lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in metrics["baselines"].items()}
     lines.update({f"CEM, H{planner['config']['horizon']}, with the value at its end": planner["full"]["mean"], **references})
-    return learning_curve_figure(_value_curves(metrics["curve"], metrics["agent_rounds"], metrics["value"]),
+    return learning_curve_figure(_value_curves(metrics["curve"], chosen_rounds(metrics), metrics["value"]),
                                  references=lines, x="episodes",
                                  title=f"{metrics['env'].capitalize()}: the value agent after each round")
 
@@ -158,6 +158,12 @@ def _value_curves(curve: list[dict], rounds: list[int], value: dict) -> dict[str
         curves[f"the mean of rounds {rounds[0]}-{rounds[-1]}"] = {
             "test": [{"episodes": curve[-1]["episodes"], "mean": value["mean"], "std": value["std"]}]}
     return curves
+
+
+def chosen_rounds(metrics: dict) -> list[int]:
+    """The rounds whose values make a value run's agent (its ``metrics``; a run written before an
+    agent could be several rounds' mean names its chosen round alone)."""
+    return metrics["agent_rounds"] if "agent_rounds" in metrics else [metrics["best_round"]]
 
 
 def agent_key(rounds: list[int], config) -> int | list[int]:
