@@ -94,7 +94,8 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     # notebook 08's table: the baselines once, then each run's players, with what each adds over UP
     from wmthesis.experiments.planet_freeway_value import freeway_plan_choices, value_rows
 
-    rows = value_rows({None: default, "horizon-12": longer, "td": td})
+    rows = value_rows({"default": default, "horizon-12": longer, "td": td})  # the default by its name, or None
+    assert value_rows({None: default}) == rows[:5]
     assert [r[0] for r in rows] == ["PlaNet (CEM), H12 (thesis)", "random play", "UP at every step",
                                     "value alone (default)", "CEM, H2, with the value at its end (default)",
                                     "CEM, H12, with the value at its end (horizon-12)", "value alone (td)",

@@ -174,7 +174,7 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, variant: str
 
 def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
     """The players of :func:`planet_freeway_value` runs (``by_variant``: variant, None for the
-    default -> its metrics; all on the same model and episodes) as table rows: player, full
+    default, or its name -> its metrics; all on the same model and episodes) as table rows: player, full
     episodes mean ± std, first 500 steps, and what it adds over UP at every step episode for
     episode (:func:`~wmthesis.metrics.paired_difference`, ± its standard error). The baselines come
     once, from the first run; a variant that keeps the value gives only its planner's row."""
@@ -189,8 +189,8 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
     rows = [row(BASELINE_LABELS[name] + (", H12 (thesis)" if name == "planet" else ""), b["full"], b["first"]["mean"],
                 b.get("returns")) for name, b in first["baselines"].items()]
     for variant, m in by_variant.items():
-        label = "default" if variant is None else variant
-        if variant is None or {"value", "model"} & set(VALUE_VARIANTS[variant].changes):
+        label = variant or "default"
+        if label == "default" or {"value", "model"} & set(VALUE_VARIANTS[label].changes):
             rows.append(row(f"value alone ({label})", m["value"], m.get("value_first", {}).get("mean", float("nan")),
                             m["returns"]))
         planner = m["value_planner"]
