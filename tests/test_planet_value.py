@@ -17,7 +17,7 @@ from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.value import (LatentValue, ValueMind, after_action, best_values, episode_features, fit_value,
                                    reward_sums, round_ensemble, td_targets)
 from wmthesis.planet.value_play import bout_pool, evaluation_seeds, play_value, play_values, validation_seeds
-from wmthesis.planet.value_rounds import best_round, load_value, round_values, train_value
+from wmthesis.planet.value_rounds import as_shipped, best_round, load_value, round_values, train_value
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
@@ -338,12 +338,15 @@ def test_the_agent_can_be_the_mean_of_the_last_rounds_values_played_once(tmp_pat
     mean = train_value(model, 5, env, dataclasses.replace(config, agent_rounds=2), tmp_path, seed=0, progress=False)
     assert mean["curve"] == chosen["curve"] and mean["agent"]["rounds"] == [2, 3]
     rounds = torch.load(tmp_path / "value.pt", weights_only=False)["rounds"]
-    ensemble = round_ensemble([rounds[2], rounds[3]], 8)
+    fitted = round_ensemble([rounds[2], rounds[3]], 8)
+    ensemble = as_shipped(round_ensemble([rounds[2], rounds[3]], 8))  # the agent as it ships: half-precision weights
+    assert all(torch.equal(w, w.half().float()) for w in ensemble.parameters())
+    assert not all(torch.equal(a, b) for a, b in zip(ensemble.parameters(), fitted.parameters()))
     assert mean["agent"]["returns"] == [play_value(env, model, ensemble, 5, *evaluation_seeds(0, k))["rewards"].sum()
                                         for k in range(2)]
     features = torch.randn(4, 20)
     with torch.no_grad():
-        assert torch.allclose(load_value(tmp_path, model)(features), ensemble(features))
+        assert torch.equal(load_value(tmp_path, model)(features), ensemble(features))
     monkeypatch.setattr(value_module, "_scores", lambda *a, **k: pytest.fail("the agent's bouts were played again"))
     again = train_value(model, 5, env, dataclasses.replace(config, agent_rounds=2), tmp_path, seed=0, progress=False)
     assert again["agent"] == mean["agent"]
@@ -352,7 +355,7 @@ def test_the_agent_can_be_the_mean_of_the_last_rounds_values_played_once(tmp_pat
     best = LatentValue(20, 8, config.heads)
     best.load_state_dict(rounds[chosen["best_round"]])
     with torch.no_grad():
-        assert torch.allclose(load_value(tmp_path, model)(features), best(features))
+        assert torch.equal(load_value(tmp_path, model)(features), as_shipped(best)(features))
     with pytest.raises(ValueError, match="agent_rounds"):
         train_value(model, 5, env, dataclasses.replace(config, agent_rounds=-1), tmp_path, seed=0, progress=False)
 

@@ -4,6 +4,7 @@ iteration on its own play), resumable from its checkpoint; the agent is the roun
 validation bouts (or the mean of the last rounds' values), and the rounds' values read back."""
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
 
@@ -135,8 +136,9 @@ def _scores(env, model: RSSM, value: LatentValue, bits: int, config: LatentValue
             first_steps: int, pool: tuple | None = None, validation: bool = True) -> dict:
     """A value's greedy bouts: ``validation`` (:func:`validation_seeds`) and ``validation_mean``
     (unless not ``validation``); the test bouts' ``returns`` (:func:`evaluation_seeds`),
-    ``first_returns`` (their first ``first_steps`` steps), ``mean`` and ``std``."""
-    chosen = {}
+    ``first_returns`` (their first ``first_steps`` steps), ``mean`` and ``std``: the value as it
+    ships (:func:`as_shipped`; the fitted value itself goes on unrounded)."""
+    value, chosen = as_shipped(copy.deepcopy(value)), {}
     if validation:
         returns = greedy_returns(env, model, value, bits, [validation_seeds(seed, k) for k in range(config.validation_bouts)],
                                   pool=pool)
@@ -258,21 +260,31 @@ def _kept_mean(state: dict, rounds: list[int], path: Path) -> LatentValue:
     return round_ensemble([state["rounds"][r] for r in rounds], state["config"]["hidden_size"], log_scaled(state["config"]))
 
 
+def as_shipped(value: LatentValue) -> LatentValue:
+    """``value`` with its weights rounded to half precision, as an agent's file keeps them
+    (:mod:`~wmthesis.planet.agent_file`): every bout a value agent plays is the shipped agent's."""
+    with torch.no_grad():
+        for weights in value.parameters():
+            weights.copy_(weights.half().float())
+    return value
+
+
 def load_rounds(run_dir, model: RSSM, rounds: list[int]) -> LatentValue:
     """The mean of the values of ``rounds`` of a :func:`train_value` run for ``model``
-    (:func:`round_ensemble`; the rounds kept, :func:`round_values`)."""
+    (:func:`round_ensemble`; the rounds kept, :func:`round_values`), as it ships (:func:`as_shipped`)."""
     path = Path(run_dir) / CHECKPOINT
-    return _kept_mean(_load_checked(path, model), rounds, path)
+    return as_shipped(_kept_mean(_load_checked(path, model), rounds, path))
 
 
 def load_value(run_dir, model: RSSM) -> LatentValue:
     """The agent of a :func:`train_value` run for ``model``: its chosen round's value
-    (:func:`best_round`), or the mean of the rounds' values that made its agent (``agent_rounds``)."""
+    (:func:`best_round`), or the mean of the rounds' values that made its agent (``agent_rounds``),
+    as it ships (:func:`as_shipped`)."""
     path = Path(run_dir) / CHECKPOINT
     state = _load_checked(path, model)
     chosen = state.get("agent", {}).get("rounds", [])
     if chosen and ("best" not in state or chosen != [best_round(state["curve"])]):
-        return _kept_mean(state, chosen, path)
+        return as_shipped(_kept_mean(state, chosen, path))
     if "best" not in state:
         raise ValueError(f"{path} was fitted before values were chosen on validation bouts; "
                          "run train_value again in a new folder")
@@ -280,7 +292,7 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
     value = LatentValue(model.belief_size + model.state_size, config.hidden_size, config.heads,
                         log_scaled(config)).to(next(model.parameters()).device)
     value.load_state_dict(state["best"])
-    return value.eval()
+    return as_shipped(value).eval()
 
 
-__all__ = ["STORE", "CHECKPOINT", "train_value", "agent_rounds", "round_values", "best_round", "load_rounds", "load_value"]
+__all__ = ["STORE", "CHECKPOINT", "train_value", "agent_rounds", "round_values", "best_round", "load_rounds", "load_value", "as_shipped"]
