@@ -1,7 +1,8 @@
 """A trained PlaNet agent in one file, to ship and to play: the RSSM (its observation decoder left
 behind: planning never decodes), the learned value and the planner that ends in it where the agent
 has one, the game, the bouts its score was measured on, the configs and the commit, with a format
-version.
+version. A value's agent keeps its value in half precision (as its scored bouts played it) and, in
+place of the RSSM, names the PlaNet agent's file it plans with (beside it where both ship).
 
     save_agent(path, game, planet_run, bouts, commit, value_run=work, planner=planner)
     agent = load_agent(path)

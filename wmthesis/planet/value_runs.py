@@ -224,5 +224,5 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "agent_key", "checked_levers", "compare_plans", "fit_and_compare", "frozen_agent", "value_curve_figure",
+__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "agent_key", "chosen_rounds", "checked_levers", "compare_plans", "fit_and_compare", "frozen_agent", "value_curve_figure",
            "lever_scores", "slug", "start_from"]
