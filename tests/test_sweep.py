@@ -160,6 +160,34 @@ def test_the_ablations_are_paired_by_seed_against_the_headline_row(tmp_path, mon
     assert "| boxing-wm | population-16 (first recipe) | separable-64 | score | 1 2 | 17.5 | 22.0 | -4.5 [-23.6, +14.6] |" in table
 
 
+def test_value_runs_are_paired_only_on_the_same_frozen_model(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+
+    def value_run(seed, variant, cem, planet_mean):  # the thesis's CEM on the frozen model tells the model
+        path = _write_run(tmp_path, "planet-boxing-value", seed, 0.0, variant=variant)
+        path.write_text(json.dumps({**json.loads(path.read_text()), "value": {"mean": 20.0},
+                                    "value_planner": {"full": {"mean": cem}},
+                                    "planet": {"mean": planet_mean, "std": 5.0, "min": -9.0, "max": 9.0}}))
+
+    for seed, cem in enumerate([10.0, 30.0, 40.0]):
+        value_run(seed, "lean-value-rewards-0.7", cem, 3.3 if seed == 0 else 1.0)  # seed 0 on a model trained again
+    for seed, cem in enumerate([50.0, 20.0, 36.0]):
+        value_run(seed, "lean", cem, 1.0)
+    for seed in range(3):
+        value_run(seed, "rounds-10", 15.0, -2.9)  # every seed on another model
+    rows = write_summary()
+    lean, rounds = ablation_rows([r for r in rows if r["variant"] in
+                                  ("lean-value-rewards-0.7, cem-with-value", "lean, cem-with-value",
+                                   "rounds-10, cem-with-value")])
+    assert (lean["variant"], lean["seeds"], lean["other_model"]) == ("lean", [1, 2], [0])
+    assert (lean["mean"], lean["default_mean"], lean["difference"]) == (28.0, 35.0, -7.0)  # seed 0's +40 left out
+    assert (rounds["seeds"], rounds["other_model"], rounds["difference"]) == ([], [0, 1, 2], None)
+    assert (rounds["mean"], rounds["default_mean"]) == (15.0, pytest.approx(80.0 / 3))  # unpaired, over the same seeds
+    table = (tmp_path / "results" / "summary.md").read_text()
+    assert "| cem-with-value | 1 2 (0: another model, not paired) | 28.0 | 35.0 | -7.0 [" in table
+    assert "| none (0 1 2: another model, not paired) | 15.0 | 26.7 | not paired |" in table
+
+
 def test_seed_runs_reads_each_seeds_committed_run_of_a_variant(tmp_path, monkeypatch):
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     from wmthesis.experiments import seed_runs

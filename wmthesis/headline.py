@@ -133,8 +133,11 @@ def _measure(variant: str | None) -> tuple[str | None, str | None]:
 def ablation_rows(rows: list[dict], profile: str = "quick") -> list[dict]:
     """Each variant of a headline's experiment, measured the same way, against the headline's row,
     paired by seed (a seed plays the same evaluation bouts or levels under every variant): the
-    seeds both ran, both means over them, and the mean difference with its 95% t interval (None
-    for one seed)."""
+    seeds both ran on the same frozen model (a row's ``models``, where it has them: a seed whose
+    two runs froze different models is not paired, and is listed in ``other_model``), both means
+    over them, and the mean difference with its 95% t interval (None for one seed). A variant
+    whose every shared seed froze another model gets both means over those seeds unpaired and a
+    difference of None."""
     from wmthesis.metrics import aggregate  # scipy: loaded when a table is written
 
     by_key = {(r["experiment"], r["variant"]): r for r in rows if r["profile"] == profile}
@@ -149,34 +152,54 @@ def ablation_rows(rows: list[dict], profile: str = "quick") -> list[dict]:
                     or _measure(variant)[1] != _measure(h.variant)[1]):
                 continue
             ours, theirs = dict(zip(row["seeds"], row["scores"])), dict(zip(default["seeds"], default["scores"]))
-            seeds = sorted(set(ours) & set(theirs))
-            if not seeds:
+            shared = sorted(set(ours) & set(theirs))
+            if not shared:
                 continue
-            difference = aggregate([ours[s] - theirs[s] for s in seeds])
+            models = _seed_models(row), _seed_models(default)
+            seeds = [s for s in shared if models[0].get(s) == models[1].get(s)]
+            other = [s for s in shared if s not in seeds]
+            means = seeds or other
+            difference = aggregate([ours[s] - theirs[s] for s in seeds]) if seeds else \
+                {"mean": None, "ci_low": None, "ci_high": None}
             out.append({"experiment": experiment, "variant": _measure(variant)[0], "against": _measure(h.variant)[0],
-                        "measured": _measure(variant)[1], "seeds": seeds,
-                        "mean": float(np.mean([ours[s] for s in seeds])),
-                        "default_mean": float(np.mean([theirs[s] for s in seeds])),
+                        "measured": _measure(variant)[1], "seeds": seeds, "other_model": other,
+                        "mean": float(np.mean([ours[s] for s in means])),
+                        "default_mean": float(np.mean([theirs[s] for s in means])),
                         "difference": difference["mean"], "ci_low": difference["ci_low"],
                         "ci_high": difference["ci_high"]})
     return out
 
 
+def _seed_models(row: dict) -> dict:
+    """seed -> the frozen model its run was on (None where the row does not tell)."""
+    return dict(zip(row["seeds"], row.get("models") or [None] * len(row["seeds"])))
+
+
 def ablation_table(rows: list[dict], profile: str = "quick", roots: dict | None = None) -> str:
     """The ablations as markdown: each variant against its experiment's headline row, paired by
-    seed. The runs in the experiment's own folders (variant None) are its first recipe, named
+    seed on the same frozen model (:func:`ablation_rows`; seeds on another model are named, not
+    paired). The runs in the experiment's own folders (variant None) are its first recipe, named
     by ``roots`` (experiment -> the root variant's name, :attr:`~wmthesis.variants.Variants.root`)."""
     def label(experiment: str, variant: str | None) -> str:
         root = (roots or {}).get(experiment)
         return variant or (f"{root} (first recipe)" if root else "first recipe")
 
+    def seeds(a: dict) -> str:
+        paired = " ".join(map(str, a["seeds"])) or "none"
+        return paired + (f" ({' '.join(map(str, a['other_model']))}: another model, not paired)" if a["other_model"] else "")
+
+    def difference(a: dict) -> str:
+        if a["difference"] is None:
+            return "not paired"
+        interval = "" if a["ci_low"] is None else f" [{a['ci_low']:+.1f}, {a['ci_high']:+.1f}]"
+        return f"{a['difference']:+.1f}{interval}"
+
     lines = ["| experiment | variant | against (headline) | measured | paired seeds | variant | headline "
              "| difference [95% interval] |", "|---|---|---|---|---|---|---|---|"]
     for a in ablation_rows(rows, profile):
-        interval = "" if a["ci_low"] is None else f" [{a['ci_low']:+.1f}, {a['ci_high']:+.1f}]"
         lines.append(f"| {a['experiment']} | {label(a['experiment'], a['variant'])} | {label(a['experiment'], a['against'])} "
-                     f"| {a['measured'] or 'score'} | {' '.join(map(str, a['seeds']))} | {a['mean']:.1f} "
-                     f"| {a['default_mean']:.1f} | {a['difference']:+.1f}{interval} |")
+                     f"| {a['measured'] or 'score'} | {seeds(a)} | {a['mean']:.1f} "
+                     f"| {a['default_mean']:.1f} | {difference(a)} |")
     return "\n".join(lines)
 
 

@@ -60,6 +60,19 @@ class Run(NamedTuple):
     path: str
     machine: str | None = None
     threads: int | None = None
+    model: str | None = None
+
+
+def model_fingerprint(metrics: dict) -> str | None:
+    """The frozen PlaNet model a Boxing value run (``planet-boxing-value``, whose variants all
+    mean to share their seed's model) was fitted on, told by what the thesis's CEM scored on it
+    over the same evaluation bouts (``"mean/std/min/max"``: one model plays those bouts alike;
+    a model trained again, even from the same seed, does not). None for other experiments, whose
+    variants are paired by seed alone, and for a run that did not play the thesis's CEM."""
+    planet = metrics.get("planet") if metrics["experiment"] == "planet-boxing-value" else None
+    if not planet:
+        return None
+    return f"{planet['mean']:.2f}/{planet['std']:.3f}/{planet['min']:g}/{planet['max']:g}"
 
 
 def run_scores(metrics: dict) -> dict[str | None, float]:
@@ -115,7 +128,8 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
         if header[1] in VALIDATION_SEEDS.get(metrics["experiment"], ()):  # the choice's evidence: a row apart
             scores = {f"{variant or 'first recipe'}, validation seeds": score for variant, score in scores.items()}
         for variant, score in scores.items():
-            run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine, threads)
+            run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine, threads,
+                      model_fingerprint(metrics))
             runs[run[:4]] = run
     for run in report_runs(folder):
         runs[run[:4]] = run
@@ -166,7 +180,7 @@ def summarise(runs: list[Run]) -> list[dict]:
              **aggregate([r.score for r in group], BOUNDS.get(experiment)),
              "seeds": [r.seed for r in group], "scores": [r.score for r in group],
              "wall_seconds": [r.wall_seconds for r in group], "machines": [r.machine for r in group],
-             "threads": [r.threads for r in group]}
+             "threads": [r.threads for r in group], "models": [r.model for r in group]}
             for (experiment, variant, profile), group in groups.items()]
 
 
@@ -261,7 +275,7 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
     headline = headline_table(rows)
     ablations = ablation_table(rows, roots={name: v.root for name, v in VARIANTS.items() if v.root})
     budget = budget_markdown(read_budget_rows("quick", folder)) or "no seed measured yet (`python -m wmthesis reproduce planning-budget`)"
-    outputs = {"md": f"## Headline\n\n{headline}\n\n## Ablations: each variant against its headline row, paired by seed"
+    outputs = {"md": f"## Headline\n\n{headline}\n\n## Ablations: each variant against its headline row, paired by seed on the same frozen model"
                      f"\n\n{ablations}\n\n## Score against search budget, quick (planning_budget.csv)\n\n"
                      f"{budget}\n\n## Every variant\n\n{markdown_table(rows)}\n",
                "json": json.dumps({"interval": INTERVAL, "rows": rows}, indent=1),
@@ -281,4 +295,4 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
 
 
 __all__ = ["Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
-           "write_summary", "headline_line", "HEADLINE_LINE", "INTERVAL"]
+           "write_summary", "headline_line", "model_fingerprint", "HEADLINE_LINE", "INTERVAL"]
