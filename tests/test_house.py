@@ -133,7 +133,7 @@ def test_the_readme_holds_the_table_the_summary_writes_within_its_first_60_lines
     assert f"{BEGIN}\n{table}\n{END}" in readme  # run `python -m wmthesis summary` after new results
     from wmthesis import notebook_index
 
-    index = notebook_index.notebook_table(notebook_index.notebook_rows())
+    index = notebook_index.notebook_table(notebook_index.notebook_rows(data=PACKAGE.parent / "data"))
     assert f"{notebook_index.BEGIN}\n{index}\n{notebook_index.END}" in readme  # every notebook, its stamp's minutes
     assert readme.splitlines().index(END) < 60 and len(readme.splitlines()) <= 200
     from wmthesis.world_models.variants import BOXING_WM

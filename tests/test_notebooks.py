@@ -129,6 +129,31 @@ def test_the_index_reads_each_notebooks_stamp_and_names_one_it_does_not_know(tmp
         notebook_rows(tmp_path)
 
 
+def test_a_notebooks_time_from_scratch_sums_its_runs_measured_first_runs(tmp_path):
+    from wmthesis.notebook_index import TRAINS, notebook_table, scratch
+
+    def write(path: Path, data: dict) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(data))
+
+    results = tmp_path / "results"  # a data folder of its own
+    assert [e for e, _, _ in TRAINS["07_sokoban_search"]] == ["sokoban-search"]
+    # seed 0: resumed later (its first run counts) and searched 1000 levels of two kinds
+    write(results / "sokoban-search/quick-seed0/metrics.json", {"wall_seconds": 5.0, "first_run_wall_seconds": 600.0})
+    write(results / "sokoban-search/quick-seed0/boxoban-report-1000.json",
+          {"levels": 1000, "training_wall_seconds": 600.0,
+           "rows": {"unfiltered": {"seconds_per_level": 0.5}, "medium": {"seconds_per_level": 1.5}}})
+    # seed 1: its agent ships with its report alone (its training time is the report's)
+    write(results / "sokoban-search/quick-seed1/boxoban-report-1000.json",
+          {"levels": 1000, "training_wall_seconds": 1200.0, "rows": {"medium": {"seconds_per_level": 0.3}}})
+    found = scratch("07_sokoban_search", tmp_path)  # seed 2 has not run
+    assert found["seconds"] == 600.0 + 2000.0 + 1200.0 + 300.0
+    assert (found["runs"], found["missing"]) == (2, [("sokoban-search", None, 2)])
+    assert scratch("01_sokoban_world_models", tmp_path) is None  # it trains as it runs
+    row = {"name": "07_sokoban_search", "section": "x", "shows": "y", "stamp": None, "scratch": found}
+    assert notebook_table([row]).endswith("| awaiting a re-run on today's code | 68 min over 2 runs, 1 not run yet |")
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_every_notebook_has_a_parameters_cell_that_sets_the_profile(path):
     tagged = [c for c in json.loads(path.read_text())["cells"] if "parameters" in c["metadata"].get("tags", [])]

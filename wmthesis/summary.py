@@ -288,7 +288,7 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
     if readme is not None:  # the front door's two generated blocks: the results and the notebook index
         readme = Path(readme)
         text = readme_with_table(readme.read_text(), headline)
-        text = readme_with_table(text, notebook_table(notebook_rows()), NOTEBOOKS_BEGIN, NOTEBOOKS_END)
+        text = readme_with_table(text, notebook_table(notebook_rows(data=folder.parent)), NOTEBOOKS_BEGIN, NOTEBOOKS_END)
         with atomic_path(readme) as tmp:
             tmp.write_text(text)
     return rows
