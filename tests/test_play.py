@@ -113,6 +113,11 @@ def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path
     from wmthesis.planet.agent_file import load_agent
 
     metrics = reproduce("planet-boxing-value", "smoke", 0, progress=False)
+    saved_metrics = tmp_path / "results" / "planet-boxing-value" / "smoke-seed0" / "lean-value-rewards-0.7" / "metrics.json"
+    for planet, kept in ((metrics["planet"], True), ({**metrics["planet"], "mean": 99.0}, False)):  # a model trained again
+        saved_metrics.write_text(json.dumps({**metrics, "planet": planet, "first_run_wall_seconds": 1e6}))
+        again = reproduce("planet-boxing-value", "smoke", 0, progress=False)  # cached: it plays nothing again
+        assert (again["first_run_wall_seconds"] == 1e6) == kept and again["value"] == metrics["value"]
     result = play_module.play("planet-boxing-value", profile="smoke", bouts=2, record=tmp_path / "bouts.rrd",
                               on_play=lambda line: None)
     assert [p["return"] for p in result["plays"]] == metrics["value_planner"]["returns"][:2]
