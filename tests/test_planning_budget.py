@@ -143,3 +143,30 @@ def test_the_summary_tables_the_budget_rows_over_seeds_paired_with_no_search(tmp
     # by hand: gains 6 and 2, mean 4, sample std 2.8284, t_{0.975, 1} = 12.706: half width 25.4
     assert "| mcts | boxing | 0 | 2 | 25.0 | +0.0 [+0.0, +0.0] | 2.0 |" in table
     assert "| mcts | boxing | 64 | 2 | 29.0 | +4.0 [-21.4, +29.4] | 10.0 |" in table
+
+
+def test_a_fresh_clone_plays_cems_budgets_on_the_shipped_agents_to_the_same_scores(tmp_path, monkeypatch):
+    """Where the value run's checkpoint is not here but its agent file and metrics are (a fresh
+    clone), CEM's budget curve plays the shipped value on the shipped PlaNet model: no PlaNet
+    training, no value fit, and the scores of the run that fitted it."""
+    import pytest
+
+    import wmthesis.runs as run_store
+    from wmthesis.experiments import reproduce
+    from wmthesis.experiments.planning_budget import cem_curve
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path / "trained"))
+    reproduce("planet-boxing-value", "smoke", 0, progress=False)
+    trained = cem_curve("smoke", 0, progress=False)
+    clone = tmp_path / "clone"
+    for part in ("smoke/planet-boxing-agent/seed0/agent.pt", "results/planet-boxing-agent/smoke-seed0/metrics.json",
+                 "smoke/planet-boxing-value/lean-value-rewards-0.7-seed0/agent.pt",
+                 "results/planet-boxing-value/smoke-seed0/lean-value-rewards-0.7/metrics.json"):
+        (clone / part).parent.mkdir(parents=True)
+        (clone / part).write_bytes((tmp_path / "trained" / part).read_bytes())
+    monkeypatch.setenv("WMTHESIS_DATA", str(clone))
+    monkeypatch.setattr(run_store, "built_on", lambda *args, **kwargs: pytest.fail("trained or fitted again"))
+    cloned = cem_curve("smoke", 0, progress=False)
+    assert [(r["budget"], r["score"], r["no_search_score"]) for r in cloned] == \
+        [(r["budget"], r["score"], r["no_search_score"]) for r in trained]
+    assert not (clone / "smoke" / "planet-boxing-value" / "lean-value-rewards-0.7-seed0" / "value.pt").exists()

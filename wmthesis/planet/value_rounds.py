@@ -279,8 +279,18 @@ def load_rounds(run_dir, model: RSSM, rounds: list[int]) -> LatentValue:
 def load_value(run_dir, model: RSSM) -> LatentValue:
     """The agent of a :func:`train_value` run for ``model``: its chosen round's value
     (:func:`best_round`), or the mean of the rounds' values that made its agent (``agent_rounds``),
-    as it ships (:func:`as_shipped`)."""
+    as it ships (:func:`as_shipped`). Where the run's checkpoint is not here but its agent file is
+    (a fresh clone), the value that file ships (:func:`~wmthesis.planet.agent_file.load_agent`:
+    refused unless it was fitted on the PlaNet agent file beside it)."""
     path = Path(run_dir) / CHECKPOINT
+    shipped = Path(run_dir) / "agent.pt"
+    if not path.exists() and shipped.is_file():
+        from wmthesis.planet.agent_file import load_agent  # it builds on this module
+
+        value = load_agent(shipped).value
+        if value is None or value.heads[0][0].in_features != model.belief_size + model.state_size:
+            raise ValueError(f"{shipped} holds no value for this model")
+        return value.to(next(model.parameters()).device)
     state = _load_checked(path, model)
     chosen = state.get("agent", {}).get("rounds", [])
     if chosen and ("best" not in state or chosen != [best_round(state["curve"])]):

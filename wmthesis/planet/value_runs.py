@@ -32,14 +32,16 @@ from wmthesis.viz import image_grid, save_figure
 
 
 def frozen_agent(experiment: str, profile: str, seed: int, variant: str | None = None,
-                 progress: bool = True) -> tuple[dict, Path]:
-    """The metrics and work folder of the PlaNet run (``experiment``'s ``variant``) a value is
-    fitted on: the agent that ships where its training checkpoint is not here (its agent file and
-    committed metrics: a fresh clone fits a value without training PlaNet again), else the run,
-    made first or resumed (:func:`~wmthesis.runs.built_on`)."""
+                 progress: bool = True, checkpoint: str = PLANET_CHECKPOINT) -> tuple[dict, Path]:
+    """The metrics and work folder of the run (``experiment``'s ``variant``) a recipe builds on: a
+    PlaNet run a value is fitted on, or a value run (``checkpoint``: the value's, ``value.pt``) whose
+    planners are played. The agent that ships where the run's ``checkpoint`` is not here (its agent
+    file and committed metrics: a fresh clone fits a value without training PlaNet again, and plays
+    a value's planners without fitting it), else the run, made first or resumed
+    (:func:`~wmthesis.runs.built_on`)."""
     work = run_store.work_folder(profile, experiment, seed, variant)
     metrics = read_json(run_store.results_folder(experiment, profile, seed, variant) / "metrics.json")
-    if metrics is None or (work / PLANET_CHECKPOINT).exists() or not (work / AGENT_NAME).is_file():
+    if metrics is None or (work / checkpoint).exists() or not (work / AGENT_NAME).is_file():
         metrics = run_store.built_on(experiment, profile, seed, variant, progress)
     return metrics, work
 
