@@ -209,3 +209,11 @@ def test_trials_share_held_out_episodes_and_the_extremes_are_trained_again(tmp_p
     second = Path(trial_rows(study)[result["best"]["number"]]["folder"]) / f"seed{SMOKE.seed + 1}" / "checkpoint.pt"
     assert second.exists()
     assert json.loads((study_dir(study.study_name, storage) / "confirmation.json").read_text()) == result
+    # the search as an experiment: one metrics.json, a summary row that is the best trial's error x 1000
+    from wmthesis.planet.search_run import SCALE, write_search_metrics
+    from wmthesis.summary import read_runs
+
+    metrics = write_search_metrics(study, result, "smoke", 0, 1.0)
+    (run,) = [r for r in read_runs() if (r.experiment, r.profile) == ("planet-boxing-search", "smoke")]
+    assert run.score == SCALE * order[0]["error"] and run.wall_seconds == metrics["first_run_wall_seconds"] > 0
+    assert metrics["best"]["number"] == order[0]["trial"] and json.dumps(metrics, allow_nan=False)  # strict JSON

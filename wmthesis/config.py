@@ -32,8 +32,8 @@ ATARI_ENVIRONMENTS = ("boxing", "freeway")
 SOKOBAN_ENVIRONMENTS = ("sokoban", "sokoban-small")
 ENVIRONMENTS = ATARI_ENVIRONMENTS + SOKOBAN_ENVIRONMENTS
 EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
-               "planet-boxing-study", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value", "sokoban-search",
-               "planning-budget")
+               "planet-boxing-study", "planet-boxing-search", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value",
+               "sokoban-search", "planning-budget")
 DEFAULT_PROFILE = "quick"
 
 

@@ -42,7 +42,7 @@ TRAINS = {
     "02_boxing_world_models": (("boxing-wm", ("separable-64",), range(10)),),
     "03_boxing_world_models_alphazero": (("boxing-wm-alphazero", ("own-memory", "own-reward"), (0,)),),
     "05_planet_boxing": (("planet-boxing-study", (None,), (0,)), ("planet-boxing-agent", (None,), (0,))),
-    "06_kl_scale_free_nats_search": (),  # the study's trials (:data:`STUDIES`)
+    "06_kl_scale_free_nats_search": (("planet-boxing-search", (None,), (0,)),),  # its trials, the confirmation apart
     "07_sokoban_search": (("sokoban-search", (None,), (0, 1, 2)),),  # with the Boxoban report levels' search
     "08_planet_freeway": (("planet-freeway", ("freeway-tuned", "freeway-adam", "freeway-explore", "long-horizon"), (0,)),
                           ("planet-freeway-value", (None, "td", "horizon-12", "freeway-adam", "adam-td", "adam-log"), (0,))),
@@ -54,7 +54,6 @@ TRAINS = {
                            ("boxing-wm", ("separable-64",), (1, 2)), ("planet-boxing-value", ("lean-value-rewards-0.7",), (0, 1, 2)),
                            ("planet-boxing-agent", (None,), (1, 2))),
 }
-STUDIES = {"06_kl_scale_free_nats_search": ("planet-boxing-quick-error", "studies.db")}  # (study, file in data/search)
 UNTIMED = {"06_kl_scale_free_nats_search": "its confirmation runs", "11_planning_budget": "the curves' own bouts and levels"}
 
 
@@ -78,22 +77,9 @@ def run_seconds(experiment: str, variant: str | None, seed: int, profile: str = 
                          for r in report["rows"].values())
 
 
-def study_seconds(study: str, file: str, data: Path | None = None) -> float | None:
-    """The completed trials' summed durations of the optuna ``study`` in ``search/file`` of the
-    data folder ``data`` (default :func:`~wmthesis.utils.data_dir`'s)."""
-    import optuna  # loaded when the index is written
-
-    path = Path(data or data_dir()) / "search" / file
-    if not path.is_file():
-        return None
-    trials = optuna.load_study(study_name=study, storage=f"sqlite:///{path}").get_trials(
-        deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
-    return sum(t.duration.total_seconds() for t in trials)
-
-
 def scratch(name: str, data: Path | None = None) -> dict | None:
-    """Notebook ``name``'s time from scratch: ``seconds`` (its :data:`TRAINS` runs' and
-    :data:`STUDIES` trials' measured times, summed), ``runs`` (how many were measured),
+    """Notebook ``name``'s time from scratch: ``seconds`` (its :data:`TRAINS` runs' measured
+    times, summed), ``runs`` (how many were measured),
     ``missing`` (those not run yet) and ``untimed`` (what it plays beyond them, not timed);
     None for a notebook that trains here (its committed run is its time from scratch)."""
     if name not in TRAINS:
@@ -101,8 +87,6 @@ def scratch(name: str, data: Path | None = None) -> dict | None:
     found = {(e, v, s): run_seconds(e, v, s, data=data) for e, variants, seeds in TRAINS[name]
              for v in variants for s in seeds}
     seconds = [t for t in found.values() if t is not None]
-    if name in STUDIES and (trials := study_seconds(*STUDIES[name], data=data)) is not None:
-        seconds.append(trials)
     return {"seconds": sum(seconds), "runs": len(seconds), "missing": [k for k, t in found.items() if t is None],
             "untimed": UNTIMED.get(name)}
 
@@ -164,5 +148,5 @@ def notebook_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["BEGIN", "END", "SHOWS", "TRAINS", "TRAINS_HERE", "STUDIES", "UNTIMED", "run_seconds", "study_seconds", "scratch",
+__all__ = ["BEGIN", "END", "SHOWS", "TRAINS", "TRAINS_HERE", "UNTIMED", "run_seconds", "scratch",
            "notebook_stamp", "notebook_rows", "notebook_table"]

@@ -39,7 +39,8 @@ INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
 MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels (generated; boxoban-*: Boxoban valid 005-009)",
            "planet-boxing-value": "full-bout score, the value's chosen round",
            "planet-freeway-value": "full-episode score, the value's chosen round",
-           "planet-boxing-agent": "full-bout score, CEM planner"}
+           "planet-boxing-agent": "full-bout score, CEM planner",
+           "planet-boxing-search": "the best trial's open-loop error on held-out bouts x 1000 (lower is better)"}
 DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
 # Experiment -> the seeds its recipe was chosen on: their runs form rows of their own ("VARIANT,
 # validation seeds"), never the reported ones.

@@ -40,6 +40,7 @@ from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOB
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
+from wmthesis.planet.search_run import planet_boxing_search
 from wmthesis.planet.value_variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.runs import read_json, register_runner, results_folder
@@ -49,7 +50,7 @@ from wmthesis.variants import no_variant
 # Experiment -> its recipe, each called ``recipe(profile, seed, variant, progress)``.
 RECIPES = {"sokoban-wm": sokoban_world_models, "boxing-wm": boxing_world_models, "boxing-wm-alphazero": boxing_wm_alphazero,
            **{name: functools.partial(planet_experiment, name) for name in PLANET_GAMES},
-           "planet-boxing-study": planet_boxing_study, "planet-boxing-agent": planet_boxing_agent,
+           "planet-boxing-study": planet_boxing_study, "planet-boxing-search": planet_boxing_search, "planet-boxing-agent": planet_boxing_agent,
            "planet-boxing-value": planet_boxing_value, "planet-freeway-value": planet_freeway_value,
            "sokoban-search": sokoban_search, "planning-budget": planning_budget}
 if tuple(RECIPES) != EXPERIMENTS:

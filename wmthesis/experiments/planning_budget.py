@@ -24,7 +24,6 @@ from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
 from wmthesis.planet.config import ValuePlannerConfig
-from wmthesis.planet.value_rounds import CHECKPOINT as VALUE_CHECKPOINT
 from wmthesis.planet.value_runs import frozen_agent, lever_scores
 from wmthesis.planet.value_variants import VALUE_VARIANTS
 from wmthesis.runs import (built_on, hold, read_json, releasing_holds, results_folder, run_header, run_jobs,
@@ -142,8 +141,7 @@ def cem_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = N
     candidates and iterations set by each ``(H, J, I)`` of ``budgets`` (default the profile's
     :data:`CEM_BUDGETS`; budget H x J x I), and the value alone (H = 1: budget 0), on the first
     :data:`BOXING_BOUTS` of the value's evaluation bouts."""
-    metrics, work = frozen_agent("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(None), progress,
-                                 checkpoint=VALUE_CHECKPOINT)  # the default's run, or its shipped agent
+    metrics, work = frozen_agent("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(None), progress)
     base = with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"])
     budgets = {NO_SEARCH: dict(horizon=1), **{h * j * i: dict(horizon=h, candidates=j, iterations=i)
                                               for h, j, i in budgets or CEM_BUDGETS[profile]}}

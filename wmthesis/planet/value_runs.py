@@ -31,16 +31,20 @@ from wmthesis.utils import check_choice
 from wmthesis.viz import image_grid, save_figure
 
 
+VALUE_EXPERIMENTS = ("planet-boxing-value", "planet-freeway-value")  # their runs' checkpoint is the value's
+
+
 def frozen_agent(experiment: str, profile: str, seed: int, variant: str | None = None,
-                 progress: bool = True, checkpoint: str = PLANET_CHECKPOINT) -> tuple[dict, Path]:
+                 progress: bool = True) -> tuple[dict, Path]:
     """The metrics and work folder of the run (``experiment``'s ``variant``) a recipe builds on: a
-    PlaNet run a value is fitted on, or a value run (``checkpoint``: the value's, ``value.pt``) whose
-    planners are played. The agent that ships where the run's ``checkpoint`` is not here (its agent
-    file and committed metrics: a fresh clone fits a value without training PlaNet again, and plays
-    a value's planners without fitting it), else the run, made first or resumed
+    PlaNet run a value is fitted on, or a value run (:data:`VALUE_EXPERIMENTS`) whose planners are
+    played. The agent that ships where the run's checkpoint is not here (its agent file and
+    committed metrics: a fresh clone fits a value without training PlaNet again, and plays a
+    value's planners without fitting it), else the run, made first or resumed
     (:func:`~wmthesis.runs.built_on`)."""
     work = run_store.work_folder(profile, experiment, seed, variant)
     metrics = read_json(run_store.results_folder(experiment, profile, seed, variant) / "metrics.json")
+    checkpoint = CHECKPOINT if experiment in VALUE_EXPERIMENTS else PLANET_CHECKPOINT
     if metrics is None or (work / checkpoint).exists() or not (work / AGENT_NAME).is_file():
         metrics = run_store.built_on(experiment, profile, seed, variant, progress)
     return metrics, work
@@ -228,5 +232,5 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "agent_key", "chosen_rounds", "checked_levers", "compare_plans", "fit_and_compare", "frozen_agent", "value_curve_figure",
+__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "VALUE_EXPERIMENTS", "agent_key", "chosen_rounds", "checked_levers", "compare_plans", "fit_and_compare", "frozen_agent", "value_curve_figure",
            "lever_scores", "slug", "start_from"]
