@@ -69,6 +69,8 @@ def main(argv=None) -> None:
                           [python, "-m", "pip", "install", "--quiet", "-r", "requirements.txt"], clone, env)[0])
         row, said = timed("play boxing-wm --bouts 1", [python, *PLAY], clone, env)
         rows.append(row)
+        torch = subprocess.run([python, "-c", "from importlib.metadata import version; print(version('torch'))"],
+                               capture_output=True, text=True).stdout.strip()  # the clone's, not this script's
     finally:
         if not args.keep:
             shutil.rmtree(folder, ignore_errors=True)
@@ -82,7 +84,7 @@ def main(argv=None) -> None:
     played = scores[0] if scores else None
     print(f"bout 0: {played} (its evaluation: {expected}); pip install to the score: {install_to_play:.0f} s "
           f"(target {TARGET_SECONDS} s)")
-    write_results(args.out, machine_meta(rev=rev, target_seconds=TARGET_SECONDS, bout_score=played,
+    write_results(args.out, machine_meta(rev=rev, torch=torch, target_seconds=TARGET_SECONDS, bout_score=played,
                                          evaluation_score=expected, met=install_to_play <= TARGET_SECONDS
                                          and played == expected), rows)
 
