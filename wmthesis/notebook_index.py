@@ -34,25 +34,26 @@ SHOWS = {
                                              "without search and under growing budgets"),
 }
 
-# notebook -> the runs its numbers come from, each to be trained from nothing on a fresh clone
-# (``quick``): (experiment, its variants (None: the default), seeds); those of TRAINS_HERE train as
-# they run (their committed run is their time from scratch), and the others train nothing
+# notebook -> the runs its numbers come from and the runs they build on, each to be trained from
+# nothing (``quick``): (experiment, its variants (None: the default), seeds); those of TRAINS_HERE
+# train as they run (their committed run is their time from scratch), and the others train nothing
 TRAINS_HERE = ("01_sokoban_world_models", "04_planet_sokoban")
 TRAINS = {
     "02_boxing_world_models": (("boxing-wm", ("separable-64",), range(10)),),
-    "03_boxing_world_models_alphazero": (("boxing-wm-alphazero", ("own-memory", "own-reward"), (0,)),),
+    "03_boxing_world_models_alphazero": (("boxing-wm-alphazero", ("own-memory", "own-reward"), (0,)),
+                                         ("boxing-wm", ("separable-64",), (0,))),
     "05_planet_boxing": (("planet-boxing-study", (None,), (0,)), ("planet-boxing-agent", (None,), (0,))),
     "06_kl_scale_free_nats_search": (("planet-boxing-search", (None,), (0,)),),  # its trials, the confirmation apart
     "07_sokoban_search": (("sokoban-search", (None,), (0, 1, 2)),),  # with the Boxoban report levels' search
     "08_planet_freeway": (("planet-freeway", ("freeway-tuned", "freeway-adam", "freeway-explore", "long-horizon"), (0,)),
                           ("planet-freeway-value", (None, "td", "horizon-12", "freeway-adam", "adam-td", "adam-log"), (0,))),
     "09_planet_boxing_value": (("planet-boxing-value", ("scored-rounds",), (0,)), ("planet-boxing-value", ("rounds-10",), (1, 2)),
-                               ("planet-boxing-agent", (None,), (1, 2))),
+                               ("planet-boxing-agent", (None,), (0, 1, 2))),
     "10_planet_value_planner": (("planet-boxing-value", ("lean-value-rewards-0.7", "lean"), (0, 1, 2)),
-                                ("planet-boxing-agent", (None,), (1, 2))),
+                                ("planet-boxing-agent", (None,), (0, 1, 2))),
     "11_planning_budget": (("sokoban-search", (None,), (0, 1, 2)), ("boxing-wm-alphazero", ("own-memory",), (0, 1, 2)),
-                           ("boxing-wm", ("separable-64",), (1, 2)), ("planet-boxing-value", ("lean-value-rewards-0.7",), (0, 1, 2)),
-                           ("planet-boxing-agent", (None,), (1, 2))),
+                           ("boxing-wm", ("separable-64",), (0, 1, 2)), ("planet-boxing-value", ("lean-value-rewards-0.7",), (0, 1, 2)),
+                           ("planet-boxing-agent", (None,), (0, 1, 2))),
 }
 UNTIMED = {"06_kl_scale_free_nats_search": "its confirmation runs", "11_planning_budget": "the curves' own bouts and levels"}
 
