@@ -157,7 +157,7 @@ def test_a_fresh_clone_plays_cems_budgets_on_the_shipped_agents_to_the_same_scor
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path / "trained"))
     reproduce("planet-boxing-value", "smoke", 0, progress=False)
-    trained = cem_curve("smoke", 0, progress=False)
+    trained = cem_curve("smoke", 0, progress=False, budgets=((2, 16, 2),))  # one budget beside the value alone
     clone = tmp_path / "clone"
     for part in ("smoke/planet-boxing-agent/seed0/agent.pt", "results/planet-boxing-agent/smoke-seed0/metrics.json",
                  "smoke/planet-boxing-value/lean-value-rewards-0.7-seed0/agent.pt",
@@ -166,7 +166,7 @@ def test_a_fresh_clone_plays_cems_budgets_on_the_shipped_agents_to_the_same_scor
         (clone / part).write_bytes((tmp_path / "trained" / part).read_bytes())
     monkeypatch.setenv("WMTHESIS_DATA", str(clone))
     monkeypatch.setattr(run_store, "built_on", lambda *args, **kwargs: pytest.fail("trained or fitted again"))
-    cloned = cem_curve("smoke", 0, progress=False)
+    cloned = cem_curve("smoke", 0, progress=False, budgets=((2, 16, 2),))
     assert [(r["budget"], r["score"], r["no_search_score"]) for r in cloned] == \
         [(r["budget"], r["score"], r["no_search_score"]) for r in trained]
     assert not (clone / "smoke" / "planet-boxing-value" / "lean-value-rewards-0.7-seed0" / "value.pt").exists()
