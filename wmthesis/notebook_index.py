@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from wmthesis.runs import read_json
+from wmthesis.runs import first_run_seconds, read_json
 from wmthesis.stamp import CHECKOUT, read_stamp
 from wmthesis.utils import data_dir
 
@@ -69,11 +69,10 @@ def run_seconds(experiment: str, variant: str | None, seed: int, profile: str = 
 
     folder = VARIANTS[experiment].folder_name(variant) if experiment in VARIANTS else None
     where = Path(data or data_dir()) / "results" / experiment / f"{profile}-seed{seed}" / (folder or "")
-    metrics, reports = read_json(where / "metrics.json"), [read_json(p) for p in sorted(where.glob("boxoban-report-*.json"))]
-    if metrics is None and not reports:
+    first, reports = first_run_seconds(where / "metrics.json", None), [read_json(p) for p in sorted(where.glob("boxoban-report-*.json"))]
+    if first is None and not reports:
         return None
-    seconds = float(metrics.get("first_run_wall_seconds", metrics.get("wall_seconds"))) if metrics is not None else \
-        float(reports[0]["training_wall_seconds"])
+    seconds = first if first is not None else float(reports[0]["training_wall_seconds"])
     return seconds + sum(float(r["seconds_per_level"]) * int(report["levels"]) for report in reports
                          for r in report["rows"].values())
 

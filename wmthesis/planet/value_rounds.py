@@ -282,11 +282,10 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
     as it ships (:func:`as_shipped`). Where the run's checkpoint is not here but its agent file is
     (a fresh clone), the value that file ships (:func:`~wmthesis.planet.agent_file.load_agent`:
     refused unless it was fitted on the PlaNet agent file beside it)."""
-    path = Path(run_dir) / CHECKPOINT
-    shipped = Path(run_dir) / "agent.pt"
-    if not path.exists() and shipped.is_file():
-        from wmthesis.planet.agent_file import load_agent  # it builds on this module
+    from wmthesis.planet.agent_file import AGENT_NAME, load_agent  # it builds on this module
 
+    path, shipped = Path(run_dir) / CHECKPOINT, Path(run_dir) / AGENT_NAME
+    if not path.exists() and shipped.is_file():
         value = load_agent(shipped).value
         if value is None or value.heads[0][0].in_features != model.belief_size + model.state_size:
             raise ValueError(f"{shipped} holds no value for this model")
