@@ -17,8 +17,7 @@ from wmthesis.planet.train import load_planet
 from wmthesis.planet.value_bouts import value_bout
 from wmthesis.planet.value_play import validation_seeds
 from wmthesis.planet.value_rounds import agent_rounds, round_values
-from wmthesis.planet.value_variants import (GAME, VALUE_VARIANTS, results_folder, value_folder,
-                                            value_run)
+from wmthesis.planet.value_variants import GAME, VALUE_VARIANTS, results_folder, value_folder
 from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, frozen_agent,
                                         lever_scores, slug, start_from)
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
@@ -92,7 +91,8 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     ``bouts`` (the profile's :data:`LEVER_BOUTS` by default) of the value's validation bouts
     (:func:`~wmthesis.planet.value_play.validation_seeds`: apart from the evaluation bouts), each
     lever cached in the value's folder (a variant that changes the planner alone plays on the
-    value of the run it copies, in that run's folder). All levers' bouts are played in one pool,
+    value it copied, in its own folder: a copy made, or a value fitted from scratch where there was
+    none to copy, plays as that run played). All levers' bouts are played in one pool,
     lever by lever: ``executor`` (:func:`~wmthesis.utils.process_pool`), two at a time by
     default; a machine with more cores plays them that many at a time. ``metrics``: the value
     run's, where it was read from its ``metrics.json`` (a machine that holds only the models).
@@ -102,7 +102,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
     metrics = planet_boxing_value(profile, seed, variant, progress) if metrics is None else metrics
     planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
-    work = value_folder(profile, seed, value_run(variant))  # the run that fitted its value
+    work = value_folder(profile, seed, variant)  # the run's value: fitted there, or copied from the run it builds on
     planners = {lever: for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]) for lever in levers}
     return lever_scores(planet_run, work, metrics, planners, [validation_seeds(seed, k) for k in range(bouts)],
                         progress, executor=executor)
