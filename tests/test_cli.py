@@ -246,16 +246,20 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     # the planner's levers on the lean value's validation bouts, cached in its folder
     from wmthesis.planet import value_bouts
     from wmthesis.experiments.planet_boxing_value import validate_planners
+    from wmthesis.planet.value_runs import slug
 
-    levers = ("value seeds CEM", "the value's rewards")
+    levers = ("value seeds CEM", "the value's rewards, discount 0.7")
     checked = validate_planners("smoke", 0, levers=levers, variant="lean", progress=False)
-    assert checked["the value's rewards"]["config"]["rewards"] == "value" and checked[levers[0]]["config"]["rewards"] != "value"
+    assert checked["the value's rewards, discount 0.7"]["config"]["rewards"] == "value" and checked[levers[0]]["config"]["rewards"] != "value"
     assert all(len(scores["returns"]) == 1 for scores in checked.values())
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(value_bouts, "value_planner_bout", lambda *a: pytest.fail("a cached lever was played again"))
         assert validate_planners("smoke", 0, levers=levers, variant="lean", progress=False) == checked
-        # a variant that changes the planner alone plays its levers on the value it shares with lean
-        assert validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards-0.7", progress=False) == checked
+    # a variant that changes the planner alone plays its levers in its own folder, on its copy of lean's value
+    copied = validate_planners("smoke", 0, levers=levers, variant="lean-value-rewards-0.7", progress=False)
+    assert {k: v["returns"] for k, v in copied.items()} == {k: v["returns"] for k, v in checked.items()}
+    own = tmp_path / "data/smoke/planet-boxing-value/lean-value-rewards-0.7-seed0/planner-validation"
+    assert sorted(p.name for p in own.iterdir()) == sorted(slug(lever) for lever in levers)
     # the command line's validate: the same levers, one more played and saved where validate_planners finds it
     from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
     from wmthesis.planet.value_tables import planner_lever_rows

@@ -159,6 +159,59 @@ def test_the_values_rewards_score_every_imagined_step_by_hand_and_one_step_is_th
         ValuePlanetMind(model, value, rewards="critic", **SIZES)
 
 
+def test_pessimism_scores_imagined_steps_by_the_heads_mean_less_their_spread_and_leaves_the_first_step():
+    from wmthesis.planet.value_planner import pessimistic_q
+
+    model, value = model_and_value()
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    actions = torch.nn.functional.one_hot(torch.tensor([[2, 0, 4], [1, 1, 3]]), 5).float()
+    with torch.no_grad():
+        generator = torch.Generator().manual_seed(5)
+        h1, p1 = model.transition(belief.expand(2, -1), state.expand(2, -1), actions[:, 0])
+        h2, p2 = model.transition(h1, p1.sample(generator), actions[:, 1])
+        h3, p3 = model.transition(h2, p2.sample(generator), actions[:, 2])
+        heads = [value.each(torch.cat([h, p.mean], -1)) for h, p in ((h1, p1), (h2, p2), (h3, p3))]
+        mean, spread = [q.mean(-1) for q in heads], [q.std(-1) for q in heads]
+        by_hand = mean[0] + 0.9 * (mean[1] - 2.0 * spread[1]) + 0.81 * (mean[2] - 2.0 * spread[2])
+        ours = value_returns(model, value, belief, state, actions, torch.Generator().manual_seed(5), discount=0.9,
+                             rewards="value", pessimism=2.0)
+        assert torch.allclose(ours, by_hand) and (spread[1] > 0).all()
+        plain = value_returns(model, value, belief, state, actions, torch.Generator().manual_seed(5), discount=0.9,
+                              rewards="value")
+        assert (ours < plain).all()  # the penalty only lowers
+        one = torch.eye(5)[:, None]  # one step: the value agent's own Q, whatever the pessimism
+        assert torch.equal(value_returns(model, value, belief, state, one, rewards="value", pessimism=5.0),
+                           value_returns(model, value, belief, state, one, rewards="value"))
+        features = torch.randn(7, 20)
+        assert torch.equal(pessimistic_q(value, features, 0.0), value(features))
+    with pytest.raises(ValueError, match="pessimism"):
+        ValuePlanetMind(model, value, pessimism=-1.0, **SIZES)
+    with pytest.raises(ValueError, match="pessimism"):
+        ValuePlanetMind(model, None, pessimism=1.0, **SIZES)
+    with pytest.raises(ValueError, match="2 heads"):
+        pessimistic_q(LatentValue(20, 16, heads=1), torch.randn(3, 20), 1.0)
+
+
+def test_shared_imagined_states_give_candidates_of_the_same_actions_the_same_return():
+    from wmthesis.planet.value_planner import imagined_state
+
+    model, value = model_and_value()
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    same = torch.nn.functional.one_hot(torch.tensor([[2, 0, 4]] * 6 + [[1, 3, 3]] * 2), 5).float()
+    with torch.no_grad():
+        shared = value_returns(model, value, belief, state, same, torch.Generator().manual_seed(2), imagine="shared",
+                               rewards="value")
+        sampled = value_returns(model, value, belief, state, same, torch.Generator().manual_seed(2), rewards="value")
+        assert torch.allclose(shared[:6], shared[0].expand(6)) and shared[6] == shared[7] and shared[0] != shared[6]
+        assert sampled[:6].std() > 1e-4  # the thesis's draws: the same actions, another return each
+        _, prior = model.transition(belief.expand(3, -1), state.expand(3, -1), torch.eye(5)[:3])
+        eps = torch.randn(1, 4, generator=torch.Generator().manual_seed(7))
+        assert torch.allclose(imagined_state(prior, torch.Generator().manual_seed(7), "shared"), prior.mean + prior.std * eps)
+        assert torch.equal(imagined_state(prior, None, "mean"), prior.mean)
+    with pytest.raises(ValueError, match="imagine"):
+        ValuePlanetMind(model, value, imagine="median", **SIZES)
+
+
 def test_the_value_seeds_cems_first_step_with_the_z_scores_of_q():
     from wmthesis.planet.cem import cem_belief
     from wmthesis.planet.value_planner import value_scores
@@ -280,7 +333,7 @@ def test_the_planner_levers_table_is_paired_against_the_first_lever():
     assert rows[1] == ["the value's rewards, discount 0.7", "rewards=value, discount=0.7", "5.0 ± 0.0", "3.0", "+3.0 ± 1.2"]
     # the levers are stated against the default planner: the first is the thesis's CEM start
     default = ValuePlannerConfig()
-    assert default.rewards != "value" and dataclasses.replace(default, **PLANNER_LEVERS["the value's rewards"]).rewards == "value"
+    assert default.rewards != "value" and dataclasses.replace(default, **PLANNER_LEVERS["the value's rewards, discount 0.7"]).rewards == "value"
 
 
 def test_the_agent_rules_table_names_each_rules_rounds_and_pairs_them():

@@ -10,7 +10,10 @@ reward and everything after it are the learned action value of :mod:`~wmthesis.p
 with ``Q = value(h_{t+H}, mean of p(s_{t+H} | h_{t+H}))`` (the value's features after an action,
 :func:`~wmthesis.planet.value.after_action`). The imagined states ``s`` are sampled from the
 prior as in the thesis's planner (``imagine="sample"``), or are the prior's mean (``"mean"``: one
-deterministic imagined path per candidate, no sampling noise in its return). With
+deterministic imagined path per candidate, no sampling noise in its return), or samples that share
+one noise draw across the candidates (``"shared"``: common random numbers; with the thesis's
+independent draws, the noise of one imagined step's Q is about three times the spread of Q
+between first actions on Boxing, so CEM's elites are the lucky draws). With
 ``value_prior`` > 0 the value also seeds the search: CEM's first mean for the first step is
 ``value_prior`` times the z-scores of Q over the actions (TD-MPC seeds its search with a learned
 policy in the same spirit); 0 starts from zero, the thesis's. Two ends meet the two agents it joins:
@@ -30,38 +33,68 @@ from wmthesis.core import loop
 from wmthesis.rollouts import EpisodeBuffer
 from wmthesis.planet.cem import cem_belief
 from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
-from wmthesis.planet.rssm import RSSM
+from wmthesis.planet.rssm import RSSM, Gaussian, randn_like
 from wmthesis.planet.agent import BeliefFilter, PlanetMind
 from wmthesis.planet.value import LatentValue, action_values
 
 
-IMAGINE = ("sample", "mean")
+IMAGINE = ("sample", "mean", "shared")  # the imagined states: prior samples, its mean, samples with one noise for all
 REWARDS = ("model", "value")  # where an imagined step's reward comes from (value_returns)
 
 
 def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, state: torch.Tensor,
                   actions: torch.Tensor, generator: torch.Generator | None = None,
-                  discount: float = 1.0, imagine: str = "sample", rewards: str = "model") -> torch.Tensor:
+                  discount: float = 1.0, imagine: str = "sample", rewards: str = "model",
+                  pessimism: float = 0.0) -> torch.Tensor:
     """The returns R (J,) of one-hot action sequences ``actions`` (J, H, A) from ``belief``
     (1 or J, B) and ``state`` (1 or J, S): imagined rewards, the last step's (and after) from
     ``value`` (module docstring); ``value=None``: imagined rewards alone. ``imagine``: the
-    imagined states are the prior's samples (the thesis's) or its ``mean``. ``rewards``: each
+    imagined states are the prior's samples (the thesis's), its ``mean`` or samples of one noise
+    draw for all candidates (``shared``, :func:`imagined_state`). ``rewards``: each
     imagined step's reward from the model's reward head (``model``, the thesis's), or (``value``)
     every step scored by the value, ``sum_k gamma^k Q(h_{t+k}, s_{t+k}, a_{t+k})``: the learned
-    sums of real rewards in place of a reward head that barely ranks a landed punch."""
+    sums of real rewards in place of a reward head that barely ranks a landed punch. ``pessimism``
+    beta: Q of every step after the first, from imagined states alone, is the mean of the value's
+    heads less beta times their spread (:func:`pessimistic_q`); the first step's Q, from the real
+    belief, is the value agent's own."""
     count, horizon = actions.shape[:2]
     belief, state = belief.expand(count, -1), state.expand(count, -1)
     total = actions.new_zeros(count)
     for t in range(horizon):
         belief, prior = model.transition(belief, state, actions[:, t])
         if value is not None and (t == horizon - 1 or rewards == "value"):
-            total = total + discount ** t * value(torch.cat([belief, prior.mean], -1))
+            total = total + discount ** t * pessimistic_q(value, torch.cat([belief, prior.mean], -1),
+                                                          pessimism if t else 0.0)
             if t == horizon - 1:
                 return total
-        state = prior.sample(generator) if imagine == "sample" else prior.mean
+        state = imagined_state(prior, generator, imagine)
         if value is None or rewards == "model":
             total = total + discount ** t * model.reward(belief, state)
     return total
+
+
+def imagined_state(prior: Gaussian, generator: torch.Generator | None, imagine: str) -> torch.Tensor:
+    """The imagined states (J, S) of the prior ``p(s | h)`` (J, S): a sample each (``sample``, the
+    thesis's), its ``mean``, or (``shared``) samples that share one noise draw ``mean + std * eps``,
+    eps (1, S): common random numbers, so that candidates differ by their actions, not their luck."""
+    if imagine == "mean":
+        return prior.mean
+    if imagine == "shared":
+        return prior.mean + prior.std * randn_like(prior.mean[:1], generator)
+    return prior.sample(generator)
+
+
+def pessimistic_q(value: LatentValue, features: torch.Tensor, beta: float) -> torch.Tensor:
+    """Q (N,) of ``features`` (N, F): the mean of the value's heads less ``beta`` times their
+    standard deviation (their disagreement, large where the heads never saw such states; on the
+    log scale for a ``log`` value); ``beta`` 0 is the value itself."""
+    if not beta:
+        return value(features)
+    heads = value.each(features)
+    if heads.shape[-1] < 2:
+        raise ValueError("a pessimistic value needs at least 2 heads to disagree, got 1")
+    q = heads.mean(-1) - beta * heads.std(-1)
+    return q.exp() if value.log else q
 
 
 def value_scores(model: RSSM, value: LatentValue, belief: torch.Tensor, state: torch.Tensor,
@@ -79,15 +112,15 @@ class ValuePlanetMind(PlanetMind):
     posterior's sample, CEM's sizes) whose candidates end in ``value`` (:func:`value_returns`)."""
 
     def __init__(self, model: RSSM, value: LatentValue | None, *, discount: float = 1.0, imagine: str = "sample",
-                 value_prior: float = 0.0, rewards: str = "model", **planner):
+                 value_prior: float = 0.0, rewards: str = "model", pessimism: float = 0.0, **planner):
         super().__init__(model, **planner)
-        _check_planner(discount, imagine, value_prior, value, rewards)
+        _check_planner(discount, imagine, value_prior, value, rewards, pessimism)
         self.value, self.discount, self.imagine, self.value_prior = value, float(discount), imagine, float(value_prior)
-        self.rewards = rewards
+        self.rewards, self.pessimism = rewards, float(pessimism)
 
     def returns(self, actions: torch.Tensor) -> torch.Tensor:
         return value_returns(self.model, self.value, self.belief, self.state, actions, self.generator, self.discount,
-                             self.imagine, self.rewards)
+                             self.imagine, self.rewards, self.pessimism)
 
     def first_mean(self) -> torch.Tensor | None:
         if not self.value_prior:
@@ -95,7 +128,8 @@ class ValuePlanetMind(PlanetMind):
         return value_scores(self.model, self.value, self.belief, self.state, self.value_prior, self.sizes["horizon"])
 
 
-def _check_planner(discount: float, imagine: str, value_prior: float, value, rewards: str = "model") -> None:
+def _check_planner(discount: float, imagine: str, value_prior: float, value, rewards: str = "model",
+                   pessimism: float = 0.0) -> None:
     if not 0.0 < discount <= 1.0:
         raise ValueError(f"discount must be in (0, 1], got {discount}")
     if imagine not in IMAGINE:
@@ -105,6 +139,8 @@ def _check_planner(discount: float, imagine: str, value_prior: float, value, rew
                          f"with value={value is not None}")
     if value_prior < 0 or (value_prior and value is None):
         raise ValueError(f"value_prior must be >= 0 and needs a value, got {value_prior} with value={value is not None}")
+    if pessimism < 0 or (pessimism and value is None):
+        raise ValueError(f"pessimism must be >= 0 and needs a value, got {pessimism} with value={value is not None}")
 
 
 def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfig, planner: ValuePlannerConfig,
@@ -116,6 +152,7 @@ def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfi
                            top_k=planet.top_k, iterations=planner.iterations or planet.iterations, bits=planet.bits,
                            discount=planner.discount,
                            imagine=planner.imagine, value_prior=planner.value_prior, rewards=planner.rewards,
+                           pessimism=planner.pessimism or 0.0,
                            generator=torch.Generator(next(model.parameters()).device).manual_seed(int(mind_seed)))
     record = EpisodeBuffer()
     loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
@@ -147,7 +184,8 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
                             planet.horizon, **sizes)
         first = value_scores(model, value, belief, state, planner.value_prior, planner.horizon) if planner.value_prior else None
         ours = cem_belief(lambda a: value_returns(model, value, belief, state, a, generator, planner.discount,
-                                                  planner.imagine, planner.rewards), model.n_actions, planner.horizon,
+                                                  planner.imagine, planner.rewards, planner.pessimism or 0.0),
+                          model.n_actions, planner.horizon,
                           mean=first, **sizes)
         q = action_values(model, value, belief, state)[0]
         for name, pick in zip(PLANNERS, (thesis.mean[0].argmax(), ours.mean[0].argmax(), q.argmax())):
@@ -156,4 +194,4 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
     return {name: np.asarray(picks, np.int64) for name, picks in chosen.items()}
 
 
-__all__ = ["value_returns", "value_scores", "IMAGINE", "REWARDS", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
+__all__ = ["value_returns", "imagined_state", "pessimistic_q", "value_scores", "IMAGINE", "REWARDS", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
