@@ -250,3 +250,15 @@ def test_constant_mind_picks_its_action_every_step_and_refuses_one_outside_the_s
     assert [Deterministic()(mind.plan(state), step, None) for step, state in enumerate(range(5))] == [1] * 5
     with pytest.raises(ValueError, match=r"action must be in \[0, 3\), got 3"):
         ConstantMind(3, 3)
+
+
+def test_a_process_pool_of_one_worker_runs_one_process_and_none_is_refused():
+    import os
+
+    from wmthesis.utils import parallel_calls, process_pool
+
+    with process_pool(1) as executor:  # `validate --workers 1`: one process, not the default two
+        pids = parallel_calls([(os.getpid,) for _ in range(3)], progress=False, executor=executor)
+    assert len(set(pids)) == 1 and pids[0] != os.getpid()
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        process_pool(0)

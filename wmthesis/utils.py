@@ -139,10 +139,13 @@ def fingerprint(model) -> str | None:
 def process_pool(workers: int | None = None):
     """A pool of spawned processes (one torch thread each) that several :func:`parallel_calls`
     share, started once: ``workers`` (by default two on a machine with 2 cores or more), or a
-    ``nullcontext`` of None where one process would do. Its processes start at the first call."""
-    workers = min(os.cpu_count() or 1, 2) if workers is None else workers
-    if workers <= 1:
+    ``nullcontext`` of None where one process would do by default (a 1-core machine). ``workers``
+    given: that many processes, one included. Its processes start at the first call."""
+    if workers is None and (os.cpu_count() or 1) < 2:
         return nullcontext(None)
+    workers = 2 if workers is None else workers
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
     return concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                                   initializer=worker_init, initargs=(1,))
 
