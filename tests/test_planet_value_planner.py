@@ -133,18 +133,26 @@ def test_imagining_the_priors_mean_is_one_path_by_hand_and_draws_nothing():
         ValuePlanetMind(model, value, imagine="median", **SIZES)
 
 
+TWO_PLANS = torch.nn.functional.one_hot(torch.tensor([[2, 0, 4], [1, 1, 3]]), 5).float()  # (J=2, H=3, A=5)
+
+
+def imagined_features(model, belief, state, actions, seed: int) -> list[torch.Tensor]:
+    """By hand: the value's features (J, H + S) after each step of ``actions`` (J, H, A), each next
+    state sampled from the prior as ``value_returns`` samples it (one generator, in order)."""
+    generator, features = torch.Generator().manual_seed(seed), []
+    belief, state = belief.expand(len(actions), -1), state.expand(len(actions), -1)
+    for t in range(actions.shape[1]):
+        belief, prior = model.transition(belief, state, actions[:, t])
+        features.append(torch.cat([belief, prior.mean], -1))
+        state = prior.sample(generator)
+    return features
+
+
 def test_the_values_rewards_score_every_imagined_step_by_hand_and_one_step_is_the_value_agent():
     model, value = model_and_value()
-    belief, state = torch.randn(1, 16), torch.randn(1, 4)
-    actions = torch.nn.functional.one_hot(torch.tensor([[2, 0, 4], [1, 1, 3]]), 5).float()
+    belief, state, actions = torch.randn(1, 16), torch.randn(1, 4), TWO_PLANS
     with torch.no_grad():
-        generator = torch.Generator().manual_seed(5)
-        h1, p1 = model.transition(belief.expand(2, -1), state.expand(2, -1), actions[:, 0])
-        s1 = p1.sample(generator)
-        h2, p2 = model.transition(h1, s1, actions[:, 1])
-        s2 = p2.sample(generator)
-        h3, p3 = model.transition(h2, s2, actions[:, 2])
-        q = [value(torch.cat([h, p.mean], -1)) for h, p in ((h1, p1), (h2, p2), (h3, p3))]
+        q = [value(features) for features in imagined_features(model, belief, state, actions, seed=5)]
         by_hand = q[0] + 0.9 * q[1] + 0.81 * q[2]  # no reward head anywhere
         ours = value_returns(model, value, belief, state, actions, torch.Generator().manual_seed(5), discount=0.9,
                              rewards="value")
@@ -163,14 +171,9 @@ def test_pessimism_scores_imagined_steps_by_the_heads_mean_less_their_spread_and
     from wmthesis.planet.value_planner import pessimistic_q
 
     model, value = model_and_value()
-    belief, state = torch.randn(1, 16), torch.randn(1, 4)
-    actions = torch.nn.functional.one_hot(torch.tensor([[2, 0, 4], [1, 1, 3]]), 5).float()
+    belief, state, actions = torch.randn(1, 16), torch.randn(1, 4), TWO_PLANS
     with torch.no_grad():
-        generator = torch.Generator().manual_seed(5)
-        h1, p1 = model.transition(belief.expand(2, -1), state.expand(2, -1), actions[:, 0])
-        h2, p2 = model.transition(h1, p1.sample(generator), actions[:, 1])
-        h3, p3 = model.transition(h2, p2.sample(generator), actions[:, 2])
-        heads = [value.each(torch.cat([h, p.mean], -1)) for h, p in ((h1, p1), (h2, p2), (h3, p3))]
+        heads = [value.each(features) for features in imagined_features(model, belief, state, actions, seed=5)]
         mean, spread = [q.mean(-1) for q in heads], [q.std(-1) for q in heads]
         by_hand = mean[0] + 0.9 * (mean[1] - 2.0 * spread[1]) + 0.81 * (mean[2] - 2.0 * spread[2])
         ours = value_returns(model, value, belief, state, actions, torch.Generator().manual_seed(5), discount=0.9,
