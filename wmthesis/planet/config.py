@@ -120,16 +120,16 @@ class ValuePlannerConfig:
     top K and iterations are the PlaNet config's. ``horizon`` 1 is the value agent itself.
     ``imagine``: the imagined states are the prior's samples (``sample``, the thesis's), its
     ``mean``, or samples sharing one noise draw across candidates (``shared``); ``value_prior`` > 0
-    seeds CEM's first step with that many z-scores of the value's Q (0: the thesis's zero mean; the seeding was chosen on validation bouts, with the numbers in
-    ``docs/findings/planet-boxing-value.md``).
+    seeds CEM's first step with that many z-scores of the value's Q (0: the thesis's zero mean; the
+    seeding was chosen on validation bouts, with the numbers in ``docs/findings/planet-boxing-value.md``).
     ``rewards``: the imagined steps' rewards from the model's reward head (``model``, the
     thesis's) or each step scored by the value's Q of its action (``value``); ``reward_head``: the
     model's reward head as PlaNet trained it (None) or refit on the value run's own bouts
     (``own``, :mod:`~wmthesis.planet.own_rewards`; with ``rewards="model"``). ``candidates`` and
     ``iterations`` replace the PlaNet config's where set (a search budget of H x J x I imagined steps
-    an action: ``reproduce planning-budget``). ``pessimism`` beta scores the imagined steps after the
-    first by the value's heads' mean less beta times their spread (an uncertainty penalty that keeps
-    the search where the value was fitted; ``rewards="value"``)."""
+    an action: ``reproduce planning-budget``). ``pessimism`` beta scores the value's Q of every imagined
+    step after the first as its heads' mean less beta times their spread (an uncertainty penalty that
+    keeps the search where the value was fitted)."""
 
     horizon: int = 3
     discount: float = 1.0

@@ -29,15 +29,6 @@ VALUE_VARIANTS = Variants(
 ROOT = VALUE_VARIANTS.root
 
 
-def value_run(variant: str | None) -> str:
-    """The variant whose run fitted ``variant``'s value: itself, or for one that changes the planner
-    alone, the run it builds on (its name)."""
-    chain = VALUE_VARIANTS.lineage(variant)
-    while "value" not in chain[-1].changes and chain[-1].builds_on is not None and len(chain) > 1:
-        chain.pop()
-    return chain[-1].name
-
-
 def value_folder(profile: str, seed: int, variant: str | None = None):
     """The work folder of the value run of ``variant`` (None: the default) and ``seed``."""
     return run_store.work_folder(profile, "planet-boxing-value", seed, VALUE_VARIANTS.folder_name(variant))
@@ -48,4 +39,4 @@ def results_folder(profile: str, seed: int, variant: str | None = None):
     return run_store.results_folder("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(variant))
 
 
-__all__ = ["GAME", "LEAN", "VALUE_VARIANTS", "ROOT", "value_run", "value_folder", "results_folder"]
+__all__ = ["GAME", "LEAN", "VALUE_VARIANTS", "ROOT", "value_folder", "results_folder"]
