@@ -215,6 +215,31 @@ def test_shared_imagined_states_give_candidates_of_the_same_actions_the_same_ret
         ValuePlanetMind(model, value, imagine="median", **SIZES)
 
 
+def test_particles_average_each_candidates_paths_and_shrink_the_noise_of_its_return():
+    model, value = model_and_value()
+    belief, state = torch.randn(1, 16), torch.randn(1, 4)
+    same = torch.nn.functional.one_hot(torch.tensor([[2, 0, 4]] * 200), 5).float()
+    with torch.no_grad():
+        paths = value_returns(model, value, belief, state, same[:3].repeat_interleave(8, 0),
+                              torch.Generator().manual_seed(4), discount=0.7, rewards="value")
+        ours = value_returns(model, value, belief, state, same[:3], torch.Generator().manual_seed(4), discount=0.7,
+                             rewards="value", particles=8)
+        assert torch.allclose(ours, paths.view(3, 8).mean(1))  # the same draws, each candidate its 8 paths' mean
+        one = value_returns(model, value, belief, state, same, torch.Generator().manual_seed(1), rewards="value")
+        many = value_returns(model, value, belief, state, same, torch.Generator().manual_seed(1), rewards="value",
+                             particles=16)
+        assert 2.5 < one.std() / many.std() < 6.5  # sqrt(16) = 4: noise shrinks as the paths' mean
+        assert abs(one.mean() - many.mean()) < 3 * one.std() / 200 ** 0.5 + 3 * many.std() / 200 ** 0.5
+        shared = value_returns(model, value, belief, state, same[:4], torch.Generator().manual_seed(3),
+                               rewards="value", imagine="shared", particles=5)
+        assert torch.allclose(shared, shared[0].expand(4))  # 5 draws shared: equal actions, equal returns
+        one = torch.eye(5)[:, None]  # one step draws nothing: the value agent's Q, whatever K
+        assert torch.allclose(value_returns(model, value, belief, state, one, particles=4), value_returns(model, value, belief, state, one))
+    for bad in (0, -2, 1.5, True):
+        with pytest.raises(ValueError, match="particles"):
+            ValuePlanetMind(model, value, particles=bad, **SIZES)
+
+
 def test_the_value_seeds_cems_first_step_with_the_z_scores_of_q():
     from wmthesis.planet.cem import cem_belief
     from wmthesis.planet.value_planner import value_scores

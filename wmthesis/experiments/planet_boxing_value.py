@@ -74,10 +74,10 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
 # lever played is the row the others are paired against. H1 is the value agent's own choice. The
 # lever chosen became ``lean-value-rewards-0.7``'s planner; the levers that lost, with their
 # numbers: docs/findings/planet-boxing-value.md.
-PLANNER_LEVERS = {"value seeds CEM": {}, "the value's rewards, discount 0.5": dict(rewards="value", discount=0.5),
-                  "the value's rewards, discount 0.7": dict(rewards="value", discount=0.7),
+PLANNER_LEVERS = {"value seeds CEM": {}, "the value's rewards, discount 0.7": dict(rewards="value", discount=0.7),
                   "the value's rewards, discount 0.7, shared noise": dict(rewards="value", discount=0.7, imagine="shared"),
                   "the value's rewards, discount 0.7, pessimism 1": dict(rewards="value", discount=0.7, pessimism=1.0),
+                  "the value's rewards, discount 0.7, 4 particles of 25": dict(rewards="value", discount=0.7, candidates=25, particles=4),
                   "H1: the value agent": dict(horizon=1), "the reward head refit on own bouts": dict(reward_head="own"),
                   "the reward head refit on own bouts, H6": dict(reward_head="own", horizon=6)}
 LEVER_BOUTS = {"smoke": 1, "quick": 10, "thesis": 10}  # validation bouts per lever

@@ -129,7 +129,8 @@ class ValuePlannerConfig:
     ``iterations`` replace the PlaNet config's where set (a search budget of H x J x I imagined steps
     an action: ``reproduce planning-budget``). ``pessimism`` beta scores the value's Q of every imagined
     step after the first as its heads' mean less beta times their spread (an uncertainty penalty that
-    keeps the search where the value was fitted)."""
+    keeps the search where the value was fitted). ``particles`` K: each candidate's return the mean
+    over K imagined paths (PETS's particles; None: 1; a budget of H x J x I x K imagined steps)."""
 
     horizon: int = 3
     discount: float = 1.0
@@ -140,6 +141,7 @@ class ValuePlannerConfig:
     candidates: int | None = None        # CEM's candidates J (None: the PlaNet config's)
     iterations: int | None = None        # CEM's iterations I (None: the PlaNet config's)
     pessimism: float | None = None       # beta: imagined steps' Q less beta x its heads' spread (None: 0)
+    particles: int | None = None         # K imagined paths per candidate, their returns' mean (None: 1)
     # what a run saved before a field was added did, where the field's default has changed since
     ADDED_AS: ClassVar[dict] = {"value_prior": 0.0}
 

@@ -13,7 +13,9 @@ prior as in the thesis's planner (``imagine="sample"``), or are the prior's mean
 deterministic imagined path per candidate, no sampling noise in its return), or samples that share
 one noise draw across the candidates (``"shared"``: common random numbers; with the thesis's
 independent draws, the noise of one imagined step's Q is about three times the spread of Q
-between first actions on Boxing, so CEM's elites are the lucky draws). With
+between first actions on Boxing, so CEM's elites are the lucky draws). With ``particles`` K > 1
+each candidate's return is the mean over K imagined paths (PETS's particles, Chua et al. 2018:
+the noise of one draw shrinks by sqrt(K), at K times the imagined steps). With
 ``value_prior`` > 0 the value also seeds the search: CEM's first mean for the first step is
 ``value_prior`` times the z-scores of Q over the actions (TD-MPC seeds its search with a learned
 policy in the same spirit); 0 starts from zero, the thesis's. Two ends meet the two agents it joins:
@@ -45,7 +47,7 @@ REWARDS = ("model", "value")  # where an imagined step's reward comes from (valu
 def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, state: torch.Tensor,
                   actions: torch.Tensor, generator: torch.Generator | None = None,
                   discount: float = 1.0, imagine: str = "sample", rewards: str = "model",
-                  pessimism: float = 0.0) -> torch.Tensor:
+                  pessimism: float = 0.0, particles: int = 1) -> torch.Tensor:
     """The returns R (J,) of one-hot action sequences ``actions`` (J, H, A) from ``belief``
     (1 or J, B) and ``state`` (1 or J, S): imagined rewards, the last step's (and after) from
     ``value`` (module docstring); ``value=None``: imagined rewards alone. ``imagine``: the
@@ -56,7 +58,21 @@ def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, 
     sums of real rewards in place of a reward head that barely ranks a landed punch. ``pessimism``
     beta: Q of every step after the first, from imagined states alone, is the mean of the value's
     heads less beta times their spread (:func:`pessimistic_q`); the first step's Q, from the real
-    belief, is the value agent's own."""
+    belief, is the value agent's own. ``particles`` K: each candidate's return is the mean over K
+    imagined paths (its actions repeated K times; with ``shared``, K noise draws shared by all)."""
+    if particles > 1:  # candidate j's paths are rows j K .. j K + K - 1
+        belief, state = (x.repeat_interleave(particles, 0) if len(x) > 1 else x for x in (belief, state))
+        paths = path_returns(model, value, belief, state, actions.repeat_interleave(particles, 0), generator,
+                             discount, imagine, rewards, pessimism, draws=particles)
+        return paths.view(-1, particles).mean(1)
+    return path_returns(model, value, belief, state, actions, generator, discount, imagine, rewards, pessimism)
+
+
+def path_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, state: torch.Tensor,
+                 actions: torch.Tensor, generator: torch.Generator | None, discount: float, imagine: str,
+                 rewards: str, pessimism: float, draws: int = 1) -> torch.Tensor:
+    """The return (N,) of each imagined path of ``actions`` (N, H, A) (:func:`value_returns`, one
+    path per row); ``draws``: the shared noise draws (:func:`imagined_state`)."""
     count, horizon = actions.shape[:2]
     belief, state = belief.expand(count, -1), state.expand(count, -1)
     total = actions.new_zeros(count)
@@ -67,20 +83,22 @@ def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, 
                                                           pessimism if t else 0.0)
             if t == horizon - 1:
                 return total
-        state = imagined_state(prior, generator, imagine)
+        state = imagined_state(prior, generator, imagine, draws)
         if value is None or rewards == "model":
             total = total + discount ** t * model.reward(belief, state)
     return total
 
 
-def imagined_state(prior: Gaussian, generator: torch.Generator | None, imagine: str) -> torch.Tensor:
-    """The imagined states (J, S) of the prior ``p(s | h)`` (J, S): a sample each (``sample``, the
-    thesis's), its ``mean``, or (``shared``) samples that share one noise draw ``mean + std * eps``,
-    eps (1, S): common random numbers, so that candidates differ by their actions, not their luck."""
+def imagined_state(prior: Gaussian, generator: torch.Generator | None, imagine: str, draws: int = 1) -> torch.Tensor:
+    """The imagined states (N, S) of the prior ``p(s | h)`` (N, S): a sample each (``sample``, the
+    thesis's), its ``mean``, or (``shared``) samples that share ``draws`` noise draws ``mean + std * eps``,
+    eps (draws, S), row n drawing ``eps[n % draws]``: common random numbers, so that candidates
+    differ by their actions, not their luck."""
     if imagine == "mean":
         return prior.mean
     if imagine == "shared":
-        return prior.mean + prior.std * randn_like(prior.mean[:1], generator)
+        eps = randn_like(prior.mean[:draws], generator)
+        return prior.mean + prior.std * eps.repeat(len(prior.mean) // draws, 1)
     return prior.sample(generator)
 
 
@@ -112,15 +130,16 @@ class ValuePlanetMind(PlanetMind):
     posterior's sample, CEM's sizes) whose candidates end in ``value`` (:func:`value_returns`)."""
 
     def __init__(self, model: RSSM, value: LatentValue | None, *, discount: float = 1.0, imagine: str = "sample",
-                 value_prior: float = 0.0, rewards: str = "model", pessimism: float = 0.0, **planner):
+                 value_prior: float = 0.0, rewards: str = "model", pessimism: float = 0.0, particles: int = 1,
+                 **planner):
         super().__init__(model, **planner)
-        _check_planner(discount, imagine, value_prior, value, rewards, pessimism)
+        _check_planner(discount, imagine, value_prior, value, rewards, pessimism, particles)
         self.value, self.discount, self.imagine, self.value_prior = value, float(discount), imagine, float(value_prior)
-        self.rewards, self.pessimism = rewards, float(pessimism)
+        self.rewards, self.pessimism, self.particles = rewards, float(pessimism), int(particles)
 
     def returns(self, actions: torch.Tensor) -> torch.Tensor:
         return value_returns(self.model, self.value, self.belief, self.state, actions, self.generator, self.discount,
-                             self.imagine, self.rewards, self.pessimism)
+                             self.imagine, self.rewards, self.pessimism, self.particles)
 
     def first_mean(self) -> torch.Tensor | None:
         if not self.value_prior:
@@ -129,7 +148,9 @@ class ValuePlanetMind(PlanetMind):
 
 
 def _check_planner(discount: float, imagine: str, value_prior: float, value, rewards: str = "model",
-                   pessimism: float = 0.0) -> None:
+                   pessimism: float = 0.0, particles: int = 1) -> None:
+    if isinstance(particles, bool) or not isinstance(particles, int) or particles < 1:
+        raise ValueError(f"particles must be an integer >= 1, got {particles!r}")
     if not 0.0 < discount <= 1.0:
         raise ValueError(f"discount must be in (0, 1], got {discount}")
     if imagine not in IMAGINE:
@@ -152,7 +173,7 @@ def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfi
                            top_k=planet.top_k, iterations=planner.iterations or planet.iterations, bits=planet.bits,
                            discount=planner.discount,
                            imagine=planner.imagine, value_prior=planner.value_prior, rewards=planner.rewards,
-                           pessimism=planner.pessimism or 0.0,
+                           pessimism=planner.pessimism or 0.0, particles=planner.particles or 1,
                            generator=torch.Generator(next(model.parameters()).device).manual_seed(int(mind_seed)))
     record = EpisodeBuffer()
     loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
@@ -184,7 +205,8 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
                             planet.horizon, **sizes)
         first = value_scores(model, value, belief, state, planner.value_prior, planner.horizon) if planner.value_prior else None
         ours = cem_belief(lambda a: value_returns(model, value, belief, state, a, generator, planner.discount,
-                                                  planner.imagine, planner.rewards, planner.pessimism or 0.0),
+                                                  planner.imagine, planner.rewards, planner.pessimism or 0.0,
+                                                  planner.particles or 1),
                           model.n_actions, planner.horizon,
                           mean=first, **sizes)
         q = action_values(model, value, belief, state)[0]
@@ -194,4 +216,4 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
     return {name: np.asarray(picks, np.int64) for name, picks in chosen.items()}
 
 
-__all__ = ["value_returns", "imagined_state", "pessimistic_q", "value_scores", "IMAGINE", "REWARDS", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
+__all__ = ["value_returns", "path_returns", "imagined_state", "pessimistic_q", "value_scores", "IMAGINE", "REWARDS", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
