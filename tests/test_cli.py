@@ -249,7 +249,10 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     from wmthesis.planet.value_runs import slug
 
     levers = ("value seeds CEM", "the value's rewards, discount 0.7")
+    finished = [results / "lean" / "metrics.json", tmp_path / "data/smoke/planet-boxing-value/lean-seed0/agent.pt"]
+    before = [(path.read_bytes(), path.stat().st_mtime_ns) for path in finished]
     checked = validate_planners("smoke", 0, levers=levers, variant="lean", progress=False)
+    assert [(path.read_bytes(), path.stat().st_mtime_ns) for path in finished] == before  # read, not written again
     assert checked["the value's rewards, discount 0.7"]["config"]["rewards"] == "value" and checked[levers[0]]["config"]["rewards"] != "value"
     assert all(len(scores["returns"]) == 1 for scores in checked.values())
     with pytest.MonkeyPatch.context() as patch:

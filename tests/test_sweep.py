@@ -245,6 +245,22 @@ def test_a_run_called_again_keeps_the_wall_time_of_the_run_that_computed_it(tmp_
     assert first_run_seconds(path, 21.9) == 21.9
 
 
+def test_a_finished_run_asked_again_differs_only_in_when_where_and_how_long(tmp_path):
+    from wmthesis.runs import unchanged_run
+
+    path = tmp_path / "metrics.json"
+    run = {"seed": 0, "date": "2026-11-27", "machine": "a", "threads": 2, "wall_seconds": 3600.0, "returns": [1.0, 2.0],
+           "files": {"figures": ["x.png"]}}
+    assert unchanged_run(path, run) is None  # nothing written yet
+    path.write_text(json.dumps(run))
+    again = {**run, "date": "2026-11-28", "machine": "b", "threads": 1, "wall_seconds": 3.1, "returns": (1.0, 2.0)}
+    assert unchanged_run(path, {k: v for k, v in again.items() if k != "files"}) == run  # the earlier, as it was
+    assert unchanged_run(path, {**again, "returns": [1.0, 3.0]}) is None  # another result: written again
+    assert unchanged_run(path, {**again, "seed": 1}) is None
+    path.write_text("{not json")
+    assert unchanged_run(path, again) is None
+
+
 def test_the_summary_skips_corrupt_and_foreign_files_naming_them(tmp_path):
     good = _write_run(tmp_path, "boxing-wm", 0, 5.0)
     corrupt = tmp_path / "results" / "boxing-wm" / "quick-seed1" / "metrics.json"

@@ -131,6 +131,18 @@ def run_header(experiment: str, profile: str, seed: int, seconds: float, **run) 
             "threads": torch.get_num_threads(), "wall_seconds": round(seconds, 1)}
 
 
+RUN_CIRCUMSTANCES = ("date", "machine", "threads", "wall_seconds", "files")  # when, where and how long; not what
+
+
+def unchanged_run(path: str | os.PathLike, metrics: dict) -> dict | None:
+    """The metrics already at ``path`` where they hold what ``metrics`` holds, but for when, where and
+    how long the run took (:data:`RUN_CIRCUMSTANCES`): a finished run asked again, with nothing to
+    write; else None."""
+    earlier = read_json(path)
+    what = lambda m: {k: v for k, v in json.loads(json.dumps(m)).items() if k not in RUN_CIRCUMSTANCES}  # noqa: E731
+    return earlier if earlier is not None and what(earlier) == what(metrics) else None
+
+
 def first_run_seconds(path: Path, seconds: float, same: Callable[[dict], bool] | None = None) -> float:
     """The wall time of the run that computed everything: kept from an earlier metrics file at
     ``path`` (its ``first_run_wall_seconds``, or the ``wall_seconds`` of a file written before

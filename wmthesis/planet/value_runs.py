@@ -24,7 +24,7 @@ from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value
 from wmthesis.planet.value_planner import PLANNERS, plan_choices
 from wmthesis.planet.value_rounds import CHECKPOINT, STORE, load_value, train_value
 from wmthesis import runs as run_store
-from wmthesis.runs import atomic_path, first_run_seconds, read_json, run_header, write_json
+from wmthesis.runs import atomic_path, first_run_seconds, read_json, run_header, unchanged_run, write_json
 from wmthesis.stamp import git_commit
 from wmthesis.training import with_added_defaults
 from wmthesis.utils import check_choice
@@ -121,7 +121,6 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     fit_for_planners(planet_run, work, [planner], config, seed)
     scores = value_planner_scores(planet_run, work, planner, bouts, agent_key(chosen["rounds"], config),
                                   progress, game=game)
-    save_agent(work / AGENT_NAME, game, planet_run, bouts, git_commit(), value_run=work, planner=planner)  # for `play`
     value, unit = score_summary(returns), "bouts" if game == "boxing" else "episodes"
     seconds = time.time() - started
     metrics = {**run_header(experiment, profile, seed, seconds, env=game,
@@ -141,6 +140,10 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
                "bouts": [list(b) for b in bouts], "curve": run["curve"], "best_round": run["best_round"],
                "agent_rounds": chosen["rounds"],
                "config": dataclasses.asdict(config)}
+    earlier = unchanged_run(out / "metrics.json", metrics)
+    if earlier is not None and (work / AGENT_NAME).is_file():
+        return earlier  # a finished run asked again (by validate, a budget curve): its files stay as they are
+    save_agent(work / AGENT_NAME, game, planet_run, bouts, git_commit(), value_run=work, planner=planner)  # for `play`
     metrics["files"] = {"figures": [str(save_figure(value_curve_figure(metrics, references), out / "value_curve.png"))]}
     write_json(out / "metrics.json", metrics)
     return metrics
