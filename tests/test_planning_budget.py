@@ -170,3 +170,27 @@ def test_a_fresh_clone_plays_cems_budgets_on_the_shipped_agents_to_the_same_scor
     assert [(r["budget"], r["score"], r["no_search_score"]) for r in cloned] == \
         [(r["budget"], r["score"], r["no_search_score"]) for r in trained]
     assert not (clone / "smoke" / "planet-boxing-value" / "lean-value-rewards-0.7-seed0" / "value.pt").exists()
+
+
+def test_cems_budget_counts_every_imagined_path_of_a_planner_with_particles(tmp_path, monkeypatch):
+    """A budget is the imagined steps an action: H x J x I, times K where each candidate is the mean
+    of K imagined paths; the row without search stays 0."""
+    import dataclasses
+    import importlib
+
+    from wmthesis.planet.config import ValuePlannerConfig
+
+    planning_budget = importlib.import_module("wmthesis.experiments.planning_budget")  # the module, not its recipe
+    played = {}
+
+    def scores(planet_run, work, metrics, planners, bouts, progress, folder):
+        played.update(planners)
+        return {name: {"returns": [1.0, 2.0], "ms_per_action": 1.0} for name in planners}
+
+    config = dataclasses.asdict(ValuePlannerConfig(rewards="value", particles=4))
+    monkeypatch.setattr(planning_budget, "frozen_agent", lambda *a, **k: ({"value_planner": {"config": config},
+                                                                            "bouts": [[0, 0], [1, 1]]}, tmp_path))
+    monkeypatch.setattr(planning_budget, "lever_scores", scores)
+    rows = planning_budget.cem_curve("smoke", 0, progress=False, budgets=((2, 16, 2), (3, 10, 1)))
+    assert [r["budget"] for r in rows] == [0, 2 * 16 * 2 * 4, 3 * 10 * 1 * 4]
+    assert [(p.horizon, p.candidates, p.particles) for p in played.values()] == [(1, None, 4), (2, 16, 4), (3, 10, 4)]

@@ -139,11 +139,11 @@ def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = 
 def cem_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
     """CEM with the value on PlaNet's Boxing model: the default value run's planner with its horizon,
     candidates and iterations set by each ``(H, J, I)`` of ``budgets`` (default the profile's
-    :data:`CEM_BUDGETS`; budget H x J x I), and the value alone (H = 1: budget 0), on the first
+    :data:`CEM_BUDGETS`; budget H x J x I x its particles), and the value alone (H = 1: budget 0), on the first
     :data:`BOXING_BOUTS` of the value's evaluation bouts."""
     metrics, work = frozen_agent("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(None), progress)
     base = with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"])
-    budgets = {NO_SEARCH: dict(horizon=1), **{h * j * i: dict(horizon=h, candidates=j, iterations=i)
+    budgets = {NO_SEARCH: dict(horizon=1), **{h * j * i * (base["particles"] or 1): dict(horizon=h, candidates=j, iterations=i)
                                               for h, j, i in budgets or CEM_BUDGETS[profile]}}
     planners = {f"budget {budget}": ValuePlannerConfig(**{**base, **changes}) for budget, changes in budgets.items()}
     scores = lever_scores(frozen_agent("planet-boxing-agent", profile, seed, progress=progress)[1], work,
