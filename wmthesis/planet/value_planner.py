@@ -60,12 +60,10 @@ def value_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, 
     heads less beta times their spread (:func:`pessimistic_q`); the first step's Q, from the real
     belief, is the value agent's own. ``particles`` K: each candidate's return is the mean over K
     imagined paths (its actions repeated K times; with ``shared``, K noise draws shared by all)."""
-    if particles > 1:  # candidate j's paths are rows j K .. j K + K - 1
-        belief, state = (x.repeat_interleave(particles, 0) if len(x) > 1 else x for x in (belief, state))
-        paths = path_returns(model, value, belief, state, actions.repeat_interleave(particles, 0), generator,
-                             discount, imagine, rewards, pessimism, draws=particles)
-        return paths.view(-1, particles).mean(1)
-    return path_returns(model, value, belief, state, actions, generator, discount, imagine, rewards, pessimism)
+    belief, state = (x.repeat_interleave(particles, 0) if len(x) > 1 else x for x in (belief, state))
+    paths = path_returns(model, value, belief, state, actions.repeat_interleave(particles, 0), generator,
+                         discount, imagine, rewards, pessimism, draws=particles)  # candidate j: rows j K .. j K + K - 1
+    return paths.view(-1, particles).mean(1)
 
 
 def path_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, state: torch.Tensor,
