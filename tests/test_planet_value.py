@@ -440,3 +440,29 @@ def test_the_value_curve_is_drawn_from_a_run_s_metrics_alone():
     earlier = {**{k: v for k, v in metrics.items() if k != "agent_rounds"}, "best_round": 2}  # a run of 26 November
     ax = value_curve_figure(earlier, {}).axes[0]
     assert [list(line.get_ydata()) for line in ax.lines if line.get_marker() == "."] == [[4.0, 6.0]]  # one round: no mean
+
+
+def test_imagined_features_follow_the_actions_taken_from_each_posterior_and_their_signal_is_a_correlation():
+    from wmthesis.planet.imagination import imagined_features, value_signal
+
+    model, value = frozen_rssm(), LatentValue(20, 16, heads=2).eval()
+    beliefs, states, actions = torch.randn(5, 16), torch.randn(5, 4), torch.tensor([0, 2, 1, 1, 0])
+    with torch.no_grad():
+        assert torch.equal(imagined_features(model, beliefs, states, actions, 0),
+                           after_action(model, beliefs, states, actions))
+        h, prior = model.transition(beliefs[:3], states[:3], torch.eye(3)[actions[:3]])
+        h, prior = model.transition(h, prior.mean, torch.eye(3)[actions[1:4]])  # the prior's mean, no draws
+        assert torch.allclose(imagined_features(model, beliefs, states, actions, 2),
+                              after_action(model, h, prior.mean, actions[2:]))
+        drawn = imagined_features(model, beliefs, states, actions, 2, torch.Generator().manual_seed(0))
+        assert drawn.shape == (3, 20) and not torch.allclose(drawn, after_action(model, h, prior.mean, actions[2:]))
+    for depth in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="depth"):
+            imagined_features(model, beliefs, states, actions, depth)
+    episodes = [play_random_episode(DelayedPunch(), 0, k) for k in range(2)]
+    signal = value_signal(model, value, episodes, 5, depths=(0, 1))
+    with torch.no_grad():
+        q = np.concatenate([value(episode_features(model, e, 5, k)).numpy() for k, e in enumerate(episodes)])
+    sums = np.concatenate([reward_sums(e["rewards"], 3) for e in episodes])
+    assert signal[0] == pytest.approx(np.corrcoef(q, sums)[0, 1], abs=1e-5) and set(signal) == {0, 1}
+    assert signal[1] != pytest.approx(signal[0], abs=1e-4)
