@@ -466,3 +466,25 @@ def test_imagined_features_follow_the_actions_taken_from_each_posterior_and_thei
     sums = np.concatenate([reward_sums(e["rewards"], 3) for e in episodes])
     assert signal[0] == pytest.approx(np.corrcoef(q, sums)[0, 1], abs=1e-5) and set(signal) == {0, 1}
     assert signal[1] != pytest.approx(signal[0], abs=1e-4)
+
+
+def test_a_seeds_value_signal_is_kept_and_read_back_and_a_missing_value_run_says_how_to_fit_it(monkeypatch):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from wmthesis import runs as run_store
+    from wmthesis.planet import imagination
+
+    seed = 917  # no run of this seed exists in the tests' data
+    with pytest.raises(FileNotFoundError, match="reproduce planet-boxing-value --profile smoke --seed 917"):
+        imagination.seed_value_signal("smoke", seed)
+    path = run_store.results_folder("planning-budget", "smoke", seed) / "value_signal.json"
+    run_store.write_json(path, {"depths": [0, 1], "bouts": 20, "steps": 100, "correlation": {"0": 0.3, "1": 0.1}})
+    monkeypatch.setattr(imagination, "planner_model", lambda *a: pytest.fail("the kept signal is measured again"))
+    assert imagination.seed_value_signal("smoke", seed, depths=(0, 1)) == {0: 0.3, 1: 0.1}
+    with pytest.raises(FileNotFoundError):  # other depths: measured anew, and there is no run to measure
+        imagination.seed_value_signal("smoke", seed, depths=(0, 1, 2))
+    figure = imagination.plot_value_signal({0: {0: 0.3, 1: 0.1}, 1: {0: 0.4, 1: 0.2}})
+    lines = figure.axes[0].get_lines()
+    assert [line.get_label() for line in lines][:3] == ["seed 0", "seed 1", "mean"]
+    assert np.allclose(lines[2].get_ydata(), [0.35, 0.15])

@@ -20,8 +20,18 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from wmthesis import runs as run_store
+from wmthesis.config import for_profile
+from wmthesis.data import EpisodeStore
+from wmthesis.planet.config import LatentValueConfig
+from wmthesis.planet.own_rewards import planner_model
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.value import after_action, episode_features, reward_sums
+from wmthesis.planet.value_rounds import STORE
+from wmthesis.planet.value_variants import value_folder
+
+SIGNAL_DEPTHS = (0, 1, 2, 3, 6)  # imagined steps: 0 the real belief; CEM's quick horizons reach 1, 2 and 5
+SIGNAL_BOUTS = 20  # the last bouts of the value run's store that the signal is measured on
 
 
 def imagined_features(model: RSSM, beliefs: torch.Tensor, states: torch.Tensor, actions: torch.Tensor, depth: int,
@@ -60,4 +70,48 @@ def value_signal(model: RSSM, value: nn.Module, episodes: list[dict], bits: int,
     return {d: float(np.corrcoef(np.concatenate(q[d]), np.concatenate(sums[d]))[0, 1]) for d in depths}
 
 
-__all__ = ["imagined_features", "value_signal"]
+def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_DEPTHS,
+                      bouts: int = SIGNAL_BOUTS) -> dict[int, float]:
+    """:func:`value_signal` of ``seed``'s default Boxing value on its frozen PlaNet model, on the
+    last ``bouts`` bouts of the value run's store; kept in the seed's ``planning-budget`` results
+    (``value_signal.json``) and read from there when it holds these depths and bouts, so a fresh
+    clone reads the committed measurement."""
+    path = run_store.results_folder("planning-budget", profile, seed) / "value_signal.json"
+    kept = run_store.read_json(path)
+    if kept and kept["depths"] == list(depths) and kept["bouts"] == bouts:
+        return {int(depth): value for depth, value in kept["correlation"].items()}
+    value_run = value_folder(profile, seed)
+    if not (value_run / STORE).is_file():
+        raise FileNotFoundError(f"{value_run / STORE}: no fitted value for seed {seed} in {profile}; run "
+                                f"`python -m wmthesis reproduce planet-boxing-value --profile {profile} --seed {seed}`")
+    model, planet, value = planner_model(run_store.work_folder(profile, "planet-boxing-agent", seed), value_run, None)
+    with EpisodeStore(value_run / STORE, "r") as store:
+        episodes = [store.episode(index) for index in range(max(0, len(store) - bouts), len(store))]
+    signal = value_signal(model, value, episodes, planet.bits, depths=tuple(depths), seed=seed,
+                          reward_steps=for_profile(LatentValueConfig, profile).reward_steps)
+    run_store.write_json(path, {"depths": list(depths), "bouts": len(episodes),
+                                "steps": int(sum(len(e["actions"]) for e in episodes)),
+                                "correlation": {str(depth): value for depth, value in signal.items()}})
+    return signal
+
+
+def plot_value_signal(signals: dict[int, dict[int, float]]):
+    """The value's correlation with the rewards that followed against the imagined steps, each seed
+    a line (``signals``: seed -> depth -> correlation), the mean in black. Returns the figure."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.5, 3.2))
+    depths = sorted(set.intersection(*(set(signal) for signal in signals.values())))
+    for seed, signal in sorted(signals.items()):
+        ax.plot(depths, [signal[d] for d in depths], "o-", lw=1, ms=3, alpha=0.6, label=f"seed {seed}")
+    ax.plot(depths, [np.mean([signal[d] for signal in signals.values()]) for d in depths], "k-", lw=2, label="mean")
+    ax.axhline(0, color="grey", lw=0.5)
+    ax.set_xlabel("imagined steps before the action (0: the real belief)")
+    ax.set_ylabel("corr(Q, rewards that followed)")
+    ax.set_title("how far the value reads the model's imagination", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+__all__ = ["imagined_features", "value_signal", "seed_value_signal", "plot_value_signal", "SIGNAL_DEPTHS", "SIGNAL_BOUTS"]
