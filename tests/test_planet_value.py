@@ -459,6 +459,8 @@ def test_imagined_features_follow_the_actions_taken_from_each_posterior_and_thei
     for depth in (-1, 1.5, True):
         with pytest.raises(ValueError, match="depth"):
             imagined_features(model, beliefs, states, actions, depth)
+    with torch.no_grad():  # deeper than the episode: no step to read
+        assert imagined_features(model, beliefs, states, actions, 7).shape == (0, 20)
     episodes = [play_random_episode(DelayedPunch(), 0, k) for k in range(2)]
     signal = value_signal(model, value, episodes, 5, depths=(0, 1))
     with torch.no_grad():

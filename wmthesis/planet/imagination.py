@@ -43,7 +43,7 @@ def imagined_features(model: RSSM, beliefs: torch.Tensor, states: torch.Tensor, 
     Depth 0: the features after each action from the posterior itself."""
     if isinstance(depth, bool) or not isinstance(depth, int) or depth < 0:
         raise ValueError(f"depth must be an integer >= 0, got {depth!r}")
-    count = len(actions) - depth
+    count = max(0, len(actions) - depth)  # an episode shorter than the depth has no such step
     belief, state = beliefs[:count], states[:count]
     for step in range(depth):
         belief, prior = model.transition(belief, state, F.one_hot(actions[step:step + count], model.n_actions).float())
@@ -73,7 +73,7 @@ def value_signal(model: RSSM, value: nn.Module, episodes: list[dict], bits: int,
 def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_DEPTHS,
                       bouts: int = SIGNAL_BOUTS) -> dict[int, float]:
     """:func:`value_signal` of ``seed``'s default Boxing value on its frozen PlaNet model, on the
-    last ``bouts`` bouts of the value run's store; kept in the seed's ``planning-budget`` results
+    last ``bouts`` bouts of the value run's store (all of it where it holds fewer); kept in the seed's ``planning-budget`` results
     (``value_signal.json``) and read from there when it holds these depths and bouts, so a fresh
     clone reads the committed measurement."""
     path = run_store.results_folder("planning-budget", profile, seed) / "value_signal.json"
@@ -89,7 +89,7 @@ def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_
         episodes = [store.episode(index) for index in range(max(0, len(store) - bouts), len(store))]
     signal = value_signal(model, value, episodes, planet.bits, depths=tuple(depths), seed=seed,
                           reward_steps=for_profile(LatentValueConfig, profile).reward_steps)
-    run_store.write_json(path, {"depths": list(depths), "bouts": len(episodes),
+    run_store.write_json(path, {"depths": list(depths), "bouts": bouts, "episodes": len(episodes),
                                 "steps": int(sum(len(e["actions"]) for e in episodes)),
                                 "correlation": {str(depth): value for depth, value in signal.items()}})
     return signal
