@@ -486,6 +486,10 @@ def test_a_seeds_value_signal_is_kept_and_read_back_and_a_missing_value_run_says
     assert imagination.seed_value_signal("smoke", seed, depths=(0, 1)) == {0: 0.3, 1: 0.1}
     with pytest.raises(FileNotFoundError):  # other depths: measured anew, and there is no run to measure
         imagination.seed_value_signal("smoke", seed, depths=(0, 1, 2))
+    for corrupt in ("{not json", '{"depths": [0, 1], "bouts": 20}'):  # cut off mid-write, or missing its numbers
+        path.write_text(corrupt)
+        with pytest.raises(FileNotFoundError):  # read as absent: measured anew
+            imagination.seed_value_signal("smoke", seed, depths=(0, 1))
     figure = imagination.plot_value_signal({0: {0: 0.3, 1: 0.1}, 1: {0: 0.4, 1: 0.2}})
     lines = figure.axes[0].get_lines()
     assert [line.get_label() for line in lines][:3] == ["seed 0", "seed 1", "mean"]

@@ -27,6 +27,7 @@ from wmthesis.planet.config import LatentValueConfig
 from wmthesis.planet.own_rewards import planner_model
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.value import after_action, episode_features, reward_sums
+from wmthesis.planet.value_planner import imagined_state
 from wmthesis.planet.value_rounds import STORE
 from wmthesis.planet.value_variants import value_folder
 
@@ -47,7 +48,7 @@ def imagined_features(model: RSSM, beliefs: torch.Tensor, states: torch.Tensor, 
     belief, state = beliefs[:count], states[:count]
     for step in range(depth):
         belief, prior = model.transition(belief, state, F.one_hot(actions[step:step + count], model.n_actions).float())
-        state = prior.mean if generator is None else prior.sample(generator)
+        state = imagined_state(prior, generator, "mean" if generator is None else "sample")
     return after_action(model, belief, state, actions[depth:])
 
 
@@ -78,7 +79,7 @@ def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_
     clone reads the committed measurement."""
     path = run_store.results_folder("planning-budget", profile, seed) / "value_signal.json"
     kept = run_store.read_json(path)
-    if kept and kept["depths"] == list(depths) and kept["bouts"] == bouts:
+    if kept and kept.get("depths") == list(depths) and kept.get("bouts") == bouts and "correlation" in kept:
         return {int(depth): value for depth, value in kept["correlation"].items()}
     value_run = value_folder(profile, seed)
     if not (value_run / STORE).is_file():
