@@ -96,6 +96,30 @@ class NoopStart(gym.Wrapper):
         return observation, info
 
 
+class ScoredStart(gym.Wrapper):
+    """No-op starts the agent sees, as the World Models controller was scored (the batched
+    :class:`~wmthesis.envs.vector.AtariGame`): after a reset with ``seed``, the first
+    :func:`noop_count` steps play action 0 whatever the agent asks, and every step's
+    ``info["action"]`` is the action played (a mind that steps a memory steps it with that one).
+    Unlike :class:`NoopStart`, the no-op frames are the agent's, so its memory sees them."""
+
+    def __init__(self, env, noop_max: int = 30):
+        super().__init__(env)
+        self.noop_max, self.noops, self.t = noop_max, 0, 0
+
+    def reset(self, *, seed=None, options=None):
+        observation, info = self.env.reset(seed=seed, options=options)
+        self.noops = noop_count(seed, self.noop_max) if seed is not None else 0
+        self.t = 0
+        return observation, {**info, "noops": self.noops}
+
+    def step(self, action):
+        played = 0 if self.t < self.noops else action
+        self.t += 1
+        observation, reward, terminated, truncated, info = self.env.step(played)
+        return observation, reward, terminated, truncated, {**info, "action": int(played)}
+
+
 def noop_count(seed: int, noop_max: int = 30) -> int:
     """The number of no-ops :class:`NoopStart` plays after a reset with ``seed``."""
     return int(np.random.default_rng(seed).integers(max(noop_max, 1)))

@@ -119,7 +119,8 @@ class ControllerMind(Mind, Callback):
     @torch.inference_mode()
     def on_step_taken(self, step, transition, info) -> None:
         if self.memory is not None:
-            action = torch.tensor([transition.action], device=self.z.device)
+            played = info.get("action", transition.action) if info else transition.action  # ScoredStart's no-ops
+            action = torch.tensor([played], device=self.z.device)
             out = self.memory.step(self.z, action, self.state)
             self.h, self.state = out.hidden, out.state
         self.z = None

@@ -16,6 +16,7 @@ estimated with one reparameterised sample z = mu + exp(logvar / 2) * eps.
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -121,13 +122,45 @@ class VAEVision:
 
     ``bfloat16=True`` encodes under bfloat16 autocast: about twice as fast on a CPU with
     AVX-512 BF16, latents within ~1e-2 of float32 (use the same vision to train and to play).
+    Frames and latents may be numpy arrays or torch tensors; nothing tracks gradients.
+    :meth:`decode` needs the VAE's decoder (a shipped agent's ``decoder.pt``): without it, it
+    raises an error saying so.
     """
 
     def __init__(self, vae: torch.nn.Module, bfloat16: bool = False):
         self.vae, self.bfloat16 = vae.eval(), bfloat16
         self.latent_size = vae.latent_size
 
-    def __call__(self, frames: torch.Tensor) -> torch.Tensor:
-        device = next(self.vae.parameters()).device
+    @torch.no_grad()
+    def __call__(self, frames) -> torch.Tensor:
+        frames = check_frames(frames)
+        device = next(self.vae.encoder.parameters()).device
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=self.bfloat16):
             return self.vae.encode(frames_to_input(frames.to(device)))[0].float()
+
+    encode = __call__
+
+    @torch.no_grad()
+    def decode(self, z) -> np.ndarray:
+        """Latents (N, L) -> frames (N, 64, 64, 3) uint8 (the decoder's means)."""
+        z = torch.as_tensor(np.asarray(z, np.float32) if not isinstance(z, torch.Tensor) else z).float()
+        if z.ndim != 2 or z.shape[-1] != self.latent_size:
+            raise ValueError(f"latents must be (N, {self.latent_size}), got {tuple(z.shape)}")
+        device = next(self.vae.encoder.parameters()).device
+        return input_to_frames(self.vae.decode(z.to(device))).cpu().numpy()
+
+    def reconstruct(self, frames) -> np.ndarray:
+        """Frames (N, 64, 64, 3) uint8 -> their reconstructions from the latent means, same shape."""
+        return self.decode(self(frames))
+
+
+def check_frames(frames) -> torch.Tensor:
+    """World Models frames as a uint8 tensor (N, 64, 64, 3); ValueError saying what was expected
+    and which environment gives it otherwise."""
+    if not isinstance(frames, torch.Tensor):
+        frames = torch.as_tensor(np.asarray(frames))
+    if frames.dtype != torch.uint8 or frames.ndim != 4 or tuple(frames.shape[1:]) != (64, 64, 3):
+        raise ValueError(f"the vision sees uint8 frames (N, 64, 64, 3), got {frames.dtype} {tuple(frames.shape)}: "
+                         "`agent.env()` (make_env('boxing', preprocessing='world_models')) gives them, one at a time "
+                         "(stack them: frames[None] for one)")
+    return frames

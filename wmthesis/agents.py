@@ -1,0 +1,178 @@
+"""A trained agent, one way for every family: ``wmthesis.load(experiment, variant=None, profile="quick", seed=0)``.
+
+    agent = wmthesis.load("boxing-wm")           # the shipped quick seed-0 agent
+    env = agent.env()                            # the game as it was trained and scored on
+    agent.play(bouts=1)                          # the scored bouts, as the evaluation played them: [44.0]
+    agent.play(bouts=1, policy=lambda frame: 0, max_steps=300)   # a policy of one's own, same env
+    agent.mind()                                 # a mind for wmthesis.core.loop
+    agent.vision, agent.memory, agent.controller # its parts by their thesis names
+
+Every agent has ``env()``, ``mind()``, ``play()``, ``experiment``, ``variant``, ``profile``,
+``seed``, ``path`` and ``info`` (what its file says of it), and the parts its family has:
+``vision``, ``memory``, ``controller`` (World Models), ``search`` (the tree search of World Models
++ AlphaZero, the best-first search of Sokoban), ``model``, ``planner`` and ``value`` (PlaNet and
+its value; Sokoban's learned model and value). A part the family lacks is None.
+
+This module loads no torch until an agent is loaded: a bad name is refused at once.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from wmthesis.config import PROFILES
+from wmthesis.utils import check_choice
+
+
+@dataclass(frozen=True)
+class AgentDeclaration:
+    """Where an experiment's trained agent lives and how it loads: ``file(profile, seed, variant)``
+    relative to ``data/`` (``variant`` the registry's folder name, None for the default's own
+    folders), ``loader`` (``"module:function"``, called with the path and the run's names), the
+    ``variants`` registry (``"module:NAME"``, None: the experiment has none)."""
+    experiment: str
+    file: Callable[[str, int, str | None, str], str]
+    loader: str
+    variants: str | None = None
+
+
+def _registry(declaration: AgentDeclaration):
+    if declaration.variants is None:
+        return None
+    module, name = declaration.variants.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+AGENTS = {d.experiment: d for d in (
+    AgentDeclaration("boxing-wm", lambda p, s, folder, name: f"{p}/boxing-wm/seed{s}/agent-{name}.pt",
+                     "wmthesis.world_models.trained:load_trained", "wmthesis.world_models.variants:BOXING_WM"),
+    AgentDeclaration("boxing-wm-alphazero", lambda p, s, folder, name: f"{p}/boxing-wm-alphazero/seed{s}/agent-{name}.pt",
+                     "wmthesis.alphazero.trained:load_trained", "wmthesis.alphazero.variants:VARIANTS"),
+    AgentDeclaration("planet-boxing-agent", lambda p, s, folder, name: f"{p}/planet-boxing-agent/seed{s}/agent.pt",
+                     "wmthesis.planet.trained:load_trained"),
+    AgentDeclaration("planet-boxing-value",
+                     lambda p, s, folder, name: f"{p}/planet-boxing-value/{folder + '-' if folder else ''}seed{s}/agent.pt",
+                     "wmthesis.planet.trained:load_trained", "wmthesis.planet.value_variants:VALUE_VARIANTS"),
+    AgentDeclaration("planet-freeway",
+                     lambda p, s, folder, name: f"{p}/planet-freeway/{folder + '-' if folder else ''}seed{s}/agent.pt",
+                     "wmthesis.planet.trained:load_trained", "wmthesis.planet.variants:PLANET_FREEWAY"),
+    AgentDeclaration("sokoban-search", lambda p, s, folder, name: f"{p}/sokoban-search/seed{s}/pixels/state.pt",
+                     "wmthesis.sokoban_search.trained:load_trained"),
+)}
+
+
+def agent_file(experiment: str, variant: str | None = None, profile: str = "quick", seed: int = 0) -> Path:
+    """The file of ``experiment``'s trained agent (``variant``: one of its variants, None its
+    default) for ``profile`` and ``seed``; ValueError naming the valid choices otherwise."""
+    from wmthesis.utils import data_dir
+
+    check_choice("experiment with an agent", experiment, tuple(AGENTS))
+    check_choice("profile", profile, PROFILES)
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**31:
+        raise ValueError(f"seed must be an integer in [0, 2**31), got {seed!r}")
+    declaration = AGENTS[experiment]
+    registry = _registry(declaration)
+    if registry is None:
+        if variant is not None:
+            raise ValueError(f"{experiment} has no variants, got {variant!r}")
+        name = folder = None
+    else:
+        name, folder = registry.check(variant).name, registry.folder_name(variant)
+    return data_dir() / declaration.file(profile, seed, folder, name)
+
+
+def load(experiment: str, *, variant: str | None = None, profile: str = "quick", seed: int = 0):
+    """The trained agent of ``experiment`` (see the module docstring). Nothing is trained or
+    downloaded: an agent that is not there raises FileNotFoundError naming the command that
+    trains it; a file that is truncated, of another experiment or of an older format raises
+    ValueError naming the file."""
+    path = agent_file(experiment, variant, profile, seed)
+    if not path.is_file():
+        flag = f" --variant {variant}" if variant else ""
+        raise FileNotFoundError(f"no trained {experiment} agent at {path}: train it with `python -m wmthesis "
+                                f"reproduce {experiment} --profile {profile} --seed {seed}{flag}`")
+    module, function = AGENTS[experiment].loader.split(":")
+    registry = _registry(AGENTS[experiment])
+    name = None if registry is None else registry.check(variant).name
+    return getattr(importlib.import_module(module), function)(path, experiment=experiment, variant=name,
+                                                               profile=profile, seed=seed)
+
+
+class TrainedAgent:
+    """What every loaded agent has (the module docstring); a family fills in :meth:`env`,
+    :meth:`mind`, :meth:`scored_seeds` and :meth:`play_scored`."""
+    vision = memory = controller = search = model = planner = value = None
+
+    def __init__(self, path: Path, experiment: str, variant: str | None, profile: str, seed: int, info: dict):
+        self.path, self.experiment, self.variant, self.profile, self.seed = Path(path), experiment, variant, profile, seed
+        self.info = info
+
+    def __repr__(self) -> str:
+        parts = [p for p in ("vision", "memory", "controller", "search", "model", "planner", "value")
+                 if getattr(self, p) is not None]
+        return (f"<{type(self).__name__} {self.experiment}{':' + self.variant if self.variant else ''} "
+                f"{self.profile} seed {self.seed}: {', '.join(parts)}>")
+
+    def env(self):
+        """The environment the agent was trained and scored on, with the same preprocessing."""
+        raise NotImplementedError
+
+    def mind(self):
+        """A mind that :func:`wmthesis.core.loop` plays (pass it as a callback too)."""
+        raise NotImplementedError
+
+    def scored_seeds(self, bouts: int) -> list[int]:
+        """The reset seeds of the first ``bouts`` scored bouts (or levels)."""
+        raise NotImplementedError
+
+    def play_scored(self, bouts: int) -> list[float]:
+        """The agent's returns on its first ``bouts`` scored bouts, played as its evaluation did."""
+        raise NotImplementedError
+
+    def play(self, bouts: int = 1, policy: Callable | None = None, max_steps: int | None = None) -> list[float]:
+        """Returns of the first ``bouts`` scored bouts (or levels: 1.0 solved, 0.0 not, for
+        Sokoban): played by the agent as its evaluation did, or by ``policy`` (observation ->
+        action, an int) through :meth:`env` on the same starts, ``max_steps`` steps at most."""
+        if isinstance(bouts, bool) or not isinstance(bouts, int) or bouts < 1:
+            raise ValueError(f"bouts must be a positive integer, got {bouts!r}")
+        if policy is None and max_steps is None:
+            return self.play_scored(bouts)
+        return self.loop_bouts(bouts, policy, max_steps)
+
+    def loop_bouts(self, bouts: int, policy: Callable | None = None, max_steps: int | None = None) -> list[float]:
+        """The returns of :meth:`mind` (or ``policy``) through :meth:`env` on the first ``bouts``
+        scored starts, one :func:`wmthesis.core.loop` each."""
+        from wmthesis.core import loop
+
+        env, returns = self.env(), []
+        mind = self.mind() if policy is None else PolicyMind(policy, int(env.action_space.n))
+        try:
+            for seed in self.scored_seeds(bouts):
+                history = loop(env, mind, callbacks=[mind] if policy is None else None, seed=int(seed),
+                               max_steps=max_steps, train_mode=False)
+                returns.append(float(history[0]["return"]))
+        finally:
+            env.close()
+        return returns
+
+
+class PolicyMind:
+    """A plain policy (observation -> action in [0, n_actions)) as a mind: one-hot scores of its action."""
+
+    def __init__(self, policy: Callable, n_actions: int):
+        self.policy, self.n_actions = policy, n_actions
+
+    def plan(self, state, train_mode: bool = True, debug_mode: bool = False):
+        import numpy as np
+
+        action = self.policy(state)
+        if isinstance(action, bool) or not isinstance(action, (int, np.integer)) or not 0 <= action < self.n_actions:
+            raise ValueError(f"the policy must return an action in [0, {self.n_actions}), got {action!r}")
+        scores = np.zeros(self.n_actions)
+        scores[int(action)] = 1.0
+        return scores
+
+
+__all__ = ["AGENTS", "AgentDeclaration", "agent_file", "load", "TrainedAgent", "PolicyMind"]

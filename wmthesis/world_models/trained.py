@@ -1,0 +1,82 @@
+"""A trained World Models agent as :func:`wmthesis.load` gives it (thesis 4.2): the vision (with its
+decoder where one ships beside the agent), the memory, the controller, on Boxing as it was scored.
+
+    agent = wmthesis.load("boxing-wm")
+    z = agent.vision(frames)                  # (N, 64, 64, 3) uint8 -> (N, 16)
+    agent.vision.decode(z)                    # -> (N, 64, 64, 3) uint8
+    agent.dream(frames, actions, context=60, horizon=10)   # the memory's open-loop dream
+    agent.play(bouts=1)                       # [44.0]: the first scored bout
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from wmthesis.agents import TrainedAgent
+from wmthesis.world_models.agent import load_agent
+from wmthesis.world_models.controller import Controller, ControllerMind
+from wmthesis.world_models.decoder import DECODER_NAME, MissingDecoder, attach_decoder
+
+
+def shipped_decoder(vision, folder: Path) -> dict | None:
+    """Attach the decoder file in ``folder`` (or, for an agent seeing through boxing-wm's vision,
+    in boxing-wm's folder of the same seed) to ``vision``; its ``fitted_on``, or None where none
+    ships (the vision then refuses to decode, saying why)."""
+    candidates = [folder / DECODER_NAME, folder.parent.parent / "boxing-wm" / folder.name / DECODER_NAME]
+    for path in candidates:
+        if path.is_file():
+            return attach_decoder(vision.vae, path)
+    vision.vae.decoder = MissingDecoder(
+        f"no decoder ships for this vision (looked for {', '.join(map(str, candidates))}): an agent file keeps only "
+        "the encoder; `python tools/fit_decoders.py world-models` fits one to it")
+    return None
+
+
+class WorldModelsAgent(TrainedAgent):
+    """boxing-wm's agent: ``vision`` (:class:`~wmthesis.world_models.vision.VAEVision`),
+    ``memory`` (the MDN-RNN), ``controller`` (:class:`~wmthesis.world_models.controller.Controller`)."""
+
+    def __init__(self, path: Path, experiment: str, variant: str | None, profile: str, seed: int):
+        loaded = load_agent(path)
+        super().__init__(path, experiment, variant, profile, seed, loaded.info)
+        task = loaded.info["task"]
+        self.vision, self.memory = loaded.vision, loaded.memory
+        self.controller = Controller.from_flat(loaded.params, task["latent_size"], task["hidden_size"],
+                                               task["n_actions"]).eval()
+        self.decoder_info = shipped_decoder(self.vision, Path(path).parent)
+
+    def env(self):
+        """Boxing with World Models frames (64, 64, 3) uint8 and the scored bouts' no-op starts,
+        played where the agent sees them (:class:`~wmthesis.envs.atari.ScoredStart`)."""
+        from wmthesis.envs.atari import ScoredStart, make_atari
+
+        return ScoredStart(make_atari("Boxing", preprocessing="world_models"),
+                           self.info["controller_config"]["noop_max"])
+
+    def mind(self) -> ControllerMind:
+        return ControllerMind(self.vision, self.memory, self.controller)
+
+    def scored_seeds(self, bouts: int) -> list[int]:
+        from wmthesis.world_models.evolution import final_bout_seeds
+
+        return [int(s) for s in final_bout_seeds(bouts)]
+
+    def play_scored(self, bouts: int) -> list[float]:
+        return self.loop_bouts(bouts, max_steps=self.info["controller_config"].get("max_steps"))
+
+    def dream(self, frames, actions, context: int = 60, horizon: int = 10) -> dict:
+        """The memory warmed on ``context`` real steps of an episode (``frames`` (T, 64, 64, 3)
+        uint8, ``actions`` (T,)), then dreaming ``horizon`` steps along the actions taken from its
+        mixture's most likely path: ``truth`` and ``prediction`` frames (horizon, 64, 64, 3),
+        ``pixel_error`` and ``latent_error`` per step."""
+        from wmthesis.world_models.prediction import open_loop
+
+        return open_loop(self.vision.vae, self.memory, np.asarray(frames), np.asarray(actions), context, horizon)
+
+
+def load_trained(path: Path, *, experiment: str, variant: str | None, profile: str, seed: int) -> WorldModelsAgent:
+    return WorldModelsAgent(path, experiment, variant, profile, seed)
+
+
+__all__ = ["WorldModelsAgent", "load_trained", "shipped_decoder"]
