@@ -50,7 +50,12 @@ class BeliefFilter(Mind, Callback):
         """Advance ``(h, s)`` with a (size, size, 3) uint8 frame (``bits`` bits, dequantisation
         noise as in training) and the previous action; ``s`` is the posterior's sample, or its
         mean when not ``sample``."""
-        x = to_float(torch.as_tensor(frame, device=self.belief.device), self.bits, noise=self.generator)
+        frame = torch.as_tensor(np.asarray(frame) if not isinstance(frame, torch.Tensor) else frame)
+        expected = self.model.encoder_input_shape
+        if frame.dtype != torch.uint8 or (expected is not None and tuple(frame.shape) != expected):
+            raise ValueError(f"this PlaNet model sees uint8 frames {expected}, got {frame.dtype} {tuple(frame.shape)}: "
+                             "the agent's env() gives them (its frame size and crop)")
+        x = to_float(frame.to(self.belief.device), self.bits, noise=self.generator)
         self.belief, _ = self.model.transition(self.belief, self.state, self.prev_action)
         posterior = self.model.posterior(self.belief, self.model.encode(x[None]))
         self.state = posterior.sample(self.generator) if sample else posterior.mean

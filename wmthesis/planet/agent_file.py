@@ -43,8 +43,8 @@ class NoDecoder(nn.Module):
         self.path = str(path)
 
     def forward(self, features):
-        raise RuntimeError(f"{self.path} ships no observation decoder (planning never decodes): "
-                           "train the PlaNet run here to decode frames")
+        raise RuntimeError(f"{self.path} ships no observation decoder (planning never decodes), and no decoder.pt "
+                           "lies beside it: `python tools/fit_decoders.py planet` fits one to the frozen model")
 
 
 class Agent(NamedTuple):

@@ -41,6 +41,7 @@ class HalvingEncoder(nn.Module):
 
     def __init__(self, widths: list[int]):
         super().__init__()
+        self.frame_size = 2 ** (len(widths) + 1)
         layers, channels = [], 3
         for width in widths:
             layers += [nn.Conv2d(channels, width, 4, stride=2, padding=1), nn.ReLU()]

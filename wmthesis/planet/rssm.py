@@ -143,6 +143,12 @@ class RSSM(nn.Module):
             nn.Linear(reward_hidden_size, reward_hidden_size), nn.ReLU(),
             nn.Linear(reward_hidden_size, 1))
 
+    @property
+    def encoder_input_shape(self) -> tuple[int, int, int] | None:
+        """The (S, S, 3) frames the encoder sees, where it says (None: any)."""
+        size = getattr(self.encoder, "frame_size", None)
+        return None if size is None else (size, size, 3)
+
     # ------------------------------------------------------------------ one step
     def initial(self, batch: int) -> tuple[torch.Tensor, torch.Tensor]:
         """Zero belief (batch, H) and state (batch, S) on the model's device."""

@@ -162,17 +162,24 @@ def _check_planner(discount: float, imagine: str, value_prior: float, value, rew
         raise ValueError(f"pessimism must be >= 0 and needs a value, got {pessimism} with value={value is not None}")
 
 
-def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfig, planner: ValuePlannerConfig,
-                       env_seed: int, mind_seed: int, frames: list | None = None) -> list[float]:
-    """One greedy episode of the planner with value in ``env`` (reset with ``env_seed``; CEM's
-    noise from ``mind_seed``; CEM's sizes from ``planet``, its horizon from ``planner``): its
-    rewards, one per agent step; ``frames`` (a list), where given, gets the episode's frames."""
-    mind = ValuePlanetMind(model, value, horizon=planner.horizon, candidates=planner.candidates or planet.candidates,
+def value_planner_mind(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner: ValuePlannerConfig,
+                       mind_seed: int = 0) -> "ValuePlanetMind":
+    """The planner with value as its bouts played it: CEM's sizes from ``planet``, its horizon and
+    levers from ``planner``, CEM's noise from ``mind_seed``."""
+    return ValuePlanetMind(model, value, horizon=planner.horizon, candidates=planner.candidates or planet.candidates,
                            top_k=planet.top_k, iterations=planner.iterations or planet.iterations, bits=planet.bits,
                            discount=planner.discount,
                            imagine=planner.imagine, value_prior=planner.value_prior, rewards=planner.rewards,
                            pessimism=planner.pessimism or 0.0, particles=planner.particles or 1,
                            generator=torch.Generator(next(model.parameters()).device).manual_seed(int(mind_seed)))
+
+
+def play_value_planner(env, model: RSSM, value: LatentValue, planet: PlaNetConfig, planner: ValuePlannerConfig,
+                       env_seed: int, mind_seed: int, frames: list | None = None) -> list[float]:
+    """One greedy episode of the planner with value in ``env`` (reset with ``env_seed``; CEM's
+    noise from ``mind_seed``; CEM's sizes from ``planet``, its horizon from ``planner``): its
+    rewards, one per agent step; ``frames`` (a list), where given, gets the episode's frames."""
+    mind = value_planner_mind(model, value, planet, planner, mind_seed)
     record = EpisodeBuffer()
     loop(env, mind, policy="deterministic", callbacks=[mind, record], seed=int(env_seed), train_mode=False)
     if frames is not None:
@@ -214,4 +221,4 @@ def plan_choices(model: RSSM, value: LatentValue, planet: PlaNetConfig, planner:
     return {name: np.asarray(picks, np.int64) for name, picks in chosen.items()}
 
 
-__all__ = ["value_returns", "path_returns", "imagined_state", "pessimistic_q", "value_scores", "IMAGINE", "REWARDS", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]
+__all__ = ["value_planner_mind", "value_returns", "path_returns", "imagined_state", "pessimistic_q", "value_scores", "IMAGINE", "REWARDS", "ValuePlanetMind", "play_value_planner", "plan_choices", "PLANNERS"]

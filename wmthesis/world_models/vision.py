@@ -25,6 +25,8 @@ from torch import nn
 class Encoder(nn.Module):
     """(B, 3, 64, 64) float in [0, 1] -> features (B, 1024)."""
 
+    frame_size = 64
+
     def __init__(self, channels: int = 3):
         super().__init__()
         self.convs = nn.Sequential(

@@ -1,0 +1,106 @@
+"""A trained PlaNet agent as :func:`wmthesis.load` gives it (thesis 4.4): the RSSM (with its
+observation decoder where one ships beside the agent), the planner (discrete CEM, or CEM ending in
+a learned value) and the value, on the game as it was scored.
+
+    agent = wmthesis.load("planet-boxing-agent")
+    agent.open_loop(frames, actions, context=5)     # reconstructions, then 10 imagined frames
+    mind = agent.mind(); mind.plan(frame)           # one CEM plan from the belief
+    agent.play(bouts=1)                             # its first scored bout
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wmthesis.agents import TrainedAgent
+from wmthesis.planet.agent import PlanetMind
+from wmthesis.planet.agent_file import NoDecoder, load_agent, play_agent
+from wmthesis.planet.decoder import DECODER_NAME, attach_decoder
+
+
+def shipped_decoder(model, planet, path: Path, saved_info: dict) -> dict | None:
+    """Attach the decoder file beside the agent at ``path`` (or beside the PlaNet agent a value's
+    agent plans with) to ``model``; its ``fitted_on``, or None where none ships (the model then
+    refuses to decode, saying why)."""
+    folders = [Path(path).parent]
+    if saved_info.get("model_file"):
+        folders.append((Path(path).parent / saved_info["model_file"]["path"]).parent)
+    for folder in folders:
+        if (folder / DECODER_NAME).is_file():
+            return attach_decoder(model, planet, folder / DECODER_NAME)
+    model.decoder = NoDecoder(path)
+    return None
+
+
+class PlanetAgent(TrainedAgent):
+    """A PlaNet experiment's agent: ``model`` (the RSSM), ``planner`` (the CEM settings it plans
+    with: its :class:`~wmthesis.planet.config.PlaNetConfig`, or the value's
+    :class:`~wmthesis.planet.config.ValuePlannerConfig`) and ``value`` (None for PlaNet's own CEM)."""
+
+    def __init__(self, path: Path, experiment: str, variant: str | None, profile: str, seed: int):
+        loaded = load_agent(path)
+        super().__init__(path, experiment, variant, profile, seed, loaded.info)
+        self.loaded, self.config = loaded, loaded.planet
+        self.model, self.value = loaded.model, loaded.value
+        self.planner = loaded.planner if loaded.value is not None else loaded.planet
+        saved = torch.load(path, weights_only=False, map_location="cpu")
+        self.decoder_info = shipped_decoder(self.model, loaded.planet, path, saved)
+
+    def env(self):
+        """The game with PlaNet's frames ((S, S, 3) uint8 of ``config.bits`` bits, the config's
+        crop and action repeat), as its bouts were played."""
+        from wmthesis.planet.train import make_planet_env
+
+        return make_planet_env(self.info["game"], self.config)
+
+    def mind(self, seed: int = 0):
+        """The planner as it played its scored bouts, CEM's noise from ``seed``."""
+        if self.value is None:
+            return PlanetMind.from_config(self.model, self.config, seed)
+        from wmthesis.planet.value_planner import value_planner_mind
+
+        return value_planner_mind(self.model, self.value, self.config, self.loaded.planner, seed)
+
+    def scored_seeds(self, bouts: int) -> list[int]:
+        return [int(env_seed) for env_seed, _ in self.info["bouts"][:bouts]]
+
+    def play_scored(self, bouts: int) -> list[float]:
+        if bouts > len(self.info["bouts"]):
+            raise ValueError(f"{self.path} was scored on {len(self.info['bouts'])} bouts, not {bouts}")
+        return [float(sum(play_agent(self.loaded, env_seed, mind_seed))) for env_seed, mind_seed
+                in self.info["bouts"][:bouts]]
+
+    def open_loop(self, frames, actions, context: int = 5, seed: int = 0) -> dict:
+        """Filter ``context`` real frames of one episode (``frames`` (T, S, S, 3) uint8 from
+        :meth:`env`, ``actions`` (T,)), then imagine the rest along the actions taken from the
+        prior's means: ``truth`` and ``prediction`` (T, S, S, 3) uint8 (the first ``context``
+        predictions are reconstructions) and ``mse`` per imagined step."""
+        from wmthesis.planet.prediction import open_loop
+
+        frames = check_planet_frames(frames, self.config.frame_size, many=True)
+        actions = torch.as_tensor(np.asarray(actions), dtype=torch.long)
+        generator = torch.Generator(next(self.model.parameters()).device).manual_seed(seed)
+        out = open_loop(self.model, frames[None], actions[None], context=context, bits=self.config.bits,
+                        generator=generator)
+        return {"truth": out["truth"][0], "prediction": out["prediction"][0], "mse": out["mse"], "context": context}
+
+
+def check_planet_frames(frames, size: int, many: bool = False) -> torch.Tensor:
+    """PlaNet's frames as a uint8 tensor ((T,) S, S, 3); ValueError naming what was expected and
+    the environment that gives it otherwise."""
+    frames = frames if isinstance(frames, torch.Tensor) else torch.as_tensor(np.asarray(frames))
+    shape = (size, size, 3)
+    if frames.dtype != torch.uint8 or tuple(frames.shape[-3:]) != shape or frames.ndim != 3 + many:
+        raise ValueError(f"this PlaNet model sees uint8 frames {('(T, ' if many else '(') + ', '.join(map(str, shape))}), "
+                         f"got {frames.dtype} {tuple(frames.shape)}: `agent.env()` gives them (its frame size and crop, "
+                         "not make_env's 64x64 'planet' preprocessing)")
+    return frames
+
+
+def load_trained(path: Path, *, experiment: str, variant: str | None, profile: str, seed: int) -> PlanetAgent:
+    return PlanetAgent(path, experiment, variant, profile, seed)
+
+
+__all__ = ["PlanetAgent", "load_trained", "shipped_decoder", "check_planet_frames"]

@@ -1,0 +1,137 @@
+"""A trained Sokoban search agent as :func:`wmthesis.load` gives it (beyond the thesis, its chapter
+1's aim): the learned model over discrete cells, the learned value, and the best-first search
+that plans in them, on the 10x10 levels of four boxes it was scored on.
+
+    agent = wmthesis.load("sokoban-search")
+    record = agent.solve('''
+    #######
+    #@ $ .#
+    #######''')                                # {'solved': True, 'actions': [...], ...}
+    agent.replay(board_text, record["actions"])  # the boards of the real game along them
+    agent.play(bouts=5)                          # its first 5 evaluation levels: 1.0 solved, 0.0 not
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from wmthesis.agents import TrainedAgent
+
+
+class SearchMind:
+    """The search agent as a mind for :func:`wmthesis.core.loop` (pass it as a callback too):
+    it searches from the state it sees, follows the plan while the game shows what the model
+    predicted, and searches again where it does not."""
+
+    def __init__(self, agent, env):
+        self.agent, self.env, self.plan_left = agent, env, []
+
+    def plan(self, observation, train_mode: bool = True, debug_mode: bool = False):
+        from wmthesis.sokoban_search.search import best_first
+
+        state = self.agent.inputs.observe(self.env.unwrapped, observation)
+        if not self.plan_left or not np.array_equal(self.plan_left[0][1], state):
+            heuristic = self.agent.heuristic
+            result = best_first(self.agent.model.expand, state, heuristic=heuristic, budget=self.agent.budget,
+                                batch=self.agent.batch, weight=self.agent.weights[0], doubt=self.agent.doubt)
+            self.plan_left = [] if result.actions is None else list(zip(result.actions, result.states[:-1]))
+        scores = np.zeros(self.env.action_space.n)
+        scores[self.plan_left.pop(0)[0] if self.plan_left else 0] = 1.0
+        return scores
+
+    def on_episode_start(self, episode, train_mode):
+        self.plan_left = []
+
+    def on_step_taken(self, step, transition, info):
+        pass
+
+    def on_action_planned(self, step, scores, info):
+        pass
+
+    def on_loop_start(self):
+        pass
+
+    def on_loop_end(self, is_aborted):
+        pass
+
+    def on_episode_end(self, episode, train_mode):
+        pass
+
+    metrics = {}
+
+
+class SokobanAgent(TrainedAgent):
+    """sokoban-search's pixel agent: ``model`` (the learned model over cells), ``value`` (the
+    learned steps-to-go), ``search`` (the :class:`~wmthesis.sokoban_search.agent.SearchAgent`
+    with its evaluation budget)."""
+
+    def __init__(self, path: Path, experiment: str, variant: str | None, profile: str, seed: int):
+        from wmthesis.config import for_profile
+        from wmthesis.sokoban_search.config import SokobanSearchConfig
+        from wmthesis.sokoban_search.iteration import evaluation_search, load_run
+
+        cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
+        run = load_run(Path(path).parent, cfg)
+        super().__init__(path, experiment, variant, profile, seed, {"history": run.history, "rounds": run.rounds_done})
+        self.run, self.model, self.value = run, run.model, run.heuristic
+        self.search = run.agent(evaluation_search(cfg))
+
+    def env(self):
+        """Boxoban-sized levels (10x10, 4 boxes, 120 steps) of the generator, showing pixels."""
+        return self.search.env("sokoban")
+
+    def mind(self) -> SearchMind:
+        return SearchMind(self.search, self.env())
+
+    def scored_seeds(self, bouts: int) -> list[int]:
+        from wmthesis.experiments.sokoban_search import EVAL_PURPOSE
+        from wmthesis.sokoban_search.agent import level_seeds
+
+        return [int(s) for s in level_seeds(self.seed, EVAL_PURPOSE, bouts)]
+
+    def play_scored(self, bouts: int) -> list[float]:
+        env = self.env()
+        return [float(self.search.play(env, level).solved) for level in self.scored_seeds(bouts)]
+
+    def solve(self, board, max_steps: int = 120) -> dict:
+        """Play one level given as text (# wall, space floor, . target, $ box, * box on target,
+        @ player, + player on target) or codes (h, w): ``solved``, ``steps``, ``actions``,
+        ``expanded``, ... (:meth:`~wmthesis.sokoban_search.agent.Play.record`)."""
+        from wmthesis.sokoban_search.evaluation import solve_boards
+
+        return solve_boards(self.search, [as_board(board)], max_steps=max_steps, progress=False)[0]
+
+    def replay(self, board, actions, max_steps: int = 120) -> dict:
+        """``actions`` played on ``board`` in the package's real environment: its ``frames``
+        (T + 1, H, W, 3) uint8 and whether they ``solved`` it."""
+        from wmthesis.sokoban_search.evaluation import board_env
+
+        board = as_board(board)
+        env = board_env(board, max_steps, observation="rgb")
+        frame, _ = env.reset(options={"board": board})
+        frames, solved = [frame], False
+        for action in actions:
+            frame, _, solved, truncated, _ = env.step(int(action))
+            frames.append(frame)
+            if solved or truncated:
+                break
+        return {"frames": np.stack(frames), "solved": bool(solved)}
+
+
+def as_board(board) -> np.ndarray:
+    """A level's text or its codes -> codes (h, w) uint8, checked."""
+    from wmthesis.envs.levels import check_board, parse_level
+
+    if isinstance(board, str):
+        return parse_level(board)
+    board = np.asarray(board, np.uint8)
+    check_board(board)
+    return board
+
+
+def load_trained(path: Path, *, experiment: str, variant: str | None, profile: str, seed: int) -> SokobanAgent:
+    return SokobanAgent(path, experiment, variant, profile, seed)
+
+
+__all__ = ["SokobanAgent", "SearchMind", "load_trained", "as_board"]
