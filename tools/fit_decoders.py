@@ -4,7 +4,7 @@ open-loop predictions without training. The agents' files, and every number buil
 as they are.
 
     python tools/fit_decoders.py world-models          # boxing-wm seed 0's vision (shared by the AlphaZero agents)
-    python tools/fit_decoders.py planet [--seeds 0,1,2] [--games boxing,freeway]
+    python tools/fit_decoders.py planet [--seeds 0,1,2] [--games boxing,freeway] [--bouts 8 --planner-bouts 4]
 
 Each fit resumes from its checkpoint in the agent's work folder; a decoder file already written
 for the same encoder or model is kept.
@@ -58,6 +58,8 @@ def main() -> None:
     parser.add_argument("which", choices=["world-models", "planet"])
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--games", default="boxing,freeway")
+    parser.add_argument("--bouts", type=int, default=8, help="real bouts to fit a PlaNet decoder on")
+    parser.add_argument("--planner-bouts", type=int, default=4, help="of them, played by the agent's planner")
     args = parser.parse_args()
     if args.which == "world-models":
         world_models()
@@ -66,7 +68,7 @@ def main() -> None:
 
         for game in args.games.split(","):
             for seed in map(int, args.seeds.split(",")):
-                fit_shipped(game, seed)
+                fit_shipped(game, seed, bouts=args.bouts, planner_bouts=args.planner_bouts)
 
 
 if __name__ == "__main__":

@@ -9,17 +9,22 @@ import os
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __version__ = "0.1.0"
-__all__ = ["load", "agent_file", "device", "seed_everything", "__version__"]
+__all__ = ["load", "agent_file", "headlines", "device", "seed_everything", "__version__"]
 
 
 def __getattr__(name: str):
-    """``wmthesis.load`` and ``wmthesis.agent_file`` (:mod:`wmthesis.agents`), ``wmthesis.device`` and
+    """``wmthesis.load`` and ``wmthesis.agent_file`` (:mod:`wmthesis.agents`), ``wmthesis.headlines``
+    (:mod:`wmthesis.headline`), ``wmthesis.device`` and
     ``wmthesis.seed_everything`` (:mod:`wmthesis.utils`), loaded when first asked for: importing the
     package (the command line) does not load torch."""
     if name in ("load", "agent_file"):
         from wmthesis import agents
 
         return getattr(agents, name)
+    if name == "headlines":
+        from wmthesis.headline import headlines
+
+        return headlines
     if name in ("device", "seed_everything"):
         from wmthesis import utils
 

@@ -37,9 +37,12 @@ class AlphaZeroAgent(TrainedAgent):
 
         return boxing_env(self.config.noop_max)
 
-    def mind(self, simulations: int | None = None):
-        """The search as it played its evaluation games (``simulations``: another budget)."""
-        return self.loaded.mind(simulations)
+    def mind(self, simulations: int | None = None, seed: int = 0):
+        """The search as it played its evaluation games (``simulations``: another budget), its
+        noise from ``seed``."""
+        mind = self.loaded.mind(simulations)
+        mind.new_search(seed, 0)
+        return mind
 
     def scored_seeds(self, bouts: int) -> list[int]:
         from wmthesis.alphazero.evaluation import evaluation_seeds

@@ -1,0 +1,173 @@
+"""`wmthesis.load`: one protocol for every agent family, the shipped decoders, and the refusals
+of bad names, missing agents, foreign files and wrong frames."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import wmthesis
+from wmthesis.agents import AGENTS
+
+REPO = Path(__file__).resolve().parents[1]
+SHIPPED = REPO / "data"
+
+
+@pytest.fixture
+def shipped(monkeypatch):
+    """The data folder the repository ships (its quick agents)."""
+    monkeypatch.setenv("WMTHESIS_DATA", str(SHIPPED))
+
+
+def committed(experiment: str, *parts: str) -> dict:
+    return json.loads((SHIPPED / "results" / experiment / "quick-seed0" / Path(*parts) / "metrics.json").read_text())
+
+
+def test_bad_names_are_refused_in_one_line_before_torch_loads():
+    code = ("import sys, wmthesis\n"
+            "for args, kw in [(('nope',), {}), (('boxing-wm',), {'variant': 'x'}), (('boxing-wm',), {'profile': 'big'}),"
+            " (('boxing-wm',), {'seed': -1}), (('sokoban-search',), {'variant': 'x'})]:\n"
+            "    try:\n        wmthesis.load(*args, **kw)\n    except ValueError as e:\n        print(e)\n"
+            "print('torch' in sys.modules)\n")
+    lines = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.splitlines()
+    assert lines[-1] == "False"  # refused before torch, ale-py or an agent file loaded
+    assert "unknown experiment with an agent 'nope'" in lines[0] and all(name in lines[0] for name in AGENTS)
+    assert "unknown variant 'x' of boxing-wm" in lines[1] and "separable-64" in lines[1]
+    assert "unknown profile 'big'" in lines[2] and "seed must be an integer" in lines[3]
+    assert "sokoban-search has no variants" in lines[4]
+
+
+def test_a_missing_agent_names_the_command_that_trains_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    with pytest.raises(FileNotFoundError, match=r"reproduce planet-boxing-agent --profile quick --seed 3`"):
+        wmthesis.load("planet-boxing-agent", seed=3)
+    assert not any(tmp_path.rglob("*.pt"))  # nothing trained or downloaded
+
+
+def test_truncated_and_foreign_agent_files_are_one_line_naming_the_file(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    target = wmthesis.agent_file("planet-boxing-agent", seed=0)
+    target.parent.mkdir(parents=True)
+    target.write_bytes((SHIPPED / "quick/planet-boxing-agent/seed0/agent.pt").read_bytes()[:1000])
+    with pytest.raises(ValueError, match=rf"cannot read {target}"):
+        wmthesis.load("planet-boxing-agent")
+    shutil.copy(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", target)  # World Models in PlaNet's place
+    with pytest.raises(ValueError, match=rf"{target} is not a wmthesis-planet-agent file"):
+        wmthesis.load("planet-boxing-agent")
+
+
+def test_the_world_models_agent_plays_its_scored_bout_and_a_policy_of_ones_own(shipped):
+    agent = wmthesis.load("boxing-wm")
+    assert (agent.variant, agent.vision, agent.memory, agent.controller is not None) == \
+        ("separable-64", agent.vision, agent.memory, True)
+    assert agent.play(bouts=1) == committed("boxing-wm", "separable-64")["returns"][:1]  # +44, as the summary's
+    env = agent.env()
+    _, info = env.reset(seed=agent.scored_seeds(1)[0])
+    played = [env.step(5)[-1]["action"] for _ in range(info["noops"] + 1)]
+    assert played == [0] * info["noops"] + [5]  # the scored no-ops, where the memory sees them
+    steps = []
+    returns = agent.play(bouts=1, policy=lambda frame: steps.append(frame.shape) or 1, max_steps=300)
+    assert len(steps) == 300 and steps[0] == (64, 64, 3) and isinstance(returns[0], float)
+    with pytest.raises(ValueError, match=r"the policy must return an action in \[0, 18\)"):
+        agent.play(bouts=1, policy=lambda frame: 18, max_steps=5)
+
+
+def test_the_shipped_vision_decodes_real_frames_better_than_their_mean_image(shipped):
+    agent = wmthesis.load("boxing-wm")
+    env = agent.env()
+    frame, _ = env.reset(seed=1)
+    frames = [frame]
+    for t in range(200):
+        frames.append(env.step(t % 18)[0])
+    frames = np.stack(frames[25::25])  # 8 real frames, numpy in, numpy out
+    reconstructions = agent.vision.reconstruct(frames)
+    error = np.abs(reconstructions.astype(float) - frames).mean()
+    flat = np.abs(frames.mean(0, keepdims=True) - frames).mean()  # the best constant image
+    assert reconstructions.shape == frames.shape and error < 0.5 * flat
+    z = agent.vision(frames)
+    assert not z.requires_grad and z.shape == (8, 16)
+    assert "fitted after the agent" in agent.decoder_info["what"]  # the file says where the decoder came from
+    with pytest.raises(ValueError, match=r"uint8 frames \(N, 64, 64, 3\).*agent.env\(\)"):
+        agent.vision(frames.astype(np.float32))
+
+
+def test_without_its_decoder_file_a_vision_refuses_to_decode(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    target = wmthesis.agent_file("boxing-wm")
+    target.parent.mkdir(parents=True)
+    shutil.copy(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", target)
+    agent = wmthesis.load("boxing-wm")
+    with pytest.raises(RuntimeError, match="no decoder ships for this vision"):
+        agent.vision.decode(np.zeros((1, 16), np.float32))
+
+
+def test_the_alphazero_agent_searches_with_its_runs_settings(shipped):
+    from wmthesis.alphazero.evaluation import evaluation_seeds
+    from wmthesis.alphazero.replay import game_seeds
+
+    agent = wmthesis.load("boxing-wm-alphazero")
+    assert agent.variant == "own-memory" and agent.search.config.simulations == agent.config.simulations
+    assert agent.scored_seeds(2) == [game_seeds(s)[0] for s in evaluation_seeds(0, 2, agent.config.noop_max)]
+    assert agent.vision.decode(agent.vision(np.zeros((1, 64, 64, 3), np.uint8))).shape == (1, 64, 64, 3)
+    mind = agent.mind()
+    mind.on_episode_start(0, False)  # as wmthesis.core.loop does, the mind among the callbacks
+    scores = mind.plan(np.zeros((64, 64, 3), np.uint8), train_mode=False)
+    assert scores.shape == (18,)
+
+
+def test_planet_agents_see_their_own_frames_and_plan(shipped):
+    agent = wmthesis.load("planet-boxing-agent")
+    env = agent.env()
+    frame, _ = env.reset(seed=agent.scored_seeds(1)[0])
+    assert frame.shape == agent.model.encoder_input_shape == (32, 32, 3)
+    scores = agent.mind().plan(frame)
+    assert scores.shape == (18,)
+    with pytest.raises(ValueError, match=r"uint8 frames \(32, 32, 3\), got torch.uint8 \(64, 64, 3\)"):
+        agent.mind().plan(np.zeros((64, 64, 3), np.uint8))
+    value = wmthesis.load("planet-boxing-value")
+    assert value.value is not None and value.planner.horizon >= 1 and value.mind().plan(frame).shape == (18,)
+
+
+@pytest.mark.skipif(not (SHIPPED / "quick/planet-boxing-agent/seed0/decoder.pt").is_file(),
+                    reason="the PlaNet decoder has not been fitted yet")
+def test_planet_decodes_open_loop_predictions_better_than_repeating_the_last_frame(shipped):
+    agent = wmthesis.load("planet-boxing-agent")
+    env = agent.env()
+    frame, _ = env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    frames, actions = [frame], []
+    for _ in range(60):
+        actions.append(int(rng.integers(18)))
+        frames.append(env.step(actions[-1])[0])
+    out = agent.open_loop(np.stack(frames[:60]), actions[:60], context=50)
+    assert out["prediction"].shape == (60, 32, 32, 3) and len(out["mse"]) == 10
+    truth = out["truth"][50:].astype(float)
+    prediction_error = np.abs(out["prediction"][50:].astype(float) - truth).mean()
+    mean_error = np.abs(truth.mean((0, 1, 2)) - truth).mean()  # a flat frame of the mean colour
+    assert prediction_error < mean_error
+    assert wmthesis.load("planet-boxing-value").model.decoder is not None  # shares its PlaNet agent's decoder
+
+
+def test_the_sokoban_agent_solves_a_level_written_by_hand_and_replays_it(shipped):
+    agent = wmthesis.load("sokoban-search")
+    level = """
+##########
+#   #    #
+# $   .  #
+#  ## $  #
+# @   .  #
+##########"""
+    record = agent.solve(level)
+    assert record["solved"] and agent.replay(level, record["actions"])["solved"]
+    assert not agent.replay(level, record["actions"][:-1])["solved"]  # the last push is what solves it
+    from wmthesis.sokoban_search.evaluation import check_solutions
+
+    plays = [agent.search.play(agent.env(), s).record() for s in agent.scored_seeds(2)]
+    assert agent.play(bouts=2) == [float(p["solved"]) for p in plays]
+    assert all(check_solutions("sokoban", [p for p in plays if p["solved"]]))
