@@ -13,7 +13,7 @@ import pytest
 import torch
 
 import wmthesis
-from wmthesis.agents import AGENTS
+from wmthesis.declarations import AGENTS
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = REPO / "data"

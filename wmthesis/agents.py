@@ -17,50 +17,12 @@ This module loads no torch until an agent is loaded: a bad name is refused at on
 """
 from __future__ import annotations
 
-import importlib
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 from wmthesis.config import PROFILES
+from wmthesis.declarations import AGENTS, DECLARED, resolve
 from wmthesis.utils import check_choice
-
-
-@dataclass(frozen=True)
-class AgentDeclaration:
-    """Where an experiment's trained agent lives and how it loads: ``file(profile, seed, variant)``
-    relative to ``data/`` (``variant`` the registry's folder name, None for the default's own
-    folders), ``loader`` (``"module:function"``, called with the path and the run's names), the
-    ``variants`` registry (``"module:NAME"``, None: the experiment has none)."""
-    experiment: str
-    file: Callable[[str, int, str | None, str], str]
-    loader: str
-    variants: str | None = None
-
-
-def _registry(declaration: AgentDeclaration):
-    if declaration.variants is None:
-        return None
-    module, name = declaration.variants.split(":")
-    return getattr(importlib.import_module(module), name)
-
-
-AGENTS = {d.experiment: d for d in (
-    AgentDeclaration("boxing-wm", lambda p, s, folder, name: f"{p}/boxing-wm/seed{s}/agent-{name}.pt",
-                     "wmthesis.world_models.trained:load_trained", "wmthesis.world_models.variants:BOXING_WM"),
-    AgentDeclaration("boxing-wm-alphazero", lambda p, s, folder, name: f"{p}/boxing-wm-alphazero/seed{s}/agent-{name}.pt",
-                     "wmthesis.alphazero.trained:load_trained", "wmthesis.alphazero.variants:VARIANTS"),
-    AgentDeclaration("planet-boxing-agent", lambda p, s, folder, name: f"{p}/planet-boxing-agent/seed{s}/agent.pt",
-                     "wmthesis.planet.trained:load_trained"),
-    AgentDeclaration("planet-boxing-value",
-                     lambda p, s, folder, name: f"{p}/planet-boxing-value/{folder + '-' if folder else ''}seed{s}/agent.pt",
-                     "wmthesis.planet.trained:load_trained", "wmthesis.planet.value_variants:VALUE_VARIANTS"),
-    AgentDeclaration("planet-freeway",
-                     lambda p, s, folder, name: f"{p}/planet-freeway/{folder + '-' if folder else ''}seed{s}/agent.pt",
-                     "wmthesis.planet.trained:load_trained", "wmthesis.planet.variants:PLANET_FREEWAY"),
-    AgentDeclaration("sokoban-search", lambda p, s, folder, name: f"{p}/sokoban-search/seed{s}/pixels/state.pt",
-                     "wmthesis.sokoban_search.trained:load_trained"),
-)}
 
 
 def agent_file(experiment: str, variant: str | None = None, profile: str = "quick", seed: int = 0) -> Path:
@@ -68,19 +30,19 @@ def agent_file(experiment: str, variant: str | None = None, profile: str = "quic
     default) for ``profile`` and ``seed``; ValueError naming the valid choices otherwise."""
     from wmthesis.utils import data_dir
 
-    check_choice("experiment with an agent", experiment, tuple(AGENTS))
+    check_choice("experiment with an agent", experiment, AGENTS)
     check_choice("profile", profile, PROFILES)
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**31:
         raise ValueError(f"seed must be an integer in [0, 2**31), got {seed!r}")
-    declaration = AGENTS[experiment]
-    registry = _registry(declaration)
+    declaration = DECLARED[experiment]
+    registry = declaration.registry()
     if registry is None:
         if variant is not None:
             raise ValueError(f"{experiment} has no variants, got {variant!r}")
         name = folder = None
     else:
         name, folder = registry.check(variant).name, registry.folder_name(variant)
-    return data_dir() / declaration.file(profile, seed, folder, name)
+    return data_dir() / declaration.agent.path(profile, seed, name, folder)
 
 
 def load(experiment: str, *, variant: str | None = None, profile: str = "quick", seed: int = 0):
@@ -93,11 +55,10 @@ def load(experiment: str, *, variant: str | None = None, profile: str = "quick",
         flag = f" --variant {variant}" if variant else ""
         raise FileNotFoundError(f"no trained {experiment} agent at {path}: train it with `python -m wmthesis "
                                 f"reproduce {experiment} --profile {profile} --seed {seed}{flag}`")
-    module, function = AGENTS[experiment].loader.split(":")
-    registry = _registry(AGENTS[experiment])
+    declaration = DECLARED[experiment]
+    registry = declaration.registry()
     name = None if registry is None else registry.check(variant).name
-    return getattr(importlib.import_module(module), function)(path, experiment=experiment, variant=name,
-                                                               profile=profile, seed=seed)
+    return resolve(declaration.agent.loader)(path, experiment=experiment, variant=name, profile=profile, seed=seed)
 
 
 class TrainedAgent:
@@ -175,4 +136,4 @@ class PolicyMind:
         return scores
 
 
-__all__ = ["AGENTS", "AgentDeclaration", "agent_file", "load", "TrainedAgent", "PolicyMind"]
+__all__ = ["agent_file", "load", "TrainedAgent", "PolicyMind"]

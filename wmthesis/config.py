@@ -22,6 +22,7 @@ import dataclasses
 import os
 from dataclasses import dataclass
 
+from wmthesis.declarations import EXPERIMENTS as DECLARED_EXPERIMENTS
 from wmthesis.utils import check_choice
 
 PROFILES = ("smoke", "quick", "thesis")
@@ -31,9 +32,7 @@ PLANNERS = ("sokoban-search", "mcts", "cem")  # the planners of a budget curve, 
 ATARI_ENVIRONMENTS = ("boxing", "freeway")
 SOKOBAN_ENVIRONMENTS = ("sokoban", "sokoban-small")
 ENVIRONMENTS = ATARI_ENVIRONMENTS + SOKOBAN_ENVIRONMENTS
-EXPERIMENTS = ("sokoban-wm", "boxing-wm", "boxing-wm-alphazero", "planet-sokoban", "planet-boxing", "planet-freeway",
-               "planet-boxing-study", "planet-boxing-search", "planet-boxing-agent", "planet-boxing-value", "planet-freeway-value",
-               "sokoban-search", "planning-budget")
+EXPERIMENTS = DECLARED_EXPERIMENTS  # one declaration each: wmthesis.declarations
 DEFAULT_PROFILE = "quick"
 
 

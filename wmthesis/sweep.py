@@ -29,14 +29,18 @@ from typing import Callable, NamedTuple
 from tqdm import tqdm
 
 from wmthesis.config import profile_name
+from wmthesis.declarations import BUILDS_ON
 from wmthesis.experiments import DEFAULT_RESULTS, EXPERIMENTS, VARIANTS, reproduce
 from wmthesis.runs import atomic_path
 from wmthesis.summary import run_scores
 from wmthesis.utils import check_choice, data_dir
 
 # Experiment -> the experiment whose artifacts it reuses for the same seed (run first).
-PREREQUISITE = {"boxing-wm-alphazero": "boxing-wm", "planet-boxing-value": "planet-boxing-agent",
-                "planet-freeway-value": "planet-freeway"}
+
+
+def depth(experiment: str) -> int:
+    """How many experiments deep ``experiment`` builds (0: on none): a sweep starts the shallow first."""
+    return 1 + max(map(depth, BUILDS_ON[experiment])) if experiment in BUILDS_ON else 0
 
 
 class SweepRun(NamedTuple):
@@ -195,7 +199,7 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
     runner = runner or reproduce
     outcome = {run: {"status": "finished before", "path": str(path)}
                for run in runs if (path := finished(run, profile)) is not None}
-    todo = sorted((run for run in runs if run not in outcome), key=lambda run: run.experiment not in PREREQUISITE.values())
+    todo = sorted((run for run in runs if run not in outcome), key=lambda run: depth(run.experiment))
     if not todo:
         return outcome
     ours = start_ray(address)
@@ -205,8 +209,8 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
     refs, started = {}, time.time()
     for run in todo:  # a prerequisite in this sweep goes first: its result is the dependent's argument;
         # variants of a dependent experiment and seed share its prerequisite's folders, so they go one by one
-        before = [refs[p] for p in refs if p.seed == run.seed and (p.experiment == PREREQUISITE.get(run.experiment) or
-                                                                   p.experiment == run.experiment in PREREQUISITE)]
+        before = [refs[p] for p in refs if p.seed == run.seed and (p.experiment in BUILDS_ON.get(run.experiment, ()) or
+                                                                   p.experiment == run.experiment in BUILDS_ON)]
         refs[run] = task.remote(runner, run, profile, cpus, *before)
     waiting = {ref: run for run, ref in refs.items()}
     bar = tqdm(total=len(todo), desc=f"sweep ({profile})", unit="run", disable=not progress)
@@ -252,5 +256,5 @@ def _collect(ray, ref, run: SweepRun, started: float) -> dict:
             "since_start": round(time.time() - started, 1)}
 
 
-__all__ = ["SweepRun", "PREREQUISITE", "variants_of", "parse_seeds", "parse_runs", "finished", "check_address",
+__all__ = ["SweepRun", "variants_of", "parse_seeds", "parse_runs", "finished", "check_address",
            "start_ray", "RayStartFailed", "sweep"]

@@ -1,15 +1,6 @@
-"""The thesis's experiments end to end, as used by ``python -m wmthesis reproduce NAME``.
-
-One module per experiment: :mod:`~wmthesis.experiments.sokoban_world_models` (5.3),
-:mod:`~wmthesis.experiments.world_models` (Boxing, 5.4.1), :mod:`~wmthesis.experiments.alphazero`
-(5.4.2), :mod:`~wmthesis.experiments.planet` (5.5, 5.6), :mod:`~wmthesis.experiments.planet_boxing`
-(5.6.1-5.6.4 measured: the model study and the agent), :mod:`~wmthesis.experiments.planet_boxing_value`
-(beyond the thesis: a learned value on that model, alone and at the end of CEM's horizon; the
-same recipe, :mod:`~wmthesis.planet.value_runs`, on Freeway in
-:mod:`~wmthesis.experiments.planet_freeway_value`) and
-:mod:`~wmthesis.experiments.sokoban_search` (beyond the thesis: Sokoban solved by search in a
-learned model). :mod:`wmthesis.runs` holds what they share to write their results; each
-experiment's variants are a registry of :mod:`wmthesis.variants`.
+"""The thesis's experiments end to end, as used by ``python -m wmthesis reproduce NAME``: one recipe
+module each, declared in :mod:`wmthesis.declarations` (its section, variants, what it builds on,
+its agent). :mod:`wmthesis.runs` holds what the recipes share to write their results.
 
 Each experiment writes its artifacts (stores, checkpoints) under ``data/<profile>/<name>/``
 and its results (figures, ``metrics.json``, rerun recordings) under
@@ -19,19 +10,18 @@ Every step skips work whose artifact exists, so re-running resumes.
 from __future__ import annotations
 
 import concurrent.futures
-import functools
 import multiprocessing
 import os
 from typing import Callable
 
-from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.config import EXPERIMENTS, profile_name
+from wmthesis.declarations import DECLARATIONS, resolve
 from wmthesis.experiments.alphazero import ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS, boxing_wm_alphazero
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,
                                          planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
 from wmthesis.experiments.planet_boxing_value import planet_boxing_value
-from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS as FREEWAY_VALUE_VARIANTS, planet_freeway_value
+from wmthesis.experiments.planet_freeway_value import planet_freeway_value
 from wmthesis.experiments.planning_budget import planning_budget
 from wmthesis.experiments.sokoban_search import sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
@@ -47,17 +37,10 @@ from wmthesis.runs import read_json, register_runner, results_folder
 from wmthesis.utils import check_choice, worker_init
 from wmthesis.variants import no_variant
 
-# Experiment -> its recipe, each called ``recipe(profile, seed, variant, progress)``.
-RECIPES = {"sokoban-wm": sokoban_world_models, "boxing-wm": boxing_world_models, "boxing-wm-alphazero": boxing_wm_alphazero,
-           **{name: functools.partial(planet_experiment, name) for name in PLANET_GAMES},
-           "planet-boxing-study": planet_boxing_study, "planet-boxing-search": planet_boxing_search, "planet-boxing-agent": planet_boxing_agent,
-           "planet-boxing-value": planet_boxing_value, "planet-freeway-value": planet_freeway_value,
-           "sokoban-search": sokoban_search, "planning-budget": planning_budget}
-if tuple(RECIPES) != EXPERIMENTS:
-    raise ImportError(f"the recipes {tuple(RECIPES)} are not wmthesis.config.EXPERIMENTS {EXPERIMENTS}")
-# Experiment -> its registry of variants (:mod:`wmthesis.variants`), for those that have them.
-VARIANTS = {**PLANET_REGISTRIES, "boxing-wm": BOXING_WM, "boxing-wm-alphazero": ALPHAZERO_VARIANTS, "planet-boxing-value": BOXING_VALUE_VARIANTS,
-            "planet-freeway-value": FREEWAY_VALUE_VARIANTS}
+# Experiment -> its recipe, each called ``recipe(profile, seed, variant, progress)``, and its registry of
+# variants (:mod:`wmthesis.variants`), for those that have them: from the declarations.
+RECIPES = {d.name: resolve(d.recipe) for d in DECLARATIONS}
+VARIANTS = {d.name: d.registry() for d in DECLARATIONS if d.variants is not None}
 NO_VARIANTS = tuple(name for name in EXPERIMENTS if name not in VARIANTS)
 # Experiment -> the variant its default run's metrics name (None: it names none, its runs keep the
 # experiment's own folders), for the experiments whose default has a name in its metrics.

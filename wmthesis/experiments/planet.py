@@ -161,3 +161,18 @@ def _planet_open_loop(model, store, length: int, context: int, config, seed: int
     generator = torch.Generator(next(model.parameters()).device).manual_seed(seed)
     return open_loop(model, batch["observations"], batch["actions"], context=context, bits=config.bits,
                      generator=generator)
+
+
+def planet_sokoban(profile: str | None = None, seed: int = 0, variant: str | None = None, progress: bool = True) -> dict:
+    """Thesis 5.5.1: :func:`planet_experiment` on Sokoban."""
+    return planet_experiment("planet-sokoban", profile, seed, variant, progress)
+
+
+def planet_boxing(profile: str | None = None, seed: int = 0, variant: str | None = None, progress: bool = True) -> dict:
+    """Thesis 5.6.1-5.6.4: :func:`planet_experiment` on Boxing."""
+    return planet_experiment("planet-boxing", profile, seed, variant, progress)
+
+
+def planet_freeway(profile: str | None = None, seed: int = 0, variant: str | None = None, progress: bool = True) -> dict:
+    """Thesis 5.6.5-5.6.6: :func:`planet_experiment` on Freeway."""
+    return planet_experiment("planet-freeway", profile, seed, variant, progress)

@@ -1,6 +1,7 @@
 """A trained World Models agent in one file, to ship and to play: the vision's encoder, the memory,
 the controller (the CMA-ES mean) and what made them (configs, the task, the commit), with a format
-version. About 5 MB for Boxing: the VAE's decoder stays behind (playing only encodes).
+version. About 5 MB for Boxing: the VAE's decoder stays behind (playing only encodes; it ships in a
+file of its own, :mod:`wmthesis.world_models.decoder`, and decoding without it raises an error).
 
     save_agent(path, vae, memory, run, memory_config, commit)
     agent = load_agent(path)         # .vision, .memory, .params, .info
@@ -17,6 +18,7 @@ import torch
 
 from wmthesis.runs import read_agent_file, save_agent_file
 from wmthesis.world_models.config import MemoryConfig
+from wmthesis.world_models.decoder import MissingDecoder
 from wmthesis.world_models.train import make_memory
 from wmthesis.world_models.vision import VAE, VAEVision
 
@@ -47,6 +49,8 @@ def load_encoder(latent_size: int, encoder: dict, path: Path, bfloat16: bool = F
     missing, unexpected = vae.load_state_dict(encoder, strict=False)
     if unexpected or any(not k.startswith("decoder.") for k in missing):
         raise ValueError(f"{path}: its encoder does not fit the VAE (missing {missing}, unexpected {unexpected})")
+    vae.decoder = MissingDecoder(f"{path} keeps only the vision's encoder (playing only encodes): load it with "
+                                 "wmthesis.load, which attaches the decoder.pt that ships beside it")
     return VAEVision(vae.eval(), bfloat16=bfloat16)
 
 

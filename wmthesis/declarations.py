@@ -1,0 +1,98 @@
+"""What each experiment is, declared once: its name, the thesis section, its recipe, its variants,
+the experiments it builds on, and the agent it ships. Light (no torch): the command line checks
+names against these records before anything heavy loads, and ``reproduce``, ``sweep``'s order and
+``wmthesis.load`` loop over them.
+
+    EXPERIMENT = Declaration("boxing-wm", "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
+                             variants="wmthesis.world_models.variants:BOXING_WM",
+                             agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
+                                             "wmthesis.world_models.trained:load_trained"))
+
+A recipe is ``recipe(profile, seed, variant, progress) -> metrics``; a new experiment is one
+recipe module and one declaration here.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+
+
+def resolve(path: str):
+    """``"module:name"`` -> the object it names (importing the module)."""
+    module, name = path.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+@dataclass(frozen=True)
+class AgentFile:
+    """Where a run's trained agent lies under ``data/`` and what loads it: ``pattern`` with
+    ``{profile}``, ``{seed}``, ``{variant}`` (the variant's name) and ``{folder}`` (the variant's run
+    folder prefix, ``"NAME-"``, or empty for runs in the experiment's own folders); ``loader``
+    (``"module:function"``, called ``loader(path, experiment=, variant=, profile=, seed=)``)."""
+    pattern: str
+    loader: str
+
+    def path(self, profile: str, seed: int, variant: str | None, folder: str | None) -> str:
+        return self.pattern.format(profile=profile, seed=seed, variant=variant, folder=f"{folder}-" if folder else "")
+
+
+@dataclass(frozen=True)
+class Declaration:
+    """One experiment: ``name``, the thesis ``section`` (or where beyond it), ``recipe``
+    (``"module:function"``), ``variants`` (``"module:NAME"`` of its
+    :class:`~wmthesis.variants.Variants`; None: it has none), ``builds_on`` (the experiments whose
+    runs of the same profile and seed it uses) and ``agent`` (:class:`AgentFile`; None: it ships
+    no agent)."""
+    name: str
+    section: str
+    recipe: str
+    variants: str | None = None
+    builds_on: tuple[str, ...] = ()
+    agent: AgentFile | None = None
+
+    def registry(self):
+        """Its :class:`~wmthesis.variants.Variants`, or None."""
+        return None if self.variants is None else resolve(self.variants)
+
+
+DECLARATIONS = (
+    Declaration("sokoban-wm", "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models"),
+    Declaration("boxing-wm", "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
+                variants="wmthesis.world_models.variants:BOXING_WM",
+                agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
+                                "wmthesis.world_models.trained:load_trained")),
+    Declaration("boxing-wm-alphazero", "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
+                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",),
+                agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
+                                "wmthesis.alphazero.trained:load_trained")),
+    Declaration("planet-sokoban", "5.5.1", "wmthesis.experiments.planet:planet_sokoban",
+                variants="wmthesis.planet.variants:PLANET_SOKOBAN"),
+    Declaration("planet-boxing", "5.6.1-5.6.4", "wmthesis.experiments.planet:planet_boxing",
+                variants="wmthesis.planet.variants:PLANET_BOXING"),
+    Declaration("planet-freeway", "5.6.5-5.6.6", "wmthesis.experiments.planet:planet_freeway",
+                variants="wmthesis.planet.variants:PLANET_FREEWAY",
+                agent=AgentFile("{profile}/planet-freeway/{folder}seed{seed}/agent.pt",
+                                "wmthesis.planet.trained:load_trained")),
+    Declaration("planet-boxing-study", "5.6.1-5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_study"),
+    Declaration("planet-boxing-search", "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search"),
+    Declaration("planet-boxing-agent", "5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_agent",
+                agent=AgentFile("{profile}/planet-boxing-agent/seed{seed}/agent.pt",
+                                "wmthesis.planet.trained:load_trained")),
+    Declaration("planet-boxing-value", "beyond", "wmthesis.experiments.planet_boxing_value:planet_boxing_value",
+                variants="wmthesis.planet.value_variants:VALUE_VARIANTS", builds_on=("planet-boxing-agent",),
+                agent=AgentFile("{profile}/planet-boxing-value/{folder}seed{seed}/agent.pt",
+                                "wmthesis.planet.trained:load_trained")),
+    Declaration("planet-freeway-value", "beyond", "wmthesis.experiments.planet_freeway_value:planet_freeway_value",
+                variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=("planet-freeway",)),
+    Declaration("sokoban-search", "beyond (ch. 1)", "wmthesis.experiments.sokoban_search:sokoban_search",
+                agent=AgentFile("{profile}/sokoban-search/seed{seed}/pixels/state.pt",
+                                "wmthesis.sokoban_search.trained:load_trained")),
+    Declaration("planning-budget", "ch. 1", "wmthesis.experiments.planning_budget:planning_budget",
+                builds_on=("sokoban-search", "boxing-wm-alphazero", "planet-boxing-value")),
+)
+DECLARED = {d.name: d for d in DECLARATIONS}
+EXPERIMENTS = tuple(DECLARED)
+AGENTS = tuple(d.name for d in DECLARATIONS if d.agent is not None)
+BUILDS_ON = {d.name: d.builds_on for d in DECLARATIONS if d.builds_on}
+
+__all__ = ["Declaration", "AgentFile", "DECLARATIONS", "DECLARED", "EXPERIMENTS", "AGENTS", "BUILDS_ON", "resolve"]
