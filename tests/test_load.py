@@ -171,3 +171,17 @@ def test_the_sokoban_agent_solves_a_level_written_by_hand_and_replays_it(shipped
     plays = [agent.search.play(agent.env(), s).record() for s in agent.scored_seeds(2)]
     assert agent.play(bouts=2) == [float(p["solved"]) for p in plays]
     assert all(check_solutions("sokoban", [p for p in plays if p["solved"]]))
+
+
+def test_a_file_of_another_game_or_variant_is_refused_naming_both(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    freeway = wmthesis.agent_file("planet-freeway")
+    freeway.parent.mkdir(parents=True)
+    shutil.copy(SHIPPED / "quick/planet-boxing-agent/seed0/agent.pt", freeway)  # Boxing's agent in Freeway's place
+    with pytest.raises(ValueError, match=rf"{freeway} holds a boxing agent, not planet-freeway's \(freeway\)"):
+        wmthesis.load("planet-freeway")
+    own_memory = wmthesis.agent_file("boxing-wm-alphazero")
+    own_memory.parent.mkdir(parents=True)
+    shutil.copy(SHIPPED / "quick/boxing-wm-alphazero/seed0/agent-imitation.pt", own_memory)
+    with pytest.raises(ValueError, match=rf"{own_memory} holds boxing-wm-alphazero's imitation agent, not own-memory"):
+        wmthesis.load("boxing-wm-alphazero")

@@ -58,13 +58,20 @@ def load(experiment: str, *, variant: str | None = None, profile: str = "quick",
     declaration = DECLARED[experiment]
     registry = declaration.registry()
     name = None if registry is None else registry.check(variant).name
-    return resolve(declaration.agent.loader)(path, experiment=experiment, variant=name, profile=profile, seed=seed)
+    agent = resolve(declaration.agent.loader)(path, experiment=experiment, variant=name, profile=profile, seed=seed)
+    if agent.game != declaration.agent.game:
+        raise ValueError(f"{path} holds a {agent.game} agent, not {experiment}'s ({declaration.agent.game})")
+    if agent.says_variant not in (None, name):
+        raise ValueError(f"{path} holds {experiment}'s {agent.says_variant} agent, not {name}")
+    return agent
 
 
 class TrainedAgent:
     """What every loaded agent has (the module docstring); a family fills in :meth:`env`,
     :meth:`mind`, :meth:`scored_seeds` and :meth:`play_scored`."""
     vision = memory = controller = search = model = planner = value = None
+    game: str = ""  # the game its file says it plays
+    says_variant: str | None = None  # the variant its file says it is (None: the file does not say)
 
     def __init__(self, path: Path, experiment: str, variant: str | None, profile: str, seed: int, info: dict):
         self.path, self.experiment, self.variant, self.profile, self.seed = Path(path), experiment, variant, profile, seed

@@ -6,7 +6,7 @@ names against these records before anything heavy loads, and ``reproduce``, ``sw
     EXPERIMENT = Declaration("boxing-wm", "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
                              variants="wmthesis.world_models.variants:BOXING_WM",
                              agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
-                                             "wmthesis.world_models.trained:load_trained"))
+                                             "wmthesis.world_models.trained:load_trained", "boxing"))
 
 A recipe is ``recipe(profile, seed, variant, progress) -> metrics``; a new experiment is one
 recipe module and one declaration here.
@@ -28,9 +28,11 @@ class AgentFile:
     """Where a run's trained agent lies under ``data/`` and what loads it: ``pattern`` with
     ``{profile}``, ``{seed}``, ``{variant}`` (the variant's name) and ``{folder}`` (the variant's run
     folder prefix, ``"NAME-"``, or empty for runs in the experiment's own folders); ``loader``
-    (``"module:function"``, called ``loader(path, experiment=, variant=, profile=, seed=)``)."""
+    (``"module:function"``, called ``loader(path, experiment=, variant=, profile=, seed=)``); ``game``,
+    the game the agent plays (a file that holds another game's agent is refused)."""
     pattern: str
     loader: str
+    game: str
 
     def path(self, profile: str, seed: int, variant: str | None, folder: str | None) -> str:
         return self.pattern.format(profile=profile, seed=seed, variant=variant, folder=f"{folder}-" if folder else "")
@@ -60,11 +62,11 @@ DECLARATIONS = (
     Declaration("boxing-wm", "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
                 variants="wmthesis.world_models.variants:BOXING_WM",
                 agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
-                                "wmthesis.world_models.trained:load_trained")),
+                                "wmthesis.world_models.trained:load_trained", "boxing")),
     Declaration("boxing-wm-alphazero", "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
                 variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",),
                 agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
-                                "wmthesis.alphazero.trained:load_trained")),
+                                "wmthesis.alphazero.trained:load_trained", "boxing")),
     Declaration("planet-sokoban", "5.5.1", "wmthesis.experiments.planet:planet_sokoban",
                 variants="wmthesis.planet.variants:PLANET_SOKOBAN"),
     Declaration("planet-boxing", "5.6.1-5.6.4", "wmthesis.experiments.planet:planet_boxing",
@@ -72,21 +74,21 @@ DECLARATIONS = (
     Declaration("planet-freeway", "5.6.5-5.6.6", "wmthesis.experiments.planet:planet_freeway",
                 variants="wmthesis.planet.variants:PLANET_FREEWAY",
                 agent=AgentFile("{profile}/planet-freeway/{folder}seed{seed}/agent.pt",
-                                "wmthesis.planet.trained:load_trained")),
+                                "wmthesis.planet.trained:load_trained", "freeway")),
     Declaration("planet-boxing-study", "5.6.1-5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_study"),
     Declaration("planet-boxing-search", "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search"),
     Declaration("planet-boxing-agent", "5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_agent",
                 agent=AgentFile("{profile}/planet-boxing-agent/seed{seed}/agent.pt",
-                                "wmthesis.planet.trained:load_trained")),
+                                "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration("planet-boxing-value", "beyond", "wmthesis.experiments.planet_boxing_value:planet_boxing_value",
                 variants="wmthesis.planet.value_variants:VALUE_VARIANTS", builds_on=("planet-boxing-agent",),
                 agent=AgentFile("{profile}/planet-boxing-value/{folder}seed{seed}/agent.pt",
-                                "wmthesis.planet.trained:load_trained")),
+                                "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration("planet-freeway-value", "beyond", "wmthesis.experiments.planet_freeway_value:planet_freeway_value",
                 variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=("planet-freeway",)),
     Declaration("sokoban-search", "beyond (ch. 1)", "wmthesis.experiments.sokoban_search:sokoban_search",
                 agent=AgentFile("{profile}/sokoban-search/seed{seed}/pixels/state.pt",
-                                "wmthesis.sokoban_search.trained:load_trained")),
+                                "wmthesis.sokoban_search.trained:load_trained", "sokoban")),
     Declaration("planning-budget", "ch. 1", "wmthesis.experiments.planning_budget:planning_budget",
                 builds_on=("sokoban-search", "boxing-wm-alphazero", "planet-boxing-value")),
 )

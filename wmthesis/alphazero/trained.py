@@ -25,6 +25,7 @@ class AlphaZeroAgent(TrainedAgent):
         loaded = load_agent(path)
         super().__init__(path, experiment, variant, profile, seed, loaded.info)
         self.loaded, self.config = loaded, loaded.config
+        self.game, self.says_variant = "boxing", loaded.info["variant"]  # its format is Boxing's
         self.vision, self.heads = loaded.vision, loaded.heads
         self.memory = loaded.mdp  # the memory as the MDP the search runs in
         self.search = loaded.mind()

@@ -43,7 +43,7 @@ class PlanetAgent(TrainedAgent):
         loaded = load_agent(path)
         super().__init__(path, experiment, variant, profile, seed, loaded.info)
         self.loaded, self.config = loaded, loaded.planet
-        self.model, self.value = loaded.model, loaded.value
+        self.model, self.value, self.game = loaded.model, loaded.value, loaded.info["game"]
         self.planner = loaded.planner if loaded.value is not None else loaded.planet
         saved = torch.load(path, weights_only=False, map_location="cpu")
         self.decoder_info = shipped_decoder(self.model, loaded.planet, path, saved)

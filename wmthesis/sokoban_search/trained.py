@@ -74,7 +74,7 @@ class SokobanAgent(TrainedAgent):
         cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
         run = load_run(Path(path).parent, cfg)
         super().__init__(path, experiment, variant, profile, seed, {"history": run.history, "rounds": run.rounds_done})
-        self.run, self.model, self.value = run, run.model, run.heuristic
+        self.run, self.model, self.value, self.game = run, run.model, run.heuristic, "sokoban"
         self.search = run.agent(evaluation_search(cfg))
 
     def env(self):

@@ -41,7 +41,7 @@ class WorldModelsAgent(TrainedAgent):
         loaded = load_agent(path)
         super().__init__(path, experiment, variant, profile, seed, loaded.info)
         task = loaded.info["task"]
-        self.vision, self.memory = loaded.vision, loaded.memory
+        self.vision, self.memory, self.game = loaded.vision, loaded.memory, task["env"]
         self.controller = Controller.from_flat(loaded.params, task["latent_size"], task["hidden_size"],
                                                task["n_actions"]).eval()
         self.decoder_info = shipped_decoder(self.vision, Path(path).parent)
