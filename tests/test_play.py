@@ -30,7 +30,7 @@ def test_the_shipped_sokoban_agent_plays_the_experiments_first_evaluation_levels
 
 
 def test_play_refuses_what_it_cannot_do_before_anything_plays(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(play_module, "_play_sokoban", lambda *a: pytest.fail("it played"))
+    monkeypatch.setattr("wmthesis.agents.load", lambda *a, **k: pytest.fail("it loaded an agent"))
     assert main(["play", "sokoban-search", "--video", str(tmp_path / "missing" / "x.mp4")]) == 2
     assert "x.mp4 cannot be written: its folder" in capsys.readouterr().err
     assert main(["play", "sokoban-search", "--record", str(tmp_path / "x.mp4")]) == 2
@@ -47,7 +47,7 @@ def test_play_names_a_missing_agent_and_the_command_that_trains_it(tmp_path, cap
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     assert main(["play", "sokoban-search", "--profile", "smoke", "--seed", "3", "--bouts", "1"]) == 2
     err = capsys.readouterr().err
-    assert "no trained sokoban-search agent in" in err and "reproduce sokoban-search --profile smoke --seed 3`" in err
+    assert "no trained sokoban-search agent at" in err and "reproduce sokoban-search --profile smoke --seed 3`" in err
 
 
 def test_a_boxing_agent_plays_the_bouts_its_score_was_measured_on(tmp_path, monkeypatch, capsys):

@@ -95,9 +95,27 @@ class TrainedAgent:
         """The reset seeds of the first ``bouts`` scored bouts (or levels)."""
         raise NotImplementedError
 
+    def play_bouts(self, bouts: int, frames: list | None = None, on_bout: Callable | None = None) -> list[dict]:
+        """The first ``bouts`` scored bouts (or levels), played as the evaluation played them: one
+        dict each (``bout``, ``return``, ``steps``, and what the family adds), ``on_bout(play)``
+        called as each ends; ``frames`` (a list) gets each bout's frames, (T + 1, H, W, 3) uint8."""
+        raise NotImplementedError
+
     def play_scored(self, bouts: int) -> list[float]:
         """The agent's returns on its first ``bouts`` scored bouts, played as its evaluation did."""
-        raise NotImplementedError
+        return [p["return"] for p in self.play_bouts(bouts)]
+
+    video_scale, fps = 4, 15  # how `play --video` shows its frames
+
+    def bout_line(self, play: dict) -> str:
+        """One line for a bout :meth:`play_bouts` played."""
+        return f"bout {play['bout']}: {play['return']:+.0f} in {play['steps']} steps"
+
+    def score_line(self, plays: list[dict]) -> str:
+        """The closing line over the bouts played."""
+        mean = sum(p["return"] for p in plays) / len(plays)
+        return (f"mean {mean:.1f} over {len(plays)} bout{'s' if len(plays) > 1 else ''} "
+                f"({self.variant or self.experiment}, {self.profile}, seed {self.seed})")
 
     def play(self, bouts: int = 1, policy: Callable | None = None, max_steps: int | None = None) -> list[float]:
         """Returns of the first ``bouts`` scored bouts (or levels: 1.0 solved, 0.0 not, for

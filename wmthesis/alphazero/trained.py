@@ -51,18 +51,26 @@ class AlphaZeroAgent(TrainedAgent):
 
         return [game_seeds(s)[0] for s in evaluation_seeds(self.seed, bouts, self.config.noop_max)]
 
-    def play_scored(self, bouts: int) -> list[float]:
+    def play_bouts(self, bouts: int, frames: list | None = None, on_bout=None) -> list[dict]:
         from wmthesis.alphazero.evaluation import evaluation_seeds
         from wmthesis.alphazero.selfplay import play as play_game
 
-        mind, env, returns = self.mind(), self.env(), []
+        mind, env, plays = self.loaded.mind(), self.env(), []
         try:
             for k, game_seed in enumerate(evaluation_seeds(self.seed, bouts, self.config.noop_max)):
+                mind.keep_frames = frames is not None
                 game = play_game(env, mind, game_seed, k, train_mode=False, max_steps=self.config.eval_max_steps)
-                returns.append(float(game.score))
+                plays.append({"bout": k, "return": float(game.score), "steps": len(game.actions)})
+                if frames is not None and game.frames is not None:
+                    frames.append(game.frames)
+                if on_bout is not None:
+                    on_bout(plays[-1])
         finally:
             env.close()
-        return returns
+        return plays
+
+    def score_line(self, plays: list[dict]) -> str:
+        return super().score_line(plays)[:-1] + f", {self.config.simulations} simulations an action)"
 
 
 def load_trained(path: Path, *, experiment: str, variant: str | None, profile: str, seed: int) -> AlphaZeroAgent:

@@ -66,11 +66,19 @@ class PlanetAgent(TrainedAgent):
     def scored_seeds(self, bouts: int) -> list[int]:
         return [int(env_seed) for env_seed, _ in self.info["bouts"][:bouts]]
 
-    def play_scored(self, bouts: int) -> list[float]:
+    def play_bouts(self, bouts: int, frames: list | None = None, on_bout=None) -> list[dict]:
         if bouts > len(self.info["bouts"]):
             raise ValueError(f"{self.path} was scored on {len(self.info['bouts'])} bouts, not {bouts}")
-        return [float(sum(play_agent(self.loaded, env_seed, mind_seed))) for env_seed, mind_seed
-                in self.info["bouts"][:bouts]]
+        plays = []
+        for k, (env_seed, mind_seed) in enumerate(self.info["bouts"][:bouts]):
+            shown = [] if frames is not None else None
+            rewards = play_agent(self.loaded, env_seed, mind_seed, shown)
+            plays.append({"bout": k, "return": float(sum(rewards)), "steps": len(rewards)})
+            if frames is not None:
+                frames.append(np.stack(shown))
+            if on_bout is not None:
+                on_bout(plays[-1])
+        return plays
 
     def open_loop(self, frames, actions, context: int = 5, seed: int = 0) -> dict:
         """Filter ``context`` real frames of one episode (``frames`` (T, S, S, 3) uint8 from

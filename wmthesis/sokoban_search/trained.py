@@ -90,9 +90,29 @@ class SokobanAgent(TrainedAgent):
 
         return [int(s) for s in level_seeds(self.seed, EVAL_PURPOSE, bouts)]
 
-    def play_scored(self, bouts: int) -> list[float]:
-        env = self.env()
-        return [float(self.search.play(env, level).solved) for level in self.scored_seeds(bouts)]
+    video_scale, fps = 1, 8
+
+    def play_bouts(self, bouts: int, frames: list | None = None, on_bout=None) -> list[dict]:
+        """The first ``bouts`` evaluation levels: each play's record (``seed``, ``solved``,
+        ``actions``, ...) with its ``bout`` and ``return`` (1.0 solved, 0.0 not); ``frames`` gets
+        each play replayed in the real game, its boards rendered."""
+        env, plays = self.env(), []
+        for k, level in enumerate(self.scored_seeds(bouts)):
+            record = self.search.play(env, level).record()
+            plays.append({"bout": k, "return": float(record["solved"]), **record})
+            if frames is not None:
+                frames.append(replayed_boards(record))
+            if on_bout is not None:
+                on_bout(plays[-1])
+        return plays
+
+    def bout_line(self, play: dict) -> str:
+        return (f"level {play['bout']} (seed {play['seed']}): {'solved' if play['solved'] else 'not solved'} "
+                f"in {play['steps']} steps")
+
+    def score_line(self, plays: list[dict]) -> str:
+        solved = sum(p["solved"] for p in plays)
+        return f"{solved} of {len(plays)} solved ({100 * solved / len(plays):.1f}%)"
 
     def solve(self, board, max_steps: int = 120) -> dict:
         """Play one level given as text (# wall, space floor, . target, $ box, * box on target,
@@ -117,6 +137,22 @@ class SokobanAgent(TrainedAgent):
             if solved or truncated:
                 break
         return {"frames": np.stack(frames), "solved": bool(solved)}
+
+
+def replayed_boards(record: dict) -> np.ndarray:
+    """A generated level's play (its ``seed`` and ``actions``) replayed in the real game, its boards
+    rendered: (T + 1, H, W, 3) uint8."""
+    from wmthesis.sokoban_search.agent import grid_env
+
+    env = grid_env("sokoban")
+    env.reset(seed=int(record["seed"]))
+    frames = [env.render()]
+    for action in record["actions"]:
+        *_, terminated, truncated, _ = env.step(int(action))
+        frames.append(env.render())
+        if terminated or truncated:
+            break
+    return np.stack(frames)
 
 
 def as_board(board) -> np.ndarray:

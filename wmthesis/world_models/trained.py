@@ -42,6 +42,7 @@ class WorldModelsAgent(TrainedAgent):
         super().__init__(path, experiment, variant, profile, seed, loaded.info)
         task = loaded.info["task"]
         self.vision, self.memory, self.game = loaded.vision, loaded.memory, task["env"]
+        self.params = loaded.params  # the controller's flat parameters, as CMA-ES evolved them
         self.controller = Controller.from_flat(loaded.params, task["latent_size"], task["hidden_size"],
                                                task["n_actions"]).eval()
         self.decoder_info = shipped_decoder(self.vision, Path(path).parent)
@@ -62,8 +63,25 @@ class WorldModelsAgent(TrainedAgent):
 
         return [int(s) for s in final_bout_seeds(bouts)]
 
-    def play_scored(self, bouts: int) -> list[float]:
-        return self.loop_bouts(bouts, max_steps=self.info["controller_config"].get("max_steps"))
+    def play_bouts(self, bouts: int, frames: list | None = None, on_bout=None) -> list[dict]:
+        """The scored bouts all at once, as the controller was scored (the batched game)."""
+        from wmthesis.envs.vector import make_game
+        from wmthesis.world_models.evolution import evaluate_population, final_bout_seeds
+
+        cfg = self.info["controller_config"]
+        game, shown = make_game("boxing", bouts, noop_max=cfg["noop_max"]), [] if frames is not None else None
+        try:
+            returns, steps = evaluate_population(self.params[None], game, self.vision, self.memory,
+                                                 seeds=final_bout_seeds(bouts), max_steps=cfg["max_steps"],
+                                                 frames=shown)
+        finally:
+            game.close()
+        plays = [{"bout": k, "return": float(r), "steps": int(n)} for k, (r, n) in enumerate(zip(returns[0], steps[0]))]
+        if frames is not None:
+            frames += [np.stack([f[k] for f in shown[:p["steps"] + 1]]) for k, p in enumerate(plays)]
+        for p in plays if on_bout is not None else ():
+            on_bout(p)
+        return plays
 
     def dream(self, frames, actions, context: int = 60, horizon: int = 10) -> dict:
         """The memory warmed on ``context`` real steps of an episode (``frames`` (T, 64, 64, 3)
