@@ -220,6 +220,23 @@ def test_a_greedy_game_with_decision_beta_moves_the_priors_choice_by_q_alone():
         assert actions == {None: [1, 1, 1], 0.0: [0, 0, 0], 50.0: [1, 1, 1]}
 
 
+def test_self_play_with_a_gumbel_root_acts_on_its_choice_and_learns_its_improved_policy():
+    """Where stepping right pays 1 and the prior leans left, the Gumbel root's self-play plays the
+    search's choice (no proportional warm-up), and its policy targets are the improved policy,
+    which favours right; the PUCT root's are visit shares."""
+    class RightPays(LatentMDP):
+        def transition(self, state, action):
+            return super().transition(state, action)[0], float(action == 1)
+
+    mdp, evaluator = RightPays(small_memory()), lambda state: (np.array([0.6, 0.4]), 0.0)
+    config = tiny_config(simulations=8, root="gumbel", considered=2)
+    game = play(Corridor(), AlphaZeroMind(vision, mdp, evaluator, config), seed=3, index=0, train_mode=True,
+                max_steps=4)
+    np.testing.assert_allclose(game.policies.sum(1), 1.0, atol=1e-6)
+    assert (game.policies.argmax(1) == 1).all() and (game.actions == 1).all()
+    assert not np.allclose(game.policies * config.simulations, np.round(game.policies * config.simulations))
+
+
 def test_noop_start_draws_its_noops_from_the_reset_seed():
     env = NoopStart(Corridor(), noop_max=30)
     counts = []

@@ -90,3 +90,21 @@ def test_bad_options_are_refused():
         GumbelMCTS(bandit, lambda s: (np.ones(2), 0.0), considered=3)
     with pytest.raises(ValueError, match="at least 2 simulations"):
         GumbelMCTS(bandit, lambda s: (np.ones(2), 0.0), considered=2, n_simulations=1)
+
+
+def test_the_configs_root_chooses_the_search():
+    """``AlphaZeroConfig.root``: None is the thesis's PUCT search, "gumbel" Gumbel MuZero's root
+    with k = min(16, A) (no tree reuse), anything else refused naming the roots."""
+    import dataclasses
+
+    from wmthesis.alphazero.config import AlphaZeroConfig
+    from wmthesis.alphazero.gumbel import GumbelMCTS, root_search
+    from wmthesis.alphazero.mcts import MCTS
+
+    bandit = Bandit([0.1, 0.9, 0.3, 0.2])
+    config = AlphaZeroConfig(simulations=8)
+    assert type(root_search(config, bandit, lambda s: (np.ones(4), 0.0), 0)) is MCTS
+    gumbel = root_search(dataclasses.replace(config, root="gumbel"), bandit, lambda s: (np.ones(4), 0.0), 0)
+    assert isinstance(gumbel, GumbelMCTS) and gumbel.considered == 4 and not gumbel.reuse_tree
+    with pytest.raises(ValueError, match="unknown root 'x'; valid: puct, gumbel"):
+        root_search(dataclasses.replace(config, root="x"), bandit, lambda s: (np.ones(4), 0.0), 0)

@@ -19,7 +19,9 @@ class AlphaZeroConfig:
     ``test_every`` games, ``eval_episodes`` after training (of ``eval_max_steps``). Beyond the
     thesis: ``search_depth`` and ``root_actions`` (:class:`~wmthesis.alphazero.mcts.MCTS`'s
     ``max_depth`` and ``root_actions``) and ``decision_beta`` (greedy games choose by
-    :func:`~wmthesis.alphazero.selfplay.prior_and_q`, not by visit counts); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
+    :func:`~wmthesis.alphazero.selfplay.prior_and_q`, not by visit counts), ``root="gumbel"``
+    (:mod:`~wmthesis.alphazero.gumbel`: the root samples ``considered`` actions and halves them, acts
+    on the survivor, and the heads learn its improved policy); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
     (equal visit counts go to the higher root Q, not to the first action),
     ``value_target="n-step"`` (``n_step``-step bootstrapped targets instead of ``"monte-carlo"``
     returns) and ``reuse_tree=False``. The ``learned-reward`` variant adds ``reward_model``: the
@@ -45,6 +47,8 @@ class AlphaZeroConfig:
     search_depth: int | None = None      # beyond the thesis: the tree grows at most this many edges deep
     root_actions: int | None = None      # beyond the thesis: the root chooses among its k most probable actions
     decision_beta: float | None = None   # beyond the thesis: greedy games play argmax log P + beta (Q - V), not the most visited
+    root: str | None = None              # beyond the thesis: "gumbel", Gumbel MuZero's root (None: the thesis's PUCT)
+    considered: int | None = None        # the Gumbel root's k actions sampled (None: 16, at most the actions)
     gamma: float = 0.99
     dirichlet_alpha: float = 0.3
     noise_ratio: float = 0.25

@@ -157,5 +157,23 @@ class GumbelMCTS(MCTS):
         return interior_action(logits_of(node.P), self.transformed(node), node.N)
 
 
-__all__ = ["GumbelMCTS", "gumbel_top_k", "considered_visits", "mixed_value", "completed_q", "sigma",
+ROOTS = ("puct", "gumbel")
+
+
+def root_search(config, mdp, evaluator, seed) -> MCTS:
+    """The search of an :class:`~wmthesis.alphazero.config.AlphaZeroConfig`: the thesis's PUCT root,
+    or Gumbel MuZero's where ``config.root == "gumbel"``."""
+    root = config.root or "puct"
+    if root not in ROOTS:
+        raise ValueError(f"unknown root {root!r}; valid: {', '.join(ROOTS)}")
+    options = dict(c=config.c, n_simulations=config.simulations, timeout=config.timeout, gamma=config.gamma,
+                   dirichlet_alpha=config.dirichlet_alpha, max_depth=config.search_depth, seed=seed)
+    if root == "gumbel":
+        considered = config.considered or min(16, int(mdp.action_space.n))
+        return GumbelMCTS(mdp, evaluator, considered=considered, **options)
+    return MCTS(mdp, evaluator, noise_ratio=config.noise_ratio, normalize_q=config.normalize_q,
+                reuse_tree=config.reuse_tree, root_actions=config.root_actions, **options)
+
+
+__all__ = ["ROOTS", "root_search", "GumbelMCTS", "gumbel_top_k", "considered_visits", "mixed_value", "completed_q", "sigma",
            "improved_policy", "considered_scores", "interior_action", "logits_of"]

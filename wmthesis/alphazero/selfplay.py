@@ -68,7 +68,7 @@ from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator, VALUE_TARGETS, m
 from wmthesis.alphazero.imitation import agreement, expert_games
 from wmthesis.alphazero.latent_mdp import (LatentMDP, RewardModel, State, reward_fit, reward_rows, rollout_rows,
                                            stack_rows, train_reward_model)
-from wmthesis.alphazero.mcts import MCTS
+from wmthesis.alphazero.gumbel import root_search
 from wmthesis.alphazero.replay import Game, REPLAY_NAME, Replay, game_seeds
 from wmthesis.core import Callback, Mind, Proportional, loop
 from wmthesis.runs import atomic_path
@@ -105,11 +105,7 @@ class AlphaZeroMind(Mind, Callback):
 
     def new_search(self, seed: int, index: int = 0) -> None:
         """A fresh search tree with its own noise seed, for game number ``index``."""
-        cfg = self.config
-        self.mcts = MCTS(self.mdp, self.evaluator, c=cfg.c, n_simulations=cfg.simulations, timeout=cfg.timeout,
-                         gamma=cfg.gamma, dirichlet_alpha=cfg.dirichlet_alpha, noise_ratio=cfg.noise_ratio,
-                         normalize_q=cfg.normalize_q, reuse_tree=cfg.reuse_tree, max_depth=cfg.search_depth,
-                         root_actions=cfg.root_actions, seed=seed)
+        self.mcts = root_search(self.config, self.mdp, self.evaluator, seed)
         self.index = index
 
     @torch.inference_mode()
@@ -127,13 +123,16 @@ class AlphaZeroMind(Mind, Callback):
         counts, info = self.mcts.plan(self._root, train_mode=train_mode, debug_mode=True)
         record = self._steps
         record["features"].append(np.concatenate([self._root.z, self._root.h]))
-        record["policies"].append(counts / counts.sum() if counts.sum() > 0 else np.full(len(counts), 1 / len(counts)))
+        if "improved_policy" in info:  # a Gumbel root: the policy it improved, and its own choice
+            record["policies"].append(info["improved_policy"])
+        else:
+            record["policies"].append(counts / counts.sum() if counts.sum() > 0 else np.full(len(counts), 1 / len(counts)))
         record["root_values"].append(info["root_value"])
         record["depths"].append(info["max_depth"])
         record["q"].append(info["q"])
         if self.keep_frames:
             record["frames"].append(np.asarray(state))
-        scores = counts + tie_breaker(info["q"]) if self.config.tie_break == "q" else counts
+        scores = counts + tie_breaker(info["q"]) if self.config.tie_break == "q" and "improved_policy" not in info else counts
         if not train_mode and self.config.decision_beta is not None:
             scores = prior_and_q(info["priors"], info["q"], info["root_value"], self.config.decision_beta)
         return (scores, info) if debug_mode else scores
@@ -201,7 +200,8 @@ def play(env, mind: AlphaZeroMind, seed: int, index: int, *, train_mode: bool, m
     test games are greedy."""
     env_seed, search_seed = game_seeds(seed)
     mind.new_search(search_seed, index)
-    policy = Proportional(warmup=mind.config.warmup) if train_mode else "deterministic"
+    gumbel = mind.config.root == "gumbel"  # its root's Gumbel noise explores: it acts on the search's choice
+    policy = Proportional(warmup=mind.config.warmup) if train_mode and not gumbel else "deterministic"
     loop(env, mind, policy=policy, callbacks=[mind], max_steps=max_steps, seed=env_seed, train_mode=train_mode)
     return mind.game
 
