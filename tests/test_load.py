@@ -185,3 +185,28 @@ def test_a_file_of_another_game_or_variant_is_refused_naming_both(tmp_path, monk
     shutil.copy(SHIPPED / "quick/boxing-wm-alphazero/seed0/agent-imitation.pt", own_memory)
     with pytest.raises(ValueError, match=rf"{own_memory} holds boxing-wm-alphazero's imitation agent, not own-memory"):
         wmthesis.load("boxing-wm-alphazero")
+
+
+def test_alphazero_agents_can_share_the_vision_of_their_world_models_agent(tmp_path):
+    from wmthesis.alphazero.agent import load_agent, share_vision
+
+    wm = tmp_path / "boxing-wm" / "seed0" / "agent-separable-64.pt"
+    az = tmp_path / "boxing-wm-alphazero" / "seed0" / "agent-own-memory.pt"
+    for source, target in ((SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", wm),
+                           (SHIPPED / "quick/boxing-wm-alphazero/seed0/agent-own-memory.pt", az)):
+        target.parent.mkdir(parents=True)
+        shutil.copy(source, target)
+    frames = np.random.default_rng(0).integers(0, 256, (3, 64, 64, 3), dtype=np.uint8)
+    before, size = load_agent(az).vision(frames), az.stat().st_size
+    share_vision(az, wm)
+    assert az.stat().st_size < size - 2_000_000  # the encoder's copy is gone
+    assert torch.equal(load_agent(az).vision(frames), before)  # and the agent sees the same
+    wm.write_bytes(wm.read_bytes() + b"changed")
+    with pytest.raises(ValueError, match=r"sees through the vision of .*not the file it was trained with"):
+        load_agent(az)
+    other = tmp_path / "other.pt"
+    shutil.copy(SHIPPED / "quick/boxing-wm-alphazero/seed0/agent-imitation.pt", other)
+    saved = torch.load(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", weights_only=False)
+    torch.save({**saved, "encoder": {k: v + 1 for k, v in saved["encoder"].items()}}, wm)  # another encoder
+    with pytest.raises(ValueError, match="does not see through the encoder of"):
+        share_vision(other, wm)

@@ -14,7 +14,7 @@ __all__ = ["load", "agent_file", "headlines", "device", "seed_everything", "__ve
 
 def __getattr__(name: str):
     """``wmthesis.load`` and ``wmthesis.agent_file`` (:mod:`wmthesis.agents`), ``wmthesis.headlines``
-    (:mod:`wmthesis.headline`), ``wmthesis.device`` and
+    (:mod:`wmthesis.summary`), ``wmthesis.device`` and
     ``wmthesis.seed_everything`` (:mod:`wmthesis.utils`), loaded when first asked for: importing the
     package (the command line) does not load torch."""
     if name in ("load", "agent_file"):
@@ -22,7 +22,7 @@ def __getattr__(name: str):
 
         return getattr(agents, name)
     if name == "headlines":
-        from wmthesis.headline import headlines
+        from wmthesis.summary import headlines
 
         return headlines
     if name in ("device", "seed_everything"):

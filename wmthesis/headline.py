@@ -96,33 +96,6 @@ def headline_rows(rows: list[dict], profile: str = "quick") -> list[dict]:
     return [{"headline": h, "row": found.get((h.experiment, h.variant))} for h in HEADLINES]
 
 
-def headlines(profile: str = "quick", folder=None) -> list[dict]:
-    """Every headline as plain data (floats, lists, strings): ``experiment``, ``variant``,
-    ``title``, ``section``, ``notebook``, the ``thesis``'s figure and the best ``published`` one
-    (each ``{"name", "value", "source"}`` or None), and ``ours`` over seeds (``mean``, ``ci_low``,
-    ``ci_high``, ``n``, ``seeds``, ``scores``; None where not run yet), read from every run's
-    ``metrics.json`` under ``folder`` (default ``data/results``) as ``summary`` reads them."""
-    from wmthesis.summary import read_runs, summarise
-
-    def plain(value):
-        return None if value is None else float(value)
-
-    def reference(ref):
-        return None if ref is None else {"name": ref.name, "value": ref.value, "source": ref.source}
-
-    out = []
-    for entry in headline_rows(summarise(read_runs(folder)), profile):
-        h, row = entry["headline"], entry["row"]
-        ours = None if row is None else {"mean": plain(row["mean"]), "ci_low": plain(row["ci_low"]),
-                                         "ci_high": plain(row["ci_high"]), "n": int(row["n"]),
-                                         "seeds": [int(s) for s in row["seeds"]],
-                                         "scores": [plain(s) for s in row["scores"]]}
-        out.append({"experiment": h.experiment, "variant": h.variant, "title": h.title, "section": h.section,
-                    "notebook": h.notebook, "thesis": reference(h.thesis), "published": reference(h.published),
-                    "ours": ours})
-    return out
-
-
 def headline_table(rows: list[dict], profile: str = "quick") -> str:
     """The front door's table (markdown) from the summary's ``rows``, the published figures'
     sources as footnotes under it."""
@@ -240,5 +213,5 @@ def readme_with_table(readme: str, table: str, begin: str = BEGIN, end: str = EN
     return pattern.sub(lambda _: f"{begin}\n{table}\n{end}", readme, count=1)
 
 
-__all__ = ["headlines", "Headline", "HEADLINES", "BEGIN", "END", "headline_rows", "headline_table", "ablation_rows",
+__all__ = ["Headline", "HEADLINES", "BEGIN", "END", "headline_rows", "headline_table", "ablation_rows",
            "ablation_table", "readme_with_table"]

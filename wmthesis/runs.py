@@ -169,6 +169,13 @@ def save_agent_file(path: str | os.PathLike, form: str, version: int, **fields) 
     return path
 
 
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of the file at ``path``, in hex."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def read_agent_file(path: str | os.PathLike, kind: str, form: str, version: int) -> dict:
     """The dict an agent file at ``path`` holds; a missing file, a corrupt one or one of another
     ``form`` or version raises an error naming it (``kind``: what it should hold, for the message)."""

@@ -24,7 +24,7 @@ import numpy as np
 
 from wmthesis.budget_curves import budget_markdown, read_budget_rows
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
-from wmthesis.headline import ablation_table, headline_table, readme_with_table
+from wmthesis.headline import ablation_table, headline_rows, headline_table, readme_with_table
 from wmthesis.metrics import aggregate
 from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
 from wmthesis.references import PUBLISHED
@@ -266,6 +266,31 @@ def headline_line(experiment: str, variant: str | None = None, profile: str = "q
             f"over {row['n']} seed{'s' if row['n'] > 1 else ''} ({' '.join(map(str, row['seeds']))})")
 
 
+def headlines(profile: str = "quick", folder=None) -> list[dict]:
+    """Every headline as plain data (floats, lists, strings): ``experiment``, ``variant``,
+    ``title``, ``section``, ``notebook``, the ``thesis``'s figure and the best ``published`` one
+    (each ``{"name", "value", "source"}`` or None), and ``ours`` over seeds (``mean``, ``ci_low``,
+    ``ci_high``, ``n``, ``seeds``, ``scores``; None where not run yet), read from every run's
+    ``metrics.json`` under ``folder`` (default ``data/results``) as ``summary`` reads them."""
+    def plain(value):
+        return None if value is None else float(value)
+
+    def reference(ref):
+        return None if ref is None else {"name": ref.name, "value": ref.value, "source": ref.source}
+
+    out = []
+    for entry in headline_rows(summarise(read_runs(folder)), profile):
+        h, row = entry["headline"], entry["row"]
+        ours = None if row is None else {"mean": plain(row["mean"]), "ci_low": plain(row["ci_low"]),
+                                         "ci_high": plain(row["ci_high"]), "n": int(row["n"]),
+                                         "seeds": [int(s) for s in row["seeds"]],
+                                         "scores": [plain(s) for s in row["scores"]]}
+        out.append({"experiment": h.experiment, "variant": h.variant, "title": h.title, "section": h.section,
+                    "notebook": h.notebook, "thesis": reference(h.thesis), "published": reference(h.published),
+                    "ours": ours})
+    return out
+
+
 def write_summary(folder: str | Path | None = None, readme: str | Path | None = None) -> list[dict]:
     """Read every run under ``folder`` (default ``data/results``), write ``summary.md`` (the
     headline table, :mod:`wmthesis.headline`, then every row), ``summary.json``, ``summary.csv``
@@ -295,5 +320,5 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
     return rows
 
 
-__all__ = ["Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
+__all__ = ["headlines", "Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
            "write_summary", "headline_line", "model_fingerprint", "HEADLINE_LINE", "INTERVAL"]

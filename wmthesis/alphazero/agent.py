@@ -1,7 +1,9 @@
 """A trained World Models + AlphaZero agent in one file, to ship and to play: the vision's encoder,
 the deterministic memory the search runs in, the search's heads (and its reward model where the
 variant learned one), the config and the task, the commit, with a format version. About 2 MB in
-``quick``: the VAE's decoder, the optimiser and the replay stay behind.
+``quick``: the VAE's decoder, the optimiser and the replay stay behind. A file may name the World
+Models agent whose encoder it shares (``vision_file``, with its SHA-256) in place of a copy
+(:func:`share_vision`: the shipped agents of a seed share one vision).
 
     save_agent(path, vae, memory, run, memory_config, commit)
     agent = load_agent(path)
@@ -18,7 +20,8 @@ from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.heads import AlphaZeroHeads, Evaluator
 from wmthesis.alphazero.latent_mdp import LatentMDP, RewardModel
 from wmthesis.alphazero.selfplay import AlphaZeroMind
-from wmthesis.runs import read_agent_file
+from wmthesis.runs import file_sha256, read_agent_file, save_agent_file
+from wmthesis.world_models.agent import FORMAT as WM_FORMAT, FORMAT_VERSION as WM_VERSION
 from wmthesis.world_models.agent import agent_memory, load_encoder, write_agent_file
 from wmthesis.world_models.config import MemoryConfig
 from wmthesis.world_models.vision import VAE, VAEVision
@@ -72,8 +75,37 @@ def load_agent(path: str | os.PathLike) -> Agent:
                                    config.reward_range)
         reward_model.load_state_dict(saved["reward_model"])
     info = {k: saved[k] for k in ("variant", "task", "games", "commit")}
-    return Agent(load_encoder(saved["latent_size"], saved["encoder"], path), LatentMDP(agent_memory(saved), reward_model),
-                 heads.eval(), config, info)
+    return Agent(load_encoder(saved["latent_size"], shared_encoder(saved, path), path),
+                 LatentMDP(agent_memory(saved), reward_model), heads.eval(), config, info)
 
 
-__all__ = ["Agent", "FORMAT", "FORMAT_VERSION", "agent_name", "save_agent", "load_agent"]
+def shared_encoder(saved: dict, path: Path) -> dict:
+    """The encoder weights an agent file holds, or those of the World Models agent file it names
+    (``vision_file``: the path beside it and its SHA-256, checked); ValueError naming both where
+    that file is missing or has changed."""
+    if saved.get("vision_file") is None:
+        return saved["encoder"]
+    vision = path.parent / saved["vision_file"]["path"]
+    if not vision.is_file() or file_sha256(vision) != saved["vision_file"]["sha256"]:
+        raise ValueError(f"{path} sees through the vision of {vision}, which is "
+                         f"{'missing' if not vision.is_file() else 'not the file it was trained with (its SHA-256 differs)'}")
+    return read_agent_file(vision, "World Models", WM_FORMAT, WM_VERSION)["encoder"]
+
+
+def share_vision(path: str | os.PathLike, vision: str | os.PathLike) -> Path:
+    """Rewrite the agent file at ``path`` to name the World Models agent file ``vision`` in place of
+    its own copy of the same encoder (ValueError where the encoders differ); nothing else changes."""
+    import torch
+
+    path, vision = Path(path), Path(vision)
+    saved = read_agent_file(path, "World Models + AlphaZero", FORMAT, FORMAT_VERSION)
+    theirs = read_agent_file(vision, "World Models", WM_FORMAT, WM_VERSION)["encoder"]
+    ours = shared_encoder(saved, path)
+    if ours.keys() != theirs.keys() or not all(torch.equal(ours[k], theirs[k]) for k in ours):
+        raise ValueError(f"{path} does not see through the encoder of {vision}")
+    fields = {k: v for k, v in saved.items() if k not in ("format", "version")}
+    fields.update(encoder=None, vision_file={"path": os.path.relpath(vision, path.parent), "sha256": file_sha256(vision)})
+    return save_agent_file(path, FORMAT, FORMAT_VERSION, **fields)
+
+
+__all__ = ["Agent", "FORMAT", "FORMAT_VERSION", "agent_name", "save_agent", "load_agent", "shared_encoder", "share_vision"]

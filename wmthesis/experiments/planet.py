@@ -18,7 +18,8 @@ from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.figures import horizon_error_figure, learning_curve_figure, open_loop_figure
 from wmthesis.planet.prediction import open_loop
 from wmthesis.planet.profiles import planet_config
-from wmthesis.planet.train import load_planet, make_planet_env, same_training, train_planet, with_variant
+from wmthesis.planet.train import load_planet, same_training, train_planet, with_variant
+from wmthesis.planet.frames import make_planet_env
 from wmthesis.planet.variants import ENVIRONMENTS, REGISTRIES
 from wmthesis.references import HUMAN, RANDOM, published
 from wmthesis.runs import hold, read_json, releasing_holds, results_folder, run_header, work_folder, write_json

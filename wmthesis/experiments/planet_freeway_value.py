@@ -35,7 +35,8 @@ from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
 from wmthesis.planet.figures import study_error_figure
 from wmthesis.planet.profiles import planet_config
 from wmthesis.planet.study import STUDY, held_out_store, scene, score_run
-from wmthesis.planet.train import load_planet, make_planet_env
+from wmthesis.planet.train import load_planet
+from wmthesis.planet.frames import make_planet_env
 from wmthesis.planet.value_planner import plan_choices
 from wmthesis.planet.value_play import evaluation_seeds, validation_seeds
 from wmthesis.planet.value_rounds import STORE, load_value

@@ -10,7 +10,8 @@ from wmthesis.rollouts import EpisodeBuffer
 from wmthesis.metrics import score_cell, score_summary
 from wmthesis.references import HUMAN, THESIS_PLANET_BOXING, human
 from wmthesis.planet.config import PlaNetConfig
-from wmthesis.planet.train import load_planet, make_planet_env
+from wmthesis.planet.train import load_planet
+from wmthesis.planet.frames import make_planet_env
 from wmthesis.planet.agent import play_greedy
 
 FIRST_STEPS = 500  # 2,000 frames at action repeat 4: the author's episode cap

@@ -131,8 +131,8 @@ def fit_shipped(game: str, seed: int, profile: str = "quick", bouts: int = 8, pl
     freeway: planet-freeway's tuned agent) and ``seed``, fitted on ``bouts`` real bouts (the
     first ``planner_bouts`` by its planner, the others random; reset seeds 10,000 on, apart
     from every scored bout), written beside the agent file."""
-    from wmthesis.planet.agent_file import AGENT_NAME, load_agent
-    from wmthesis.planet.train import make_planet_env
+    from wmthesis.planet.shipped import AGENT_NAME, load_agent
+    from wmthesis.planet.frames import make_planet_env
     from wmthesis.runs import work_folder
     from wmthesis.stamp import git_commit
 

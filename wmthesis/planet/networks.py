@@ -18,6 +18,10 @@ import math
 
 from torch import nn
 
+from wmthesis.planet.config import PlaNetConfig
+from wmthesis.planet.rssm import RSSM
+from wmthesis.utils import device
+
 THESIS_SIZE, THESIS_DEPTH = 64, 32
 
 
@@ -73,4 +77,13 @@ class DoublingDecoder(nn.Module):
         return self.net(self.fc(features).view(-1, self.top, 2, 2))
 
 
-__all__ = ["vision_networks", "HalvingEncoder", "DoublingDecoder"]
+def build_model(config: PlaNetConfig, n_actions: int) -> RSSM:
+    """An RSSM of the config's sizes on :func:`wmthesis.utils.device`."""
+    encoder, decoder, embedding = vision_networks(config.frame_size, config.depth,
+                                                  config.belief_size + config.state_size)
+    return RSSM(n_actions, config.belief_size, config.state_size, config.hidden_size,
+                config.reward_hidden_size, config.min_std, encoder=encoder, decoder=decoder,
+                embedding_size=embedding).to(device())
+
+
+__all__ = ["build_model", "vision_networks", "HalvingEncoder", "DoublingDecoder"]

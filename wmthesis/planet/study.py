@@ -18,7 +18,8 @@ import numpy as np
 from wmthesis.data import EpisodeStore
 from wmthesis.rollouts import play_random_episode
 from wmthesis.planet.prediction import background_frame, latent_diagnostics, moving_open_loop
-from wmthesis.planet.train import load_planet, make_planet_env
+from wmthesis.planet.train import load_planet
+from wmthesis.planet.frames import make_planet_env
 
 # The three configurations (:data:`~wmthesis.planet.variants.PLANET_BOXING`), in the thesis's order.
 STUDY_VARIANTS = ("unchanged", "kl-scale", "free-nats")

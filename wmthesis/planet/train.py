@@ -28,27 +28,26 @@ import time
 import warnings
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import torch
 from tqdm import tqdm
 
 from wmthesis.core import loop
 from wmthesis.data import EpisodeStore
-from wmthesis.envs import ATARI_GAMES, make_env
-from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize
+from wmthesis.envs import ATARI_GAMES
 from wmthesis.planet.agent import PlanetMind, play_greedy
 from wmthesis.planet.config import PlaNetConfig
 from wmthesis.planet.explore import build_disagreement, disagreement_loss, one_step_batch
-from wmthesis.planet.networks import vision_networks
+from wmthesis.planet.frames import FRAME_SIZE, PlanetFrames, make_planet_env, planet_frame  # noqa: F401 (re-exported)
+from wmthesis.planet.networks import build_model
 from wmthesis.planet.rssm import RSSM, planet_loss
+from wmthesis.planet.shipped import AGENT_NAME, load_agent
 from wmthesis.planet.variants import variant_changes
 from wmthesis.rollouts import EpisodeBuffer, episode_seeds, play_random_episode
 from wmthesis.runs import atomic_path
 from wmthesis.training import gradient_step, with_added_defaults
 from wmthesis.utils import derive_seeds, device, seed_everything
 
-FRAME_SIZE = 64
 CHECKPOINT, CURVE, STORE = "checkpoint.pt", "curve.json", "episodes.h5"
 # Config fields that may change when a run resumes (a larger budget); any other must match.
 RESUMABLE_CHANGES = ("env_steps",)
@@ -59,48 +58,6 @@ def with_variant(config: PlaNetConfig, variant: str | dict | None) -> PlaNetConf
     if variant is None:
         return config
     return dataclasses.replace(config, **(variant_changes(variant) if isinstance(variant, str) else variant))
-
-
-def make_planet_env(env_name: str, config: PlaNetConfig) -> gym.Env:
-    """The environment with PlaNet's settings and frames (:class:`PlanetFrames`): Atari with
-    the config's action repeat; ``max_episode_steps`` truncates episodes."""
-    options = {} if config.max_episode_steps is None else {"max_steps": config.max_episode_steps}
-    crop = None
-    if env_name in ATARI_GAMES:
-        options["action_repeat"] = config.action_repeat
-        crop = CROPS[ATARI_GAMES[env_name]] if config.crop else None
-    return PlanetFrames(make_env(env_name, **options), config.frame_size, config.bits, crop)
-
-
-class PlanetFrames(gym.ObservationWrapper):
-    """Observations as the RSSM sees them: :func:`planet_frame` of every frame,
-    (size, size, 3) uint8 with ``bits`` bits."""
-
-    def __init__(self, env: gym.Env, size: int = FRAME_SIZE, bits: int = 5, crop=None):
-        super().__init__(env)
-        self.size, self.bits, self.crop = size, bits, crop
-        self.observation_space = gym.spaces.Box(0, 255, (size, size, 3), np.uint8)
-
-    def observation(self, frame: np.ndarray) -> np.ndarray:
-        return planet_frame(frame, self.bits, self.size, self.crop)
-
-
-def planet_frame(frame: np.ndarray, bits: int = 5, size: int = FRAME_SIZE,
-                 crop: tuple[int, int, int, int] | None = None) -> np.ndarray:
-    """Any (H, W, 3) uint8 frame -> (size, size, 3) with ``bits`` bits: the whole frame (or
-    ``frame[top:bottom, left:right]`` for a ``crop``) resized by area, then quantised."""
-    if crop is not None or frame.shape[:2] != (size, size):
-        frame = crop_resize(frame, crop, size)
-    return quantize(frame, bits)
-
-
-def build_model(config: PlaNetConfig, n_actions: int) -> RSSM:
-    """An RSSM of the config's sizes on :func:`wmthesis.utils.device`."""
-    encoder, decoder, embedding = vision_networks(config.frame_size, config.depth,
-                                                  config.belief_size + config.state_size)
-    return RSSM(n_actions, config.belief_size, config.state_size, config.hidden_size,
-                config.reward_hidden_size, config.min_std, encoder=encoder, decoder=decoder,
-                embedding_size=embedding).to(device())
 
 
 def make_optimizer(model: RSSM, config: PlaNetConfig) -> torch.optim.Adam:
@@ -373,8 +330,6 @@ def load_planet(run_dir) -> tuple[RSSM, PlaNetConfig, dict]:
     value on, not to decode), with ``shipped`` (the file) as its metadata."""
     path = Path(run_dir) / CHECKPOINT
     if not path.exists():
-        from wmthesis.planet.agent_file import AGENT_NAME, load_agent  # it builds on this module
-
         if (Path(run_dir) / AGENT_NAME).is_file():
             agent = load_agent(Path(run_dir) / AGENT_NAME)
             return agent.model, agent.planet, {"shipped": str(Path(run_dir) / AGENT_NAME)}

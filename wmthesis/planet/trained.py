@@ -16,7 +16,7 @@ import torch
 
 from wmthesis.agents import TrainedAgent
 from wmthesis.planet.agent import PlanetMind
-from wmthesis.planet.agent_file import NoDecoder, load_agent, play_agent
+from wmthesis.planet.shipped import NoDecoder, load_agent, play_agent
 from wmthesis.planet.decoder import DECODER_NAME, attach_decoder
 
 
@@ -51,7 +51,7 @@ class PlanetAgent(TrainedAgent):
     def env(self):
         """The game with PlaNet's frames ((S, S, 3) uint8 of ``config.bits`` bits, the config's
         crop and action repeat), as its bouts were played."""
-        from wmthesis.planet.train import make_planet_env
+        from wmthesis.planet.frames import make_planet_env
 
         return make_planet_env(self.info["game"], self.config)
 

@@ -10,7 +10,8 @@ from pathlib import Path
 from wmthesis.planet.bouts import bout_result, bout_scores
 from wmthesis.planet.config import ValuePlannerConfig
 from wmthesis.planet.own_rewards import planner_model
-from wmthesis.planet.train import load_planet, make_planet_env
+from wmthesis.planet.train import load_planet
+from wmthesis.planet.frames import make_planet_env
 from wmthesis.planet.value_planner import play_value_planner
 from wmthesis.planet.value_play import play_value
 from wmthesis.planet.value_rounds import load_rounds

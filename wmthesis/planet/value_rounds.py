@@ -16,6 +16,7 @@ from wmthesis.data import EpisodeStore
 from wmthesis.rollouts import play_random_episode
 from wmthesis.planet.config import LatentValueConfig
 from wmthesis.planet.rssm import RSSM
+from wmthesis.planet.shipped import AGENT_NAME, load_agent
 from wmthesis.planet.value import (LatentValue, TARGETS, best_values, episode_features, fit_value, log_scaled,
                                    reward_sums, round_ensemble, td_targets)
 from wmthesis.planet.value_play import bout_pool, evaluation_seeds, greedy_returns, play_values, validation_seeds
@@ -280,9 +281,8 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
     """The agent of a :func:`train_value` run for ``model``: its chosen round's value
     (:func:`best_round`), or the mean of the rounds' values that made its agent (``agent_rounds``),
     as it ships (:func:`as_shipped`). Where the run's checkpoint is not here but its agent file is
-    (a fresh clone), the value that file ships (:func:`~wmthesis.planet.agent_file.load_agent`:
+    (a fresh clone), the value that file ships (:func:`~wmthesis.planet.shipped.load_agent`:
     refused unless it was fitted on the PlaNet agent file beside it)."""
-    from wmthesis.planet.agent_file import AGENT_NAME, load_agent  # it builds on this module
 
     path, shipped = Path(run_dir) / CHECKPOINT, Path(run_dir) / AGENT_NAME
     if not path.exists() and shipped.is_file():

@@ -19,7 +19,8 @@ from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
 from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.figures import learning_curve_figure, plan_choices_figure
 from wmthesis.planet.own_rewards import fit_for_planners
-from wmthesis.planet.train import CHECKPOINT as PLANET_CHECKPOINT, load_planet, make_planet_env
+from wmthesis.planet.train import CHECKPOINT as PLANET_CHECKPOINT, load_planet
+from wmthesis.planet.frames import make_planet_env
 from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value_planners_scores
 from wmthesis.planet.value_planner import PLANNERS, plan_choices
 from wmthesis.planet.value_rounds import CHECKPOINT, STORE, load_value, train_value
