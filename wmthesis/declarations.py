@@ -43,14 +43,16 @@ class Declaration:
     """One experiment: ``name``, the thesis ``section`` (or where beyond it), ``recipe``
     (``"module:function"``), ``variants`` (``"module:NAME"`` of its
     :class:`~wmthesis.variants.Variants`; None: it has none), ``builds_on`` (the experiments whose
-    runs of the same profile and seed it uses) and ``agent`` (:class:`AgentFile`; None: it ships
-    no agent)."""
+    runs of the same profile and seed it uses), ``agent`` (:class:`AgentFile`; None: it ships
+    no agent) and ``score``, how its headline is read from its ``metrics.json`` (``"module:function"``,
+    :mod:`wmthesis.scores`)."""
     name: str
     section: str
     recipe: str
     variants: str | None = None
     builds_on: tuple[str, ...] = ()
     agent: AgentFile | None = None
+    score: str = "wmthesis.scores:variant_score"
 
     def registry(self):
         """Its :class:`~wmthesis.variants.Variants`, or None."""
@@ -64,7 +66,7 @@ DECLARATIONS = (
                 agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.world_models.trained:load_trained", "boxing")),
     Declaration("boxing-wm-alphazero", "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
-                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",),
+                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",), score="wmthesis.scores:alphazero_scores",
                 agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.alphazero.trained:load_trained", "boxing")),
     Declaration("planet-sokoban", "5.5.1", "wmthesis.experiments.planet:planet_sokoban",
@@ -79,24 +81,29 @@ DECLARATIONS = (
                 variants="wmthesis.planet.variants:PLANET_FREEWAY",
                 agent=AgentFile("{profile}/planet-freeway/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "freeway")),
-    Declaration("planet-boxing-study", "5.6.1-5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_study"),
+    Declaration("planet-boxing-study", "5.6.1-5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_study",
+                score="wmthesis.scores:no_score"),
     Declaration("planet-boxing-search", "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search"),
     Declaration("planet-boxing-agent", "5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_agent",
+                score="wmthesis.scores:agent_score",
                 agent=AgentFile("{profile}/planet-boxing-agent/seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration("planet-boxing-value", "beyond", "wmthesis.experiments.planet_boxing_value:planet_boxing_value",
                 variants="wmthesis.planet.value_variants:VALUE_VARIANTS", builds_on=("planet-boxing-agent",),
+                score="wmthesis.scores:value_scores",
                 agent=AgentFile("{profile}/planet-boxing-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration("planet-freeway-value", "beyond", "wmthesis.experiments.planet_freeway_value:planet_freeway_value",
                 variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=("planet-freeway",),
+                score="wmthesis.scores:value_scores",
                 agent=AgentFile("{profile}/planet-freeway-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "freeway")),
     Declaration("sokoban-search", "beyond (ch. 1)", "wmthesis.experiments.sokoban_search:sokoban_search",
+                score="wmthesis.scores:sokoban_scores",
                 agent=AgentFile("{profile}/sokoban-search/seed{seed}/pixels/state.pt",
                                 "wmthesis.sokoban_search.trained:load_trained", "sokoban")),
     Declaration("planning-budget", "ch. 1", "wmthesis.experiments.planning_budget:planning_budget",
-                builds_on=("sokoban-search", "boxing-wm-alphazero", "planet-boxing-value")),
+                builds_on=("sokoban-search", "boxing-wm-alphazero", "planet-boxing-value"), score="wmthesis.scores:no_score"),
 )
 DECLARED = {d.name: d for d in DECLARATIONS}
 EXPERIMENTS = tuple(DECLARED)

@@ -24,6 +24,7 @@ import numpy as np
 
 from wmthesis.budget_curves import budget_markdown, read_budget_rows
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
+from wmthesis.declarations import DECLARED, resolve
 from wmthesis.headline import ablation_table, headline_rows, headline_table, readme_with_table
 from wmthesis.metrics import aggregate
 from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
@@ -78,26 +79,10 @@ def model_fingerprint(metrics: dict) -> str | None:
 
 def run_scores(metrics: dict) -> dict[str | None, float]:
     """A run's headline score per variant it ran (``{None: score}`` for experiments without
-    variants; AlphaZero's file may hold several). Empty for runs without a score (the PlaNet
-    model study reports errors). Raises KeyError or TypeError on a file of another shape."""
-    name = metrics["experiment"]
-    if name == "boxing-wm-alphazero":
-        return {v: float(metrics["scores"][f"AlphaZero {v}"]["mean"]) for v in metrics["variants"]}
-    if name in ("planet-boxing-study", "planning-budget"):  # errors; a curve (planning_budget.csv)
-        return {}
-    if name in ("planet-boxing-value", "planet-freeway-value"):  # the value; and CEM with it at its end, where measured
-        planner, variant = metrics.get("value_planner"), metrics.get("variant")
-        return {variant: float(metrics["value"]["mean"]),
-                **({"cem-with-value" if variant is None else f"{variant}, cem-with-value": float(planner["full"]["mean"])}
-                   if planner else {})}
-    if name == "planet-boxing-agent":
-        return {None: float(metrics["agent"]["full"]["mean"])}
-    if name == "sokoban-search":  # generated levels; and Boxoban's report files, where measured
-        boxoban = metrics.get("boxoban", {}).get("tables", {})
-        return {None: 100.0 * float(metrics["score"]["mean"]),
-                **{f"boxoban-{kind}": 100.0 * float(rows["agent, learned model (pixels)"]["solve_rate"])
-                   for kind, rows in boxoban.items()}}
-    return {metrics.get("variant"): float(metrics["score"]["mean"])}
+    variants; AlphaZero's file may hold several), read as its declaration says
+    (:mod:`wmthesis.scores`). Empty for runs without a score (the PlaNet model study reports
+    errors). Raises KeyError or TypeError on a file of another shape."""
+    return resolve(DECLARED[metrics["experiment"]].score)(metrics)
 
 
 def read_runs(folder: str | Path | None = None) -> list[Run]:

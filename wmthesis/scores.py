@@ -1,0 +1,43 @@
+"""How each experiment's headline score is read from its ``metrics.json``: one reader a declaration
+names (:mod:`wmthesis.declarations`), each returning the run's score per variant it ran (``{None:
+score}`` for an experiment without variants). A file of another shape raises KeyError or TypeError."""
+from __future__ import annotations
+
+
+def variant_score(metrics: dict) -> dict:
+    """The score's mean, under the variant the run names (None where it names none)."""
+    return {metrics.get("variant"): float(metrics["score"]["mean"])}
+
+
+def no_score(metrics: dict) -> dict:
+    """None: the run reports errors or a curve, not a score."""
+    return {}
+
+
+def alphazero_scores(metrics: dict) -> dict:
+    """Every variant the file ran, its search's mean over the evaluation games."""
+    return {v: float(metrics["scores"][f"AlphaZero {v}"]["mean"]) for v in metrics["variants"]}
+
+
+def value_scores(metrics: dict) -> dict:
+    """The value agent's mean, and CEM's with the value at its horizon where it was measured."""
+    planner, variant = metrics.get("value_planner"), metrics.get("variant")
+    return {variant: float(metrics["value"]["mean"]),
+            **({"cem-with-value" if variant is None else f"{variant}, cem-with-value": float(planner["full"]["mean"])}
+               if planner else {})}
+
+
+def agent_score(metrics: dict) -> dict:
+    """The PlaNet agent's mean over its full evaluation bouts."""
+    return {None: float(metrics["agent"]["full"]["mean"])}
+
+
+def sokoban_scores(metrics: dict) -> dict:
+    """Percent solved of the generated levels, and of Boxoban's report files where measured."""
+    boxoban = metrics.get("boxoban", {}).get("tables", {})
+    return {None: 100.0 * float(metrics["score"]["mean"]),
+            **{f"boxoban-{kind}": 100.0 * float(rows["agent, learned model (pixels)"]["solve_rate"])
+               for kind, rows in boxoban.items()}}
+
+
+__all__ = ["variant_score", "no_score", "alphazero_scores", "value_scores", "agent_score", "sokoban_scores"]
