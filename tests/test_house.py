@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import json
+import os
 import warnings
 from pathlib import Path
 
@@ -146,3 +147,25 @@ def test_the_readme_holds_the_table_the_summary_writes_within_its_first_60_lines
     assert f"| {ours} |" in table.splitlines()[3]  # World Models on Boxing: its default's own row, to the digit
     with pytest.raises(ValueError, match="no results block"):
         readme_with_table("# a README without markers\n", table)
+
+
+def test_every_declaration_resolves_and_names_only_declared_experiments():
+    """Each experiment's one declaration: its recipe, variants, agent loader and score reader
+    resolve; what it builds on is declared before it; the shipped agents' files are where it says."""
+    from wmthesis.declarations import DECLARATIONS, EXPERIMENTS as DECLARED, resolve
+    from wmthesis.agents import agent_file
+
+    assert DECLARED == EXPERIMENTS and tuple(RECIPES) == DECLARED
+    seen = set()
+    for d in DECLARATIONS:
+        assert callable(resolve(d.recipe)) and callable(resolve(d.score))
+        assert set(d.builds_on) <= seen, d.name  # declared in order: what it builds on comes first
+        assert (d.registry() is None) == (d.name not in VARIANTS)
+        if d.agent is not None:
+            assert callable(resolve(d.agent.loader))
+        seen.add(d.name)
+    shipped = Path(__file__).resolve().parents[1] / "data"
+    for name in ("boxing-wm", "boxing-wm-alphazero", "planet-boxing-agent", "planet-boxing-value", "planet-freeway",
+                 "sokoban-search"):
+        relative = agent_file(name).relative_to(Path(os.environ["WMTHESIS_DATA"]))
+        assert (shipped / relative).is_file(), relative
