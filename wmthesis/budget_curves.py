@@ -1,4 +1,4 @@
-"""Score against search budget over seeds (issue 57): the rows every ``planning-budget`` run writes,
+"""Score against search budget over seeds: the rows every ``planning-budget`` run writes,
 as one CSV (``data/results/planning_budget.csv``), a table over seeds and a figure. One row per
 planner, game, budget and seed: the score, the same agent's without search on the same bouts or
 levels, and milliseconds per action (:data:`COLUMNS`); budget 0 is the row without search."""

@@ -36,7 +36,7 @@ from wmthesis.envs.levels import LevelError, check_board, parse_level, parse_lev
 SETS = {"unfiltered-train": 20, "unfiltered-valid": 10, "medium-train": 20, "medium-valid": 10}
 HELD_OUT = ("unfiltered-test", "hard")  # kept for an external check: never read here
 LEVELS_PER_FILE = 1000
-# Which files serve which purpose (issue 30). Development decisions
+# Which files serve which purpose. Development decisions
 # are measured on the validation files only; the reported figures come from the report files,
 # which no decision looked at; training uses our generator (the Boxoban train files are free to
 # use). The upstream unfiltered test and hard sets are not in the package.

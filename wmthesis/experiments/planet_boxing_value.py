@@ -1,4 +1,4 @@
-"""Beyond the thesis on PlaNet's Boxing model (issue 31): the model of
+"""Beyond the thesis on PlaNet's Boxing model: the model of
 ``planet-boxing-agent`` (:mod:`~wmthesis.experiments.planet_boxing`) frozen, a latent action value
 fitted on it (:mod:`~wmthesis.planet.value`, notebook 09), and CEM with that value at the end of
 its horizon (:mod:`~wmthesis.planet.value_planner`, notebook 10), each beside the thesis's CEM on

@@ -1,4 +1,4 @@
-"""Beyond the thesis on PlaNet's Freeway model (issue 31): the model of ``planet-freeway`` in its
+"""Beyond the thesis on PlaNet's Freeway model: the model of ``planet-freeway`` in its
 tuned variant (:func:`~wmthesis.experiments.planet.planet_experiment`, thesis 5.6.5-5.6.6)
 frozen, a latent action value fitted on it, and CEM with that value at the end of its horizon,
 beside the thesis's CEM, random play and pressing UP at every step (a reference that knows the

@@ -1,4 +1,4 @@
-"""Planning that pays (issue 57; the thesis's promise, chapter 1): each planner's score against its
+"""Planning that pays (the thesis's promise, chapter 1): each planner's score against its
 search budget on a seed's trained models, the same bouts or levels for every budget:
 
 - the Sokoban agent (``sokoban-search``) on the first Boxoban medium report levels, without search

@@ -72,8 +72,8 @@ class LatentValueConfig:
     Fitted with ``fit_updates`` Adam steps (``batch_size``, ``lr``) on ``random_bouts`` random
     bouts, then ``rounds`` times on those and ``bouts_per_round`` more epsilon-greedy bouts of its own;
     ``validation_bouts`` greedy bouts after each fit choose the round whose value is kept (on bouts
-    of their own), ``test_bouts`` greedy bouts score each round. The defaults are the sizes measured on Boxing
-    (issue 13, session 14): a punch lands two steps after it is thrown, so three rewards.
+    of their own), ``test_bouts`` greedy bouts score each round. The defaults are Boxing's sizes: a
+    punch lands two steps after it is thrown, so three rewards.
 
     ``target``: ``reward-sum`` (the sum above, the agent of notebook 09), ``discounted-sum`` (each
     of the ``n`` rewards discounted by ``discount`` per step: a long window for rewards far

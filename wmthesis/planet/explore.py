@@ -3,7 +3,7 @@ Sekar et al. 2020), for games whose random play never meets a reward.
 
 Freeway pays only for a crossing and random play never crosses, so a model that sees the cars
 (``freeway-adam``) learns from its seed episodes that no reward ever comes, and CEM over its
-imagined rewards wanders (issue 31). Here K one-step models each predict the next frame's
+imagined rewards wanders. Here K one-step models each predict the next frame's
 embedding from the RSSM's features and the action,
 
     e_hat_k(h_t, s_t, a_t) ~ e_{t+1},   k = 1..K,

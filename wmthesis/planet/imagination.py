@@ -1,4 +1,4 @@
-"""How far a learned value reads a PlaNet model's imagination (beyond the thesis; issue 57).
+"""How far a learned value reads a PlaNet model's imagination (beyond the thesis).
 
 CEM with the value (:mod:`~wmthesis.planet.value_planner`) scores a candidate by Q at the states
 it imagines: the first step's from the real belief, every later step's from states sampled from

@@ -1,4 +1,4 @@
-"""PlaNet's reward head refit on the value agent's own bouts (beyond the thesis; issue 57).
+"""PlaNet's reward head refit on the value agent's own bouts (beyond the thesis).
 
 PlaNet's reward head learns Boxing's rewards from the bouts its model trained on: random play and a
 few planner bouts, where the player is mostly hit. CEM asks it about the fights the value agent

@@ -2,7 +2,7 @@
 
 CEM's imagined returns need the reward model to tell which action lands a reward. In Boxing
 a punch thrown at step t scores at t + 2, and a model trained on 32x32 frames ranks the action
-that landed a hit barely above the others (session 13's measurements in issue 13). This module
+that landed a hit barely above the others (``docs/findings/planet-boxing-value.md``). This module
 keeps the trained RSSM frozen and learns, on its features, the reward that an action brings
 over the next few steps:
 

@@ -1,5 +1,5 @@
 """A value run on a frozen PlaNet model, as the Boxing and Freeway value experiments make one
-(beyond the thesis, issue 31): the value fitted (:mod:`~wmthesis.planet.value_rounds`), CEM with it
+(beyond the thesis): the value fitted (:mod:`~wmthesis.planet.value_rounds`), CEM with it
 at the end of its horizon played on the evaluation bouts beside the baselines, the metrics written
 (:func:`fit_and_compare`); the planner's levers on validation bouts (:func:`lever_scores`); and
 where the value changes the plan (:func:`compare_plans`)."""

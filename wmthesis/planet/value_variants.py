@@ -18,12 +18,12 @@ VALUE_VARIANTS = Variants(
     Variant("rounds-10", "ten rounds, each scored", dict(value=dict(rounds=10)), builds_on="scored-rounds"),
     Variant("rounds-10-mean-3", "rounds-10's agent as the mean of its last 3 rounds' values (chosen by validate_agents)",
             dict(value=dict(agent_rounds=3)), builds_on="rounds-10"),
-    Variant("lean", "that agent from scratch, no greedy bouts after each round: issue 31's hour", dict(value=LEAN)),
+    Variant("lean", "that agent from scratch, no greedy bouts after each round: an hour", dict(value=LEAN)),
     Variant("lean-value-rewards-0.7", "lean's value; CEM scores every imagined step by the value's Q, discount 0.7 "
             "(chosen on two seeds' validation bouts)", dict(planner=dict(rewards="value", discount=0.7)),
             builds_on="lean", default=True),
     Variant("own-rewards", "lean's value; CEM's imagined rewards from the reward head refit on the run's own bouts "
-            "(issue 57: the model taught the fights the planner plans)", dict(planner=dict(reward_head="own")),
+            "(the model taught the fights the planner plans)", dict(planner=dict(reward_head="own")),
             builds_on="lean"),
     root="scored-rounds")  # the first recipe: its runs keep the experiment's own folders (``seedS``, ``PROFILE-seedS``)
 ROOT = VALUE_VARIANTS.root

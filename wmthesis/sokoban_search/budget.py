@@ -1,4 +1,4 @@
-"""The Sokoban agent's score against its search budget (issue 57; the thesis's promise, chapter 1:
+"""The Sokoban agent's score against its search budget (the thesis's promise, chapter 1:
 more search, more score): the same trained run on the same Boxoban levels under each node budget,
 and without search, each evaluation resumable level by level.
 

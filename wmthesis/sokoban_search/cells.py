@@ -1,7 +1,7 @@
 """A discrete state learned from pixels (thesis 5.3.1's input): one of K codes per cell.
 
 The thesis's VAE squeezed a Sokoban frame into 16 continuous numbers and its memory lost the
-player; a board is a grid of tiles, so here each tile gets a categorical latent (issue 14: "a
+player; a board is a grid of tiles, so here each tile gets a categorical latent ("a
 natural choice, not a rule"). :class:`CellCoder` is a vector quantiser over tile-sized patches:
 a codebook of ``n_codes`` patches fit by k-means (OpenCV's, k-means++ starts) to the patches of
 random play's frames; a patch's code is its nearest codebook entry, and a code decodes to its

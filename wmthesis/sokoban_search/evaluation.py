@@ -1,4 +1,4 @@
-"""The table of issue 14: solve rates on unseen levels within the environment's 120 steps.
+"""The table of the Sokoban search's targets: solve rates on unseen levels within the environment's 120 steps.
 
 Rows: random play; the thesis (0 levels, 5.3 and 5.5); the search agent in its learned model;
 the same agent, same budget, with the true rules in place of the model (the upper bound: the gap

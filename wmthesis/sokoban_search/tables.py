@@ -33,7 +33,7 @@ def _env_steps_row(steps: int, prefix: str = "") -> list:
     return [f"{prefix}fewer than {MAX_ENV_STEPS:,} environment steps", f"{steps:,}", _verdict(steps < MAX_ENV_STEPS)]
 
 def target_rows(metrics: dict) -> list[list]:
-    """Each target of issue 14 with the measured value and whether it is met."""
+    """Each target of the search's first evaluation with the measured value and whether it is met."""
     rows = []
     for variant, inputs, lowest in SOKOBAN_SEARCH_TARGETS:
         rate = metrics["tables"].get(variant, {}).get(f"agent, learned model ({inputs})", {}).get("solve_rate")
@@ -72,7 +72,7 @@ BOXOBAN_TARGETS = {"unfiltered": 0.99, "medium": 0.85}
 MAX_SECONDS_PER_LEVEL, NOTEBOOK_MINUTES = 5.0, 75
 
 def boxoban_target_rows(metrics: dict) -> list[list]:
-    """Each target of issue 30 that one run measures, with the measured value and whether it is
+    """Each target of the Boxoban evaluation that one run measures, with the measured value and whether it is
     met: the pixel agent's solve rate on each report kind, its seconds a level (each level on one
     core), its environment steps, and the training stages with the evaluation against the
     notebook's 75 minutes."""
