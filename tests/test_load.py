@@ -183,6 +183,9 @@ def test_a_file_of_another_game_or_variant_is_refused_naming_both(tmp_path, monk
     own_memory = wmthesis.agent_file("boxing-wm-alphazero")
     own_memory.parent.mkdir(parents=True)
     shutil.copy(SHIPPED / "quick/boxing-wm-alphazero/seed0/agent-imitation.pt", own_memory)
+    vision = wmthesis.agent_file("boxing-wm")  # the vision the AlphaZero agents share
+    vision.parent.mkdir(parents=True)
+    shutil.copy(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", vision)
     with pytest.raises(ValueError, match=rf"{own_memory} holds boxing-wm-alphazero's imitation agent, not own-memory"):
         wmthesis.load("boxing-wm-alphazero")
 
@@ -196,8 +199,15 @@ def test_alphazero_agents_can_share_the_vision_of_their_world_models_agent(tmp_p
                            (SHIPPED / "quick/boxing-wm-alphazero/seed0/agent-own-memory.pt", az)):
         target.parent.mkdir(parents=True)
         shutil.copy(source, target)
+    saved = torch.load(az, weights_only=False)  # the shipped file names the vision it shares
+    assert saved["encoder"] is None and saved["vision_file"]["path"] == str(Path("..", "..", "boxing-wm", "seed0",
+                                                                                 "agent-separable-64.pt"))
     frames = np.random.default_rng(0).integers(0, 256, (3, 64, 64, 3), dtype=np.uint8)
+    shared = load_agent(az).vision(frames)
+    encoder = torch.load(wm, weights_only=False)["encoder"]
+    torch.save({**saved, "encoder": encoder, "vision_file": None}, az)  # as a run writes it: its own copy
     before, size = load_agent(az).vision(frames), az.stat().st_size
+    assert torch.equal(before, shared)
     share_vision(az, wm)
     assert az.stat().st_size < size - 2_000_000  # the encoder's copy is gone
     assert torch.equal(load_agent(az).vision(frames), before)  # and the agent sees the same
@@ -205,7 +215,8 @@ def test_alphazero_agents_can_share_the_vision_of_their_world_models_agent(tmp_p
     with pytest.raises(ValueError, match=r"sees through the vision of .*not the file it was trained with"):
         load_agent(az)
     other = tmp_path / "other.pt"
-    shutil.copy(SHIPPED / "quick/boxing-wm-alphazero/seed0/agent-imitation.pt", other)
+    imitation = torch.load(SHIPPED / "quick/boxing-wm-alphazero/seed0/agent-imitation.pt", weights_only=False)
+    torch.save({**imitation, "encoder": encoder, "vision_file": None}, other)
     saved = torch.load(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", weights_only=False)
     torch.save({**saved, "encoder": {k: v + 1 for k, v in saved["encoder"].items()}}, wm)  # another encoder
     with pytest.raises(ValueError, match="does not see through the encoder of"):
