@@ -14,7 +14,7 @@ from wmthesis.references import BOXOBAN, published
 from wmthesis.runs import (cached, first_run_seconds, hold, jsonable, machine_name, read_json, releasing_holds,
                            results_folder, run_header, run_jobs, work_folder as run_folder, write_json)
 from wmthesis.sokoban_search import accuracy
-from wmthesis.sokoban_search.agent import level_seeds, random_play
+from wmthesis.sokoban_search.agent import EVAL_PURPOSE, level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table, render_cells
 from wmthesis.sokoban_search.config import SokobanSearchConfig
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
@@ -34,7 +34,6 @@ BOXOBAN_LEVELS = {"smoke": 2, "quick": 500, "thesis": 1000}  # the first of the 
 # would take about 20 of the experiment's CPU-minutes on 500 levels).
 REFERENCE_LEVELS = {"smoke": 2, "quick": 100, "thesis": 1000}
 GENERATED = ("sokoban-small", "sokoban")  # our generator's variants: each evaluated on unseen levels
-EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
 
 
 def work_folder(profile: str, seed: int) -> Path:

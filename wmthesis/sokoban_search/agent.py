@@ -239,10 +239,13 @@ def random_play(name: str, seed: int, levels: int, max_steps: int | None = None)
             zip(rows.items(), (np.uint8, np.uint8, np.uint8, np.float32, bool))}
 
 
+EVAL_PURPOSE = 1000  # level_seeds' stream of the evaluation levels
+
+
 def level_seeds(seed: int, purpose: int, n: int) -> list[int]:
     """``n`` level seeds for a ``purpose`` (0: random play, 1 + r: training round r, 1000:
     evaluation), disjoint streams of one experiment seed."""
     return [int(s) for s in derive_seeds(seed, 7_000_000 + purpose, n=n)]
 
 
-__all__ = ["SearchAgent", "Remembered", "Memo", "Play", "random_play", "variant_options", "grid_env", "grid_state", "level_seeds"]
+__all__ = ["EVAL_PURPOSE", "SearchAgent", "Remembered", "Memo", "Play", "random_play", "variant_options", "grid_env", "grid_state", "level_seeds"]

@@ -85,8 +85,7 @@ class SokobanAgent(TrainedAgent):
         return SearchMind(self.search, self.env())
 
     def scored_seeds(self, bouts: int) -> list[int]:
-        from wmthesis.experiments.sokoban_search import EVAL_PURPOSE
-        from wmthesis.sokoban_search.agent import level_seeds
+        from wmthesis.sokoban_search.agent import EVAL_PURPOSE, level_seeds
 
         return [int(s) for s in level_seeds(self.seed, EVAL_PURPOSE, bouts)]
 
