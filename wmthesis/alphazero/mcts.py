@@ -34,11 +34,9 @@ not drown the prior bonus. Tree reuse (the author's ``query_tree``): :meth:`MCTS
 the subtree below the action taken, and the next :meth:`MCTS.plan` continues it with the
 root's model-predicted state replaced by the real one; its statistics are kept.
 
-Speed: selection is one numpy expression over the A edges; for A = 18 it measured as fast as
-a pure-Python loop (~2 us a node), and a whole tree of Python lists was no faster per
-simulation (~10 us of tree overhead either way: ``benchmarks/bench_mcts.py``, null model).
-With the thesis's model (LSTM 256, latent 16, 18 actions) the model's transition and the
-evaluator take ~80% of a simulation (~100 us of CPU), so leaves are not batched.
+Speed: selection is one numpy expression over the A edges, and leaves are not batched: the
+model's transition and the evaluator take most of a simulation (``benchmarks/bench_mcts.py``;
+the measurements are in ``docs/findings/boxing-wm-alphazero.md``).
 """
 from __future__ import annotations
 
