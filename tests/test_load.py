@@ -221,3 +221,13 @@ def test_alphazero_agents_can_share_the_vision_of_their_world_models_agent(tmp_p
     torch.save({**saved, "encoder": {k: v + 1 for k, v in saved["encoder"].items()}}, wm)  # another encoder
     with pytest.raises(ValueError, match="does not see through the encoder of"):
         share_vision(other, wm)
+
+
+def test_dreams_and_open_loops_want_one_action_per_frame(shipped):
+    frames = np.zeros((20, 64, 64, 3), np.uint8)
+    with pytest.raises(ValueError, match=r"one action per frame .*got 20 frames and 5 actions"):
+        wmthesis.load("boxing-wm").dream(frames, [0] * 5, context=10, horizon=5)
+    with pytest.raises(ValueError, match="20 frames are too few: context \\+ horizon needs 25"):
+        wmthesis.load("boxing-wm").dream(frames, [0] * 20, context=20, horizon=5)
+    with pytest.raises(ValueError, match=r"got 6 frames and 5 actions"):
+        wmthesis.load("planet-boxing-agent").open_loop(np.zeros((6, 32, 32, 3), np.uint8), [0] * 5, context=3)

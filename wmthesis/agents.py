@@ -144,6 +144,17 @@ class TrainedAgent:
         return returns
 
 
+def check_episode(frames, actions, needed: int) -> None:
+    """One action per frame (``actions[t]`` taken at ``frames[t]``) and at least ``needed`` of each;
+    ValueError saying what to pass otherwise."""
+    if len(actions) != len(frames):
+        raise ValueError(f"pass one action per frame (actions[t] is the action taken at frames[t]): got {len(frames)} "
+                         f"frames and {len(actions)} actions")
+    if len(frames) < needed:
+        raise ValueError(f"{len(frames)} frames are too few: context + horizon needs {needed} (pass more frames, or a "
+                         "shorter context or horizon)")
+
+
 class PolicyMind:
     """A plain policy (observation -> action in [0, n_actions)) as a mind: one-hot scores of its action."""
 
@@ -161,4 +172,4 @@ class PolicyMind:
         return scores
 
 
-__all__ = ["agent_file", "load", "TrainedAgent", "PolicyMind"]
+__all__ = ["check_episode", "agent_file", "load", "TrainedAgent", "PolicyMind"]

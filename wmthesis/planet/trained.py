@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from wmthesis.agents import TrainedAgent
+from wmthesis.agents import TrainedAgent, check_episode
 from wmthesis.planet.agent import PlanetMind
 from wmthesis.planet.shipped import NoDecoder, load_agent, play_agent
 from wmthesis.planet.decoder import DECODER_NAME, attach_decoder
@@ -82,13 +82,14 @@ class PlanetAgent(TrainedAgent):
 
     def open_loop(self, frames, actions, context: int = 5, seed: int = 0) -> dict:
         """Filter ``context`` real frames of one episode (``frames`` (T, S, S, 3) uint8 from
-        :meth:`env`, ``actions`` (T,)), then imagine the rest along the actions taken from the
+        :meth:`env`, ``actions`` (T,), ``actions[t]`` taken at ``frames[t]``), then imagine the rest along the actions taken from the
         prior's means: ``truth`` and ``prediction`` (T, S, S, 3) uint8 (the first ``context``
         predictions are reconstructions) and ``mse`` per imagined step."""
         from wmthesis.planet.prediction import open_loop
 
         frames = check_planet_frames(frames, self.config.frame_size, many=True)
         actions = torch.as_tensor(np.asarray(actions), dtype=torch.long)
+        check_episode(frames, actions, context + 1)
         generator = torch.Generator(next(self.model.parameters()).device).manual_seed(seed)
         out = open_loop(self.model, frames[None], actions[None], context=context, bits=self.config.bits,
                         generator=generator)

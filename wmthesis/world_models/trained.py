@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.agents import TrainedAgent
+from wmthesis.agents import TrainedAgent, check_episode
 from wmthesis.world_models.agent import load_agent
 from wmthesis.world_models.controller import Controller, ControllerMind
 from wmthesis.world_models.decoder import DECODER_NAME, MissingDecoder, attach_decoder
@@ -85,12 +85,14 @@ class WorldModelsAgent(TrainedAgent):
 
     def dream(self, frames, actions, context: int = 60, horizon: int = 10) -> dict:
         """The memory warmed on ``context`` real steps of an episode (``frames`` (T, 64, 64, 3)
-        uint8, ``actions`` (T,)), then dreaming ``horizon`` steps along the actions taken from its
+        uint8, ``actions`` (T,), ``actions[t]`` taken at ``frames[t]``), then dreaming ``horizon`` steps along the actions taken from its
         mixture's most likely path: ``truth`` and ``prediction`` frames (horizon, 64, 64, 3),
         ``pixel_error`` and ``latent_error`` per step."""
         from wmthesis.world_models.prediction import open_loop
 
-        return open_loop(self.vision.vae, self.memory, np.asarray(frames), np.asarray(actions), context, horizon)
+        frames, actions = np.asarray(frames), np.asarray(actions)
+        check_episode(frames, actions, context + horizon)
+        return open_loop(self.vision.vae, self.memory, frames, actions, context, horizon)
 
 
 def load_trained(path: Path, *, experiment: str, variant: str | None, profile: str, seed: int) -> WorldModelsAgent:
