@@ -159,10 +159,11 @@ class VAEVision:
 def check_frames(frames) -> torch.Tensor:
     """World Models frames as a uint8 tensor (N, 64, 64, 3); ValueError saying what was expected
     and which environment gives it otherwise."""
+    given = frames.dtype if isinstance(frames, torch.Tensor) else np.asarray(frames).dtype
     if not isinstance(frames, torch.Tensor):
         frames = torch.as_tensor(np.asarray(frames))
     if frames.dtype != torch.uint8 or frames.ndim != 4 or tuple(frames.shape[1:]) != (64, 64, 3):
-        raise ValueError(f"the vision sees uint8 frames (N, 64, 64, 3), got {frames.dtype} {tuple(frames.shape)}: "
+        raise ValueError(f"the vision sees uint8 frames (N, 64, 64, 3), got {given} {tuple(frames.shape)}: "
                          "`agent.env()` (make_env('boxing', preprocessing='world_models')) gives them, one at a time "
                          "(stack them: frames[None] for one)")
     return frames
