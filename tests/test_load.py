@@ -231,3 +231,15 @@ def test_dreams_and_open_loops_want_one_action_per_frame(shipped):
         wmthesis.load("boxing-wm").dream(frames, [0] * 20, context=20, horizon=5)
     with pytest.raises(ValueError, match=r"got 6 frames and 5 actions"):
         wmthesis.load("planet-boxing-agent").open_loop(np.zeros((6, 32, 32, 3), np.uint8), [0] * 5, context=3)
+
+
+def test_a_decoder_ships_as_int8_weights_within_half_a_step_of_its_float_ones():
+    from wmthesis.world_models.decoder import compact, expanded
+
+    weight = torch.randn(64, 32, 5, 5)
+    stored = compact(weight)
+    assert stored["int8"].dtype == torch.int8 and stored["scale"].shape == (64,)
+    step = stored["scale"].view(-1, 1, 1, 1)
+    assert ((expanded(stored) - weight).abs() <= step / 2 + 1e-6).all() and not torch.equal(expanded(stored), weight)
+    bias = torch.randn(7)
+    assert expanded(compact(bias)).dtype == torch.float32 and torch.allclose(expanded(compact(bias)), bias, atol=1e-2)
