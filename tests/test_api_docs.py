@@ -46,12 +46,12 @@ def test_every_block_of_the_api_page_runs_and_prints_what_the_page_shows(tmp_pat
     monkeypatch.setenv("WMTHESIS_DATA", str(REPO / "data"))  # the agents the repository ships
     checker = doctest.OutputChecker()
     ran = run_blocks(tmp_path)
-    assert len(ran) == 6
+    assert len(ran) == 7
     for code, expected, printed in ran:
         assert len(code.strip().splitlines()) <= 15, code
         if expected:
             assert checker.check_output(expected, printed, doctest.ELLIPSIS), f"{code}\nprinted:\n{printed}"
-    assert {p.name for p in tmp_path.glob("*.png")} == {"vision.png", "dream.png", "open_loop.png", "sokoban.png"}
+    assert {p.name for p in tmp_path.glob("*.png")} == {"vision.png", "dream.png", "open_loop.png", "sokoban.png", "still.png"}
 
 
 def test_the_page_names_only_what_the_package_has():

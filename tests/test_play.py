@@ -67,7 +67,7 @@ def test_a_boxing_agent_plays_the_bouts_its_score_was_measured_on(tmp_path, monk
     video = cv2.VideoCapture(str(tmp_path / "bouts.mp4"))
     frames, width = int(video.get(cv2.CAP_PROP_FRAME_COUNT)), int(video.get(cv2.CAP_PROP_FRAME_WIDTH))
     video.release()
-    assert frames == sum(p["steps"] + 1 for p in result["plays"]) and width == 256
+    assert frames == sum(p["steps"] + 1 for p in result["plays"]) and width == 5 * 64 * 4  # reality, its view, 3 imagined
     assert main(["play", "boxing-wm", "--profile", "smoke", "--seed", "4"]) == 2
     assert "reproduce boxing-wm --profile smoke --seed 4`" in capsys.readouterr().err
     # its metrics written again by a resumed call (every generation evolved before): the time it

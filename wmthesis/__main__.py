@@ -198,8 +198,13 @@ def cmd_budget_curve(args) -> int:
 def cmd_play(args) -> int:
     from wmthesis.play import play  # light: it checks the paths before anything heavy loads or plays
 
-    play(args.experiment, profile=args.profile, seed=args.seed, variant=args.variant, bouts=args.bouts,
-         record=args.record, video=args.video)
+    try:
+        play(args.experiment, profile=args.profile, seed=args.seed, variant=args.variant, bouts=args.bouts,
+             record=args.record, video=args.video)
+    except KeyboardInterrupt:
+        kept = " ".join(p for p in (args.record, args.video) if p)
+        print("play interrupted" + (f": what was played is kept in {kept}" if kept else ""), file=sys.stderr)
+        return 130
     return 0
 
 
@@ -354,8 +359,10 @@ def parser() -> argparse.ArgumentParser:
     player.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
     player.add_argument("--variant", help="a variant of the experiment (default: its default)")
     player.add_argument("--bouts", type=at_least(1), default=10, help="bouts or levels to play (default 10)")
-    player.add_argument("--record", help="a rerun recording of the plays (.rrd)")
-    player.add_argument("--video", help="an mp4 of the plays' frames")
+    player.add_argument("--record", help="a rerun recording (.rrd) of every step: the real frame beside what the "
+                                         "agent saw, imagined and weighed (open with: rerun FILE.rrd)")
+    player.add_argument("--video", help="an mp4 of the same panels side by side: reality, the model's view, "
+                                        "what it imagined 1, 4 and 8 steps before")
     player.set_defaults(run=cmd_play)
 
     validate = commands.add_parser("validate", help="levers of an experiment on its validation split only")

@@ -117,6 +117,71 @@ class TrainedAgent:
         return (f"mean {mean:.1f} over {len(plays)} bout{'s' if len(plays) > 1 else ''} "
                 f"({self.variant or self.experiment}, {self.profile}, seed {self.seed})")
 
+    # ---------------------------------------------------------------- what it thinks
+    horizon = 8  # how many steps ahead a recording shows the agent's imagination
+    shown = (1, 4, 8)  # the steps ahead whose imagined frames a recording decodes (where decoding is costly)
+    max_steps: int | None = None  # the step limit its scored bouts were played with
+
+    def scored_minds(self, bouts: int) -> list[tuple[int, object]]:
+        """``(reset seed, mind)`` of each of the first ``bouts`` scored bouts, the mind seeded as
+        the evaluation seeded it."""
+        return [(seed, self.mind()) for seed in self.scored_seeds(bouts)]
+
+    def thought(self, mind):
+        """What ``mind`` thought once it planned (a :class:`~wmthesis.thoughts.Thought`)."""
+        raise NotImplementedError
+
+    def snapshot(self, mind):
+        """What a recording keeps of ``mind`` once it planned, for :meth:`thoughts` (by default the
+        :meth:`thought` itself)."""
+        return self.thought(mind)
+
+    def thoughts(self, snapshots: list) -> list:
+        """The :class:`~wmthesis.thoughts.Thought` of each snapshot, in order."""
+        return snapshots
+
+    def left_out(self) -> str | None:
+        """Which panels a recording leaves out and why (a missing decoder), or None."""
+        return None
+
+    def record(self, bouts: int, path, video=None, on_bout: Callable | None = None) -> dict:
+        """The first ``bouts`` scored bouts played as the evaluation played them, each step's frame
+        beside what the agent thought (:mod:`wmthesis.thoughts`) in a rerun recording at ``path``
+        (and an mp4 of its panels at ``video``): ``plays`` (one dict each, ``on_bout(play)`` as each
+        ends), ``steps`` recorded and ``errors``, imagination's mean error per imagined step. A bout
+        cut off (Ctrl-C) leaves a recording that opens."""
+        from wmthesis.thoughts import Recorder
+
+        recorder = Recorder(path, horizon=self.horizon, video=video, scale=self.video_scale, fps=self.fps,
+                            left_out=self.left_out())
+        plays: list[dict] = []
+        try:
+            self.record_bouts(bouts, recorder, plays, on_bout)
+        finally:
+            summary = recorder.close()
+        return {"plays": plays, **summary}
+
+    def record_bouts(self, bouts: int, recorder, plays: list, on_bout: Callable | None = None) -> None:
+        """Play the scored bouts through :meth:`env` with :meth:`scored_minds`, one
+        :func:`wmthesis.core.loop` each, the recorder watching; ``plays`` gets each play."""
+        from wmthesis.core import loop
+        from wmthesis.thoughts import Watcher
+
+        env, watcher = self.env(), None
+        try:
+            for k, (seed, mind) in enumerate(self.scored_minds(bouts)):
+                watcher = Watcher(recorder, lambda mind=mind: self.snapshot(mind), self.thoughts)
+                watcher.bout = k
+                history = loop(env, mind, policy="deterministic", callbacks=[mind, watcher], seed=int(seed),
+                               max_steps=self.max_steps, train_mode=False)
+                plays.append({"bout": k, "return": float(history[0]["return"]), "steps": int(history[0]["steps"])})
+                if on_bout is not None:
+                    on_bout(plays[-1])
+        finally:
+            if watcher is not None:
+                watcher.flush()  # an interrupted bout keeps what it played
+            env.close()
+
     def play(self, bouts: int = 1, policy: Callable | None = None, max_steps: int | None = None) -> list[float]:
         """Returns of the first ``bouts`` scored bouts (or levels: 1.0 solved, 0.0 not, for
         Sokoban): played by the agent as its evaluation did, or by ``policy`` (observation ->

@@ -2,8 +2,9 @@
 
 The agent is the one a ``quick`` run shipped in the repository (or one trained here), on the
 experiment's own evaluation levels or bouts, so its results are the summary's seed row. Each
-play's result is printed as it ends; ``record`` writes a rerun recording of the plays, ``video``
-an mp4 of their frames (opencv). Paths are checked before anything plays; an agent that is not
+play's result is printed as it ends; ``record`` writes a rerun recording of the plays, each step's
+real frame beside what the agent saw, imagined and weighed (:mod:`wmthesis.thoughts`), ``video``
+an mp4 of the same panels side by side (opencv). Paths are checked before anything plays; an agent that is not
 there is one line naming what is missing and the command that trains it.
 
 Every experiment whose declaration names an agent file plays (:data:`wmthesis.declarations.AGENTS`):
@@ -53,36 +54,32 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
     from wmthesis.agents import load
 
     agent = load(experiment, variant=variant, profile=profile, seed=seed)
-    frames = [] if record or video else None
-    plays = agent.play_bouts(bouts, frames, on_bout=lambda p: on_play(agent.bout_line(p)))
-    on_play(agent.score_line(plays))
-    if frames:
-        _keep_frames(np.concatenate(frames), record, video, agent.video_scale, agent.fps)
-    return {"experiment": experiment, "variant": agent.variant, "profile": profile, "seed": seed, "plays": plays,
-            "score": float(np.mean([p["return"] for p in plays]))}
-
-
-def _keep_frames(frames: np.ndarray, record: Path | None, video: Path | None, scale: int, fps: int) -> None:
-    """``frames`` (T, H, W, 3) uint8 as a rerun recording and an mp4 (``scale`` times larger), where asked for."""
-    if record is not None:
-        from wmthesis.viz import record_frames
-
-        record_frames(record, {"frame": frames})
-    if video is not None:
-        _write_video(video, np.repeat(np.repeat(frames, scale, axis=1), scale, axis=2), fps=fps)
-
-
-def _write_video(path: Path, frames: np.ndarray, fps: int = 8) -> None:
-    """``frames`` (T, H, W, 3) RGB as an mp4 at ``path``."""
-    import cv2
-
-    height, width = frames.shape[1:3]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    on_bout = lambda p: on_play(agent.bout_line(p))  # noqa: E731
+    if record is None and video is None:
+        plays = agent.play_bouts(bouts, on_bout=on_bout)
+        on_play(agent.score_line(plays))
+        return _result(agent, plays)
+    note = agent.left_out()
+    if note:
+        on_play(note)
+    kept = record or video.with_name(f".{video.stem}.rrd")  # a video alone is drawn from a recording not kept
     try:
-        for frame in frames:
-            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+        recorded = agent.record(bouts, kept, video=video, on_bout=on_bout)
     finally:
-        writer.release()
+        if record is None:
+            kept.unlink(missing_ok=True)
+    on_play(agent.score_line(recorded["plays"]))
+    if recorded["errors"]:
+        on_play("imagination against reality, mean squared error in [0, 1] by steps ahead: "
+                + ", ".join(f"{j}: {e:.4f}" for j, e in recorded["errors"].items()))
+    on_play(f"recorded {recorded['steps']} steps: " + ", ".join(str(p) for p in (record, video) if p is not None)
+            + (f" (open with: rerun {record})" if record else ""))
+    return {**_result(agent, recorded["plays"]), "errors": recorded["errors"]}
+
+
+def _result(agent, plays: list[dict]) -> dict:
+    return {"experiment": agent.experiment, "variant": agent.variant, "profile": agent.profile, "seed": agent.seed,
+            "plays": plays, "score": float(np.mean([p["return"] for p in plays]))}
 
 
 __all__ = ["PLAYABLE", "check_output", "play"]

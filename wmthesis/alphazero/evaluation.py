@@ -214,13 +214,16 @@ def policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list
 
 def controller_minds(profile: str, wm: Path, vision) -> tuple:
     """``(agent_seed -> ControllerMind, name)`` for the boxing-wm controller under `wm`, or
-    ``(None, why not)`` when it is missing or was trained on another memory: the default recipe's
+    ``(None, why not)`` when it is missing, still evolving or was trained on another memory: the default recipe's
     (:data:`~wmthesis.world_models.variants.BOXING_WM`)."""
     controller_path, memory_path = controller_folder(wm) / "controller.pkl", wm / "memory-mdn.best.pt"
     if not (controller_path.is_file() and memory_path.is_file()):
         return None, (f"no boxing-wm controller under {wm} (run notebook 02 / `reproduce boxing-wm` first): "
                       "the comparison with it is skipped")
     run = load_run(controller_path)
+    if run.generation < run.config["generations"]:
+        return None, (f"the boxing-wm controller under {wm} has evolved {run.generation} of its "
+                      f"{run.config['generations']} generations (`reproduce boxing-wm` finishes it)")
     mdn = load_weights(memory_path, make_memory(16, 18, for_profile(MemoryConfig, profile))).eval()
     if fingerprint(mdn) != run.task["memory"]:
         return None, f"the controller in {controller_path.parent} was trained on another memory: skipped"

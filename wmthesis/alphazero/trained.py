@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from wmthesis.agents import TrainedAgent
 from wmthesis.alphazero.agent import load_agent
 from wmthesis.world_models.trained import shipped_decoder
@@ -30,6 +32,7 @@ class AlphaZeroAgent(TrainedAgent):
         self.memory = loaded.mdp  # the memory as the MDP the search runs in
         self.search = loaded.mind()
         self.decoder_info = shipped_decoder(self.vision, Path(path).parent)
+        self.max_steps = self.config.eval_max_steps
 
     def env(self):
         """Boxing with World Models frames and no-op starts (:func:`~wmthesis.envs.atari.boxing_env`),
@@ -69,12 +72,63 @@ class AlphaZeroAgent(TrainedAgent):
             env.close()
         return plays
 
+    def scored_minds(self, bouts: int) -> list[tuple[int, object]]:
+        from wmthesis.alphazero.evaluation import evaluation_seeds
+        from wmthesis.alphazero.replay import game_seeds
+
+        minds = []
+        for k, game_seed in enumerate(evaluation_seeds(self.seed, bouts, self.config.noop_max)):
+            env_seed, search_seed = game_seeds(game_seed)
+            mind = self.loaded.mind()
+            mind.new_search(search_seed, k)
+            minds.append((env_seed, mind))
+        return minds
+
+    def left_out(self) -> str | None:
+        if self.decoder_info is None:
+            return ("left out: the vision's reconstructions and the principal variation's frames (no decoder ships for "
+                    "this vision; `python tools/fit_decoders.py world-models` fits one)")
+        return None
+
+    def thought(self, mind):
+        """What the search weighed at its root (visits, Q, prior per action) and what it imagines:
+        its principal variation (the most visited path, up to ``horizon`` steps) with the
+        rewards the memory predicts along it, decoded; the vision's reconstruction of the frame."""
+        from wmthesis.thoughts import Thought
+
+        root = mind.mcts.root
+        if root is None or root.terminal:
+            return Thought()
+        latents, rewards = principal_variation(root, self.horizon)
+        thought = Thought(imagined_rewards=rewards, scores={"visits": root.N.copy(), "q": np.where(root.N > 0, root.Q, 0.0),
+                                                            "prior": root.P.copy()},
+                          values={"depth": float(len(latents)), "root_value": float(root.N @ root.Q / max(root.N.sum(), 1))})
+        if self.decoder_info is not None:
+            frames = self.vision.decode(np.stack([root.state.z, *latents]))
+            thought.seen, thought.imagined = frames[0], {j + 1: f for j, f in enumerate(frames[1:])}
+        return thought
+
     def score_line(self, plays: list[dict]) -> str:
         return super().score_line(plays)[:-1] + f", {self.config.simulations} simulations an action)"
+
+
+def principal_variation(root, horizon: int) -> tuple[list[np.ndarray], np.ndarray]:
+    """The search tree's most visited path from ``root`` (a :class:`~wmthesis.alphazero.mcts.Node`),
+    ``horizon`` edges at most: its latents z (L,) each and the model's rewards on its edges."""
+    latents, rewards, node = [], [], root
+    while len(latents) < horizon and node is not None and not node.terminal and node.N.sum() > 0:
+        action = int(node.N.argmax())
+        child = node.children[action]
+        if child is None:
+            break
+        latents.append(np.asarray(child.state.z, np.float32))
+        rewards.append(float(node.R[action]))
+        node = child
+    return latents, np.asarray(rewards)
 
 
 def load_trained(path: Path, *, experiment: str, variant: str | None, profile: str, seed: int) -> AlphaZeroAgent:
     return AlphaZeroAgent(path, experiment, variant, profile, seed)
 
 
-__all__ = ["AlphaZeroAgent", "load_trained"]
+__all__ = ["AlphaZeroAgent", "load_trained", "principal_variation"]

@@ -46,6 +46,13 @@ class FramePreprocessing(gym.ObservationWrapper):
         return frame
 
 
+def quiet_emulator() -> None:
+    """The emulator's errors only: no banner on stderr each time a game loads."""
+    import ale_py
+
+    ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Error)
+
+
 def make_atari(game: str, preprocessing: str = "none", action_repeat: int = 4,
                max_steps: int | None = None, render_mode: str | None = None) -> gym.Env:
     """ale-py's ``ALE/{game}-v5`` with the thesis's deterministic settings.
@@ -61,6 +68,7 @@ def make_atari(game: str, preprocessing: str = "none", action_repeat: int = 4,
         check_positive("max_steps", max_steps)
     import ale_py
 
+    quiet_emulator()
     gym.register_envs(ale_py)
     env = gym.make(f"ALE/{game}-v5", frameskip=action_repeat, repeat_action_probability=0.0,
                    full_action_space=False, render_mode=render_mode)

@@ -35,6 +35,9 @@ class AtariGame:
                  num_threads: int | None = None):
         from ale_py.vector_env import AtariVectorEnv
 
+        from wmthesis.envs.atari import quiet_emulator
+
+        quiet_emulator()
         self.num_envs, self.crop = num_envs, CROPS[game]
         self.env = AtariVectorEnv(
             game.lower(), num_envs, num_threads=num_threads or min(num_envs, os.cpu_count() or 1),

@@ -64,7 +64,8 @@ class BeliefFilter(Mind, Callback):
 class PlanetMind(BeliefFilter):
     """The PlaNet agent: filter the belief (:class:`BeliefFilter`), plan with CEM. Each
     :meth:`plan` first updates ``(h, s)`` with the observation and the previous action, then
-    returns the scores of the final CEM belief for the first step (argmax = the plan's action).
+    returns the scores of the final CEM belief for the first step (argmax = the plan's action);
+    ``last_plan`` keeps that final :class:`~wmthesis.planet.cem.Belief` (H, A).
     """
 
     def __init__(self, model: RSSM, *, horizon: int, candidates: int, top_k: int,
@@ -99,6 +100,7 @@ class PlanetMind(BeliefFilter):
         self.observe(state)
         belief = cem_belief(self.returns, self.model.n_actions, generator=self.generator, mean=self.first_mean(),
                             **self.sizes)
+        self.last_plan = belief  # what a recording shows of the plan
         scores = belief.mean[0].cpu().numpy()
         if debug_mode:
             return scores, {"std": belief.std[0].cpu().numpy(), "best_return": float(belief.returns.max())}

@@ -21,12 +21,14 @@ RolloutFn = Callable[[torch.Tensor], torch.Tensor]
 
 
 class Belief(NamedTuple):
-    """The final belief of a plan: ``mean`` and ``std`` (H, A) over action scores, and the
-    returns (J,) of the last iteration's candidates."""
+    """The final belief of a plan: ``mean`` and ``std`` (H, A) over action scores, the
+    returns (J,) of the last iteration's candidates, and ``elites`` (I,): the mean return of each
+    iteration's top K."""
 
     mean: torch.Tensor
     std: torch.Tensor
     returns: torch.Tensor
+    elites: torch.Tensor
 
 
 def cem_belief(rollout_fn: RolloutFn, n_actions: int, horizon: int, candidates: int,
@@ -47,14 +49,17 @@ def cem_belief(rollout_fn: RolloutFn, n_actions: int, horizon: int, candidates: 
         raise ValueError(f"the first mean must have shape (horizon, n_actions) = ({horizon}, {n_actions}), "
                          f"got {tuple(mean.shape)}")
     std = torch.ones(horizon, n_actions, device=device)
+    elites = []
     for _ in range(iterations):
         noise = torch.randn((candidates, horizon, n_actions), generator=generator, device=device)
         scores = mean + std * noise
         actions = F.one_hot(scores.argmax(-1), n_actions).float()
         returns = rollout_fn(actions).reshape(candidates).to(device)
-        best = scores[returns.topk(top_k).indices]
+        top = returns.topk(top_k)
+        best = scores[top.indices]
         mean, std = best.mean(0), best.std(0, unbiased=False)
-    return Belief(mean, std, returns)
+        elites.append(top.values.mean())
+    return Belief(mean, std, returns, torch.stack(elites))
 
 
 def cem_plan(rollout_fn: RolloutFn, n_actions: int, horizon: int, candidates: int,

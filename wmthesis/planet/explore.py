@@ -84,14 +84,10 @@ def imagined_bonus(model: RSSM, ensemble: Disagreement, belief: torch.Tensor, st
     """One sampled path per candidate: ``belief`` (1 or J, H), ``state`` (1 or J, S), one-hot
     ``actions`` (J, T, A) -> (imagined rewards (J,), disagreement (J,)), each summed over the T
     steps; a step's disagreement is taken at the state before its action."""
-    count = actions.shape[0]
-    belief, state = belief.expand(count, -1), state.expand(count, -1)
-    rewards, bonus = actions.new_zeros(count), actions.new_zeros(count)
-    for t in range(actions.shape[1]):
-        bonus = bonus + ensemble(torch.cat([belief, state], -1), actions[:, t])
-        belief, prior = model.transition(belief, state, actions[:, t])
-        state = prior.sample(generator)
-        rewards = rewards + model.reward(belief, state)
+    rewards, bonus = actions.new_zeros(actions.shape[0]), actions.new_zeros(actions.shape[0])
+    for step in model.imagined_steps(belief, state, actions, lambda prior: prior.sample(generator)):
+        bonus = bonus + ensemble(torch.cat(step.before, -1), actions[:, step.t])
+        rewards = rewards + model.reward(step.belief, step.state)
     return rewards, bonus
 
 

@@ -46,9 +46,11 @@ def imagined_features(model: RSSM, beliefs: torch.Tensor, states: torch.Tensor, 
         raise ValueError(f"depth must be an integer >= 0, got {depth!r}")
     count = max(0, len(actions) - depth)  # an episode shorter than the depth has no such step
     belief, state = beliefs[:count], states[:count]
-    for step in range(depth):
-        belief, prior = model.transition(belief, state, F.one_hot(actions[step:step + count], model.n_actions).float())
-        state = imagined_state(prior, generator, "mean" if generator is None else "sample")
+    if depth:
+        along = torch.stack([F.one_hot(actions[k:k + count], model.n_actions).float() for k in range(depth)], 1)
+        pick = lambda prior: imagined_state(prior, generator, "mean" if generator is None else "sample")  # noqa: E731
+        for step in model.imagined_steps(belief, state, along, pick):
+            belief, state = step.belief, step.state
     return after_action(model, belief, state, actions[depth:])
 
 

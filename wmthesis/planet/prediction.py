@@ -132,3 +132,14 @@ def latent_diagnostics(model: RSSM, observations: torch.Tensor, actions: torch.T
             "posterior_entropy": float(entropy(trajectory.posterior)),
             "prior_entropy": float(entropy(trajectory.prior)),
             "embedding_spread": float(embedded.flatten(0, 1).std(0).mean())}
+
+
+@torch.inference_mode()
+def planned_path(model: RSSM, belief: torch.Tensor, state: torch.Tensor,
+                 actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What the model imagines along a plan: from ``(h, s)`` (1, H), (1, S), the ``actions`` (T,)
+    long followed on the prior's means; beliefs (T, H), states (T, S) and the rewards it predicts (T,)."""
+    along = torch.nn.functional.one_hot(actions.long(), model.n_actions).float()[None]
+    steps = [(step.belief, step.state) for step in model.imagined_steps(belief, state, along, lambda prior: prior.mean)]
+    beliefs, states = torch.cat([b for b, _ in steps]), torch.cat([s for _, s in steps])
+    return beliefs, states, model.reward(beliefs, states)

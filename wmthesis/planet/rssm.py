@@ -54,7 +54,7 @@ steps: lowering the decoder variance IS lowering the KL scale (and the reward sc
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple
+from typing import Callable, Iterator, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -209,19 +209,30 @@ class RSSM(nn.Module):
         return Trajectory(stack(beliefs), stack(states),
                           Gaussian(*map(stack, zip(*priors))), Gaussian(*map(stack, zip(*posteriors))))
 
+    def imagined_steps(self, belief: torch.Tensor, state: torch.Tensor, actions: torch.Tensor,
+                       pick: Callable[[Gaussian], torch.Tensor]) -> Iterator["ImaginedStep"]:
+        """The one loop that imagines paths: from ``(h, s)`` (1 or N, H), (1 or N, S) along one-hot
+        ``actions`` (N, T, A), one :class:`ImaginedStep` per step, batched over the N paths.
+        Step t's state is ``pick(prior)`` (e.g. ``prior.sample(generator)``), picked only when
+        read, so a caller that stops before reading the last one draws no noise for it."""
+        count = actions.shape[0]
+        belief, state = belief.expand(count, -1), state.expand(count, -1)
+        for t in range(actions.shape[1]):
+            before = (belief, state)
+            belief, prior = self.transition(belief, state, actions[:, t])
+            step = ImaginedStep(t, before, belief, prior, pick)
+            yield step
+            state = step.state
+
     def imagine(self, belief: torch.Tensor, state: torch.Tensor, actions: torch.Tensor,
                 generator: torch.Generator | None = None,
                 sample: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
         """Open-loop prediction from ``(h, s)`` (N, H), (N, S) under one-hot actions
         (N, T, A): returns beliefs (N, T, H) and states (N, T, S), where step t follows
         ``actions[:, t]``. ``sample=False`` follows the prior means."""
-        beliefs, states = [], []
-        for t in range(actions.shape[1]):
-            belief, prior = self.transition(belief, state, actions[:, t])
-            state = prior.sample(generator) if sample else prior.mean
-            beliefs.append(belief)
-            states.append(state)
-        return torch.stack(beliefs, 1), torch.stack(states, 1)
+        pick = (lambda prior: prior.sample(generator)) if sample else (lambda prior: prior.mean)
+        steps = [(step.belief, step.state) for step in self.imagined_steps(belief, state, actions, pick)]
+        return torch.stack([b for b, _ in steps], 1), torch.stack([s for _, s in steps], 1)
 
     def imagined_returns(self, belief: torch.Tensor, state: torch.Tensor, actions: torch.Tensor,
                          generator: torch.Generator | None = None) -> torch.Tensor:
@@ -231,14 +242,26 @@ class RSSM(nn.Module):
         returns (J,). All J sequences advance together, one batched step per time step
         (the CEM planner's objective).
         """
-        count = actions.shape[0]
-        belief, state = belief.expand(count, -1), state.expand(count, -1)
-        total = actions.new_zeros(count)
-        for t in range(actions.shape[1]):
-            belief, prior = self.transition(belief, state, actions[:, t])
-            state = prior.sample(generator)
-            total = total + self.reward(belief, state)
+        total = actions.new_zeros(actions.shape[0])
+        for step in self.imagined_steps(belief, state, actions, lambda prior: prior.sample(generator)):
+            total = total + self.reward(step.belief, step.state)
         return total
+
+
+class ImaginedStep:
+    """Step ``t`` of imagined paths (:meth:`RSSM.imagined_steps`): ``before``, the ``(h, s)`` the
+    step's action is taken in; ``belief`` h_t and ``prior`` p(s_t | h_t) after it; ``state``
+    s_t, picked from the prior when first read."""
+
+    def __init__(self, t: int, before: tuple[torch.Tensor, torch.Tensor], belief: torch.Tensor, prior: Gaussian,
+                 pick: Callable[[Gaussian], torch.Tensor]):
+        self.t, self.before, self.belief, self.prior, self._pick, self._state = t, before, belief, prior, pick, None
+
+    @property
+    def state(self) -> torch.Tensor:
+        if self._state is None:
+            self._state = self._pick(self.prior)
+        return self._state
 
 
 def _two_layers(inputs: int, hidden: int, outputs: int) -> nn.Sequential:
@@ -386,4 +409,4 @@ def frames_out(mean_frames: torch.Tensor, bits: int = 5) -> torch.Tensor:
 
 __all__ = ["RSSM", "Gaussian", "Trajectory", "bottle", "one_hot_previous", "planet_loss",
            "loss_terms", "reward_nll", "overshooting_terms", "kl_divergence", "gaussian_nll", "frames_out",
-           "EMBEDDING_SIZE"]
+           "EMBEDDING_SIZE", "ImaginedStep"]

@@ -47,6 +47,8 @@ class PlanetAgent(TrainedAgent):
         self.planner = loaded.planner if loaded.value is not None else loaded.planet
         saved = torch.load(path, weights_only=False, map_location="cpu")
         self.decoder_info = shipped_decoder(self.model, loaded.planet, path, saved)
+        self.horizon = int(self.planner.horizon)
+        self.shown = tuple(range(1, self.horizon + 1))  # small frames: every imagined step is decoded
 
     def env(self):
         """The game with PlaNet's frames ((S, S, 3) uint8 of ``config.bits`` bits, the config's
@@ -65,6 +67,46 @@ class PlanetAgent(TrainedAgent):
 
     def scored_seeds(self, bouts: int) -> list[int]:
         return [int(env_seed) for env_seed, _ in self.info["bouts"][:bouts]]
+
+    def scored_minds(self, bouts: int) -> list[tuple[int, object]]:
+        self.check_bouts(bouts)
+        return [(int(env_seed), self.mind(int(mind_seed))) for env_seed, mind_seed in self.info["bouts"][:bouts]]
+
+    def check_bouts(self, bouts: int) -> None:
+        if bouts > len(self.info["bouts"]):
+            raise ValueError(f"{self.path} was scored on {len(self.info['bouts'])} bouts, not {bouts}")
+
+    def left_out(self) -> str | None:
+        if self.decoder_info is None:
+            return ("left out: the posterior's reconstructions and the imagined frames (no observation decoder ships "
+                    "with this agent; `python tools/fit_decoders.py planet` fits one)")
+        return None
+
+    @torch.inference_mode()
+    def thought(self, mind):
+        """What the planner chose and what the model imagines along it: the plan (the final CEM
+        mean's argmax at each of its steps) rolled out from the belief on the prior's means, with
+        the rewards the model predicts, decoded; CEM's final scores for the first action and its
+        elite return per iteration; the value's Q per first action where a value plans; the
+        posterior's reconstruction of the frame."""
+        from wmthesis.planet.prediction import planned_path
+        from wmthesis.planet.rssm import frames_out
+        from wmthesis.thoughts import Thought
+
+        plan = mind.last_plan
+        beliefs, states, rewards = planned_path(self.model, mind.belief, mind.state, plan.mean.argmax(-1))
+        thought = Thought(imagined_rewards=rewards.cpu().numpy(), scores={"plan": plan.mean[0].cpu().numpy()},
+                          series={"cem_elites": plan.elites.cpu().numpy()},
+                          values={"best_return": float(plan.returns.max())})
+        if self.value is not None:
+            from wmthesis.planet.value import action_values
+
+            thought.scores["value_q"] = action_values(self.model, self.value, mind.belief, mind.state)[0].cpu().numpy()
+        if self.decoder_info is not None:
+            frames = frames_out(self.model.decode(torch.cat([mind.belief, beliefs]), torch.cat([mind.state, states])),
+                                self.config.bits).cpu().numpy()
+            thought.seen, thought.imagined = frames[0], {j + 1: f for j, f in enumerate(frames[1:])}
+        return thought
 
     def play_bouts(self, bouts: int, frames: list | None = None, on_bout=None) -> list[dict]:
         if bouts > len(self.info["bouts"]):

@@ -71,19 +71,17 @@ def path_returns(model: RSSM, value: LatentValue | None, belief: torch.Tensor, s
                  rewards: str, pessimism: float, draws: int = 1) -> torch.Tensor:
     """The return (N,) of each imagined path of ``actions`` (N, H, A) (:func:`value_returns`, one
     path per row); ``draws``: the shared noise draws (:func:`imagined_state`)."""
-    count, horizon = actions.shape[:2]
-    belief, state = belief.expand(count, -1), state.expand(count, -1)
-    total = actions.new_zeros(count)
-    for t in range(horizon):
-        belief, prior = model.transition(belief, state, actions[:, t])
+    horizon = actions.shape[1]
+    total = actions.new_zeros(actions.shape[0])
+    for step in model.imagined_steps(belief, state, actions, lambda prior: imagined_state(prior, generator, imagine, draws)):
+        t = step.t
         if value is not None and (t == horizon - 1 or rewards == "value"):
-            total = total + discount ** t * pessimistic_q(value, torch.cat([belief, prior.mean], -1),
+            total = total + discount ** t * pessimistic_q(value, torch.cat([step.belief, step.prior.mean], -1),
                                                           pessimism if t else 0.0)
             if t == horizon - 1:
                 return total
-        state = imagined_state(prior, generator, imagine, draws)
         if value is None or rewards == "model":
-            total = total + discount ** t * model.reward(belief, state)
+            total = total + discount ** t * model.reward(step.belief, step.state)
     return total
 
 

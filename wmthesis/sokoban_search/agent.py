@@ -162,8 +162,10 @@ class SearchAgent:
         """Variant ``variant`` showing what this agent sees."""
         return SokobanEnv(**variant_options(variant), **self.inputs.env_options)
 
-    def play(self, env: SokobanEnv, seed: int | None = None, board=None) -> Play:
-        """Play one level: the one ``seed`` generates, or ``board`` (codes or text)."""
+    def play(self, env: SokobanEnv, seed: int | None = None, board=None, on_search=None) -> Play:
+        """Play one level: the one ``seed`` generates, or ``board`` (codes or text);
+        ``on_search(step, result)``, where given, is told of each search (its last weight's
+        :class:`~wmthesis.sokoban_search.search.SearchResult`) with the steps taken before it."""
         start = time.perf_counter()
         observation, _ = env.reset(seed=seed, options=None if board is None else {"board": board})
         state = self.inputs.observe(env, observation)
@@ -184,6 +186,8 @@ class SearchAgent:
                 if result.found or result.info["exhausted"] or self.heuristic is None:
                     break  # found; or every weight would search the same (all reachable seen, no value)
             searches += 1
+            if on_search is not None:
+                on_search(len(taken), result)
             if not result.found:
                 break
             for action, predicted in zip(result.actions, result.states[1:]):

@@ -105,6 +105,63 @@ class SokobanAgent(TrainedAgent):
                 on_bout(plays[-1])
         return plays
 
+    def record_bouts(self, bouts: int, recorder, plays: list, on_bout=None) -> None:
+        """The evaluation levels played as :meth:`play_bouts` plays them, then replayed in the real
+        game step by step beside what the agent planned: at each step the plan it follows (its
+        player's path drawn on the board), the model's predicted boards along it ``horizon``
+        steps ahead, and at each decision the search's size and the plan's length."""
+        env = self.env()
+        for k, level in enumerate(self.scored_seeds(bouts)):
+            searches: dict[int, object] = {}
+            played = self.search.play(env, level, on_search=lambda step, result: searches.__setitem__(step, result))
+            record = played.record()
+            frames, rewards = replayed_boards(record), played.transitions["rewards"]
+            recorder.start_bout(k)
+            plan = None
+            for t, frame in enumerate(frames[:-1]):
+                if t in searches:
+                    plan = (t, searches[t])
+                recorder.step(frame, self.plan_thought(plan, t, t in searches))
+                recorder.outcome(float(rewards[t]))
+            recorder.end_bout(frames[-1])
+            plays.append({"bout": k, "return": float(record["solved"]), **record})
+            if on_bout is not None:
+                on_bout(plays[-1])
+
+    def plan_thought(self, plan, t: int, decided: bool):
+        """What the agent thinks at step ``t`` of the plan it follows (``(step it was found,
+        SearchResult)``, or None): the rest of the plan as the player's path on the board, the
+        boards its model predicts ``1..horizon`` steps ahead; the search's size and the plan's
+        length where it ``decided`` at this step."""
+        from wmthesis.envs.levels import PLAYER, PLAYER_ON_TARGET
+        from wmthesis.envs.sokoban import make_tiles, render_board
+        from wmthesis.thoughts import Thought
+
+        if plan is None:
+            return Thought()
+        start, result = plan
+        thought = Thought()
+        if decided:
+            thought.values = {"expanded": float(result.expanded), "generated": float(result.generated),
+                              "plan_length": float(len(result.actions) if result.actions is not None else 0)}
+        if result.states is None:
+            return thought
+        boards = self.boards(result.states[t - start:])
+        path = [np.argwhere((b == PLAYER) | (b == PLAYER_ON_TARGET)) for b in boards]
+        tile, tiles = 16, make_tiles(16)  # as the real game renders them (replayed_boards)
+        thought.plan = np.asarray([((p[0, 1] + 0.5) * tile, (p[0, 0] + 0.5) * tile) for p in path if len(p)], np.float32)
+        thought.imagined = {j: render_board(boards[j], tiles) for j in range(1, min(self.horizon, len(boards) - 1) + 1)}
+        return thought
+
+    def boards(self, states: np.ndarray) -> np.ndarray:
+        """The model's states (n, h', w') (its codes per inner cell) as boards (n, h' + 2, w' + 2)
+        of cell types inside their ring of walls; a code that is no cell type's shows as floor."""
+        from wmthesis.envs.levels import FLOOR
+
+        types = np.full(256, FLOOR, np.uint8)
+        types[self.search.inputs.type_codes()] = np.arange(len(self.search.inputs.type_codes()), dtype=np.uint8)
+        return np.pad(types[np.asarray(states)], ((0, 0), (1, 1), (1, 1)))
+
     def bout_line(self, play: dict) -> str:
         return (f"level {play['bout']} (seed {play['seed']}): {'solved' if play['solved'] else 'not solved'} "
                 f"in {play['steps']} steps")

@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from wmthesis.agents import TrainedAgent, check_episode
 from wmthesis.world_models.agent import load_agent
@@ -46,6 +47,7 @@ class WorldModelsAgent(TrainedAgent):
         self.controller = Controller.from_flat(loaded.params, task["latent_size"], task["hidden_size"],
                                                task["n_actions"]).eval()
         self.decoder_info = shipped_decoder(self.vision, Path(path).parent)
+        self.max_steps = loaded.info["controller_config"]["max_steps"]
 
     def env(self):
         """Boxing with World Models frames (64, 64, 3) uint8 and the scored bouts' no-op starts,
@@ -83,6 +85,41 @@ class WorldModelsAgent(TrainedAgent):
             on_bout(p)
         return plays
 
+    def left_out(self) -> str | None:
+        if self.decoder_info is None:
+            return ("left out: the vision's reconstructions and the dream's frames (no decoder ships for this vision; "
+                    "`python tools/fit_decoders.py world-models` fits one)")
+        return None
+
+    def snapshot(self, mind: ControllerMind) -> tuple:
+        """The mind's ``z``, ``h`` and memory state once it planned."""
+        return mind.z.clone(), mind.h.clone(), tuple(part.clone() for part in mind.state)
+
+    def thoughts(self, snapshots: list) -> list:
+        """What the controller weighed (its action scores) and what the memory dreams from each
+        snapshot: ``horizon`` steps of its mixture's most likely path with the controller acting
+        in the dream, with the rewards the memory predicts, decoded at the steps ahead in
+        ``shown``; the vision's reconstruction of the frame (frames without a decoder: left out).
+        The snapshots dream together, one batch."""
+        from wmthesis.thoughts import Thought
+
+        z = torch.cat([zs for zs, _, _ in snapshots])
+        h = torch.cat([hs for _, hs, _ in snapshots])
+        state = tuple(torch.cat([s[k] for _, _, s in snapshots], 1) for k in range(2))
+        latents, rewards, scores = dream_path(self.controller, self.memory, z, h, state, self.horizon)
+        ahead = [j for j in self.shown if j <= self.horizon]
+        thoughts = [Thought(imagined_rewards=rewards[b], scores={"controller": scores[b]}) for b in range(len(z))]
+        if self.decoder_info is not None:
+            frames = self.vision.decode(torch.cat([z[:, None], latents[:, [j - 1 for j in ahead]]], 1).flatten(0, 1))
+            frames = frames.reshape(len(z), 1 + len(ahead), *frames.shape[1:])
+            for thought, shown in zip(thoughts, frames):
+                thought.seen, thought.imagined = shown[0], dict(zip(ahead, shown[1:]))
+        return thoughts
+
+    def thought(self, mind: ControllerMind):
+        """The :meth:`thoughts` of ``mind`` now."""
+        return self.thoughts([self.snapshot(mind)])[0]
+
     def dream(self, frames, actions, context: int = 60, horizon: int = 10) -> dict:
         """The memory warmed on ``context`` real steps of an episode (``frames`` (T, 64, 64, 3)
         uint8, ``actions`` (T,), ``actions[t]`` taken at ``frames[t]``), then dreaming ``horizon`` steps along the actions taken from its
@@ -95,8 +132,26 @@ class WorldModelsAgent(TrainedAgent):
         return open_loop(self.vision.vae, self.memory, frames, actions, context, horizon)
 
 
+@torch.inference_mode()
+def dream_path(controller: Controller, memory, z: torch.Tensor, h: torch.Tensor, state: tuple,
+               horizon: int) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+    """The memory's dream from ``z`` (B, L), ``h`` (B, H) and its LSTM ``state`` (each (1, B, H))
+    with the controller acting in it: latents (B, horizon, L) along the mixture's most likely
+    path, the rewards it predicts (B, horizon), and the controller's scores now (B, A)."""
+    from wmthesis.world_models.prediction import most_likely
+
+    scores = controller(z, h).cpu().numpy()
+    latents, rewards = [], []
+    for _ in range(horizon):
+        out = memory.step(z, controller(z, h).argmax(-1), state)
+        z, h, state = most_likely(out.next_latent), out.hidden, out.state
+        latents.append(z)
+        rewards.append(out.reward.reshape(-1).cpu().numpy())
+    return torch.stack(latents, 1), np.stack(rewards, 1), scores
+
+
 def load_trained(path: Path, *, experiment: str, variant: str | None, profile: str, seed: int) -> WorldModelsAgent:
     return WorldModelsAgent(path, experiment, variant, profile, seed)
 
 
-__all__ = ["WorldModelsAgent", "load_trained", "shipped_decoder"]
+__all__ = ["WorldModelsAgent", "load_trained", "shipped_decoder", "dream_path"]
