@@ -2,6 +2,7 @@
 history, stamped, each headline number the summary's. (Every notebook also runs in ``smoke`` in the
 suite, through nbval: ``testpaths`` in pyproject.toml.)"""
 import json
+import re
 import subprocess
 import time
 from pathlib import Path
@@ -158,3 +159,41 @@ def test_a_notebooks_time_from_scratch_sums_its_runs_measured_first_runs(tmp_pat
 def test_every_notebook_has_a_parameters_cell_that_sets_the_profile(path):
     tagged = [c for c in json.loads(path.read_text())["cells"] if "parameters" in c["metadata"].get("tags", [])]
     assert len(tagged) == 1 and "PROFILE = " in "".join(tagged[0]["source"]), f"{path.name}: tag its parameters cell"
+
+
+LAB_TALK = re.compile(r"\b(issues?|sessions?) \d+", re.I)
+MACHINE_PATH = re.compile(r"(?<![\w.])/(work|home|tmp|Users|root|var)/")
+NOISE = ("TqdmWarning", "IProgress not found", "A.L.E: Arcade Learning Environment", "Powered by Stella")
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_a_committed_notebook_speaks_to_a_reader(path):
+    """No placeholder where a figure or number should be, no work-log numbers, no paths of the
+    machine that ran it, no warnings a reader should not care about."""
+    cells = json.loads(path.read_text())["cells"]
+    outputs = "\n".join(output_text(c) for c in cells if c["cell_type"] == "code")
+    prose = "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "markdown")
+    assert "TRAIN = True" not in outputs, f"{path.name}: an output says it needs training"
+    for text, where in ((prose, "prose"), (outputs, "outputs")):
+        found = LAB_TALK.search(text)
+        assert found is None, f"{path.name}: work-log number {found and found.group(0)!r} in its {where}"
+    found = MACHINE_PATH.search(outputs)
+    assert found is None, f"{path.name}: a machine path in its outputs: {outputs[max(0, found.start() - 40):found.end() + 40]!r}" \
+        if found else ""
+    assert not [n for n in NOISE if n in outputs], f"{path.name}: {[n for n in NOISE if n in outputs]} in its outputs"
+
+
+def test_the_reader_check_fails_a_notebook_with_lab_talk_or_a_placeholder(tmp_path):
+    notebook = {"cells": [{"cell_type": "markdown", "source": ["as issue 12 asked"]},
+                          {"cell_type": "code", "source": [], "outputs": [{"text": "(needs TRAIN = True)"}]}]}
+    (tmp_path / "x.ipynb").write_text(json.dumps(notebook))
+    with pytest.raises(AssertionError, match="needs training"):
+        test_a_committed_notebook_speaks_to_a_reader(tmp_path / "x.ipynb")
+    notebook["cells"][1]["outputs"] = [{"text": "saved in /work/main/data"}]
+    (tmp_path / "x.ipynb").write_text(json.dumps(notebook))
+    with pytest.raises(AssertionError, match="work-log number 'issue 12'"):
+        test_a_committed_notebook_speaks_to_a_reader(tmp_path / "x.ipynb")
+    notebook["cells"][0]["source"] = ["plain prose"]
+    (tmp_path / "x.ipynb").write_text(json.dumps(notebook))
+    with pytest.raises(AssertionError, match="machine path"):
+        test_a_committed_notebook_speaks_to_a_reader(tmp_path / "x.ipynb")

@@ -3,6 +3,11 @@
 The reproducible companion to the thesis: one concept per module, named in its vocabulary.
 """
 import os
+import warnings
+
+# tqdm.auto (imported by dependencies) warns in a notebook without ipywidgets; the bars fall back
+# to text, which is all a reader needs.
+warnings.filterwarnings("ignore", message="IProgress not found")
 
 # Idle OpenMP threads of torch must not spin: they would take the cores from ale-py's
 # stepping threads (measured: 2,300 -> 530 env steps/s). Only effective before torch loads.

@@ -182,6 +182,21 @@ class TrainedAgent:
                 watcher.flush()  # an interrupted bout keeps what it played
             env.close()
 
+    def stretch(self, bout: int = 0, steps: int = 100):
+        """The first ``steps`` steps of scored bout ``bout`` as the agent played them: the frames it
+        saw (steps, ...) uint8 and the action it took at each (steps,)."""
+        from wmthesis.core import loop
+        from wmthesis.rollouts import EpisodeBuffer
+
+        seed, mind = self.scored_minds(bout + 1)[bout]
+        env, kept = self.env(), EpisodeBuffer()
+        try:
+            loop(env, mind, policy="deterministic", callbacks=[mind, kept], seed=int(seed), max_steps=steps,
+                 train_mode=False)
+        finally:
+            env.close()
+        return kept.episode["observations"][:steps], kept.episode["actions"][:steps]
+
     def play(self, bouts: int = 1, policy: Callable | None = None, max_steps: int | None = None) -> list[float]:
         """Returns of the first ``bouts`` scored bouts (or levels: 1.0 solved, 0.0 not, for
         Sokoban): played by the agent as its evaluation did, or by ``policy`` (observation ->

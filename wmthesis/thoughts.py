@@ -300,4 +300,22 @@ def still(recording: dict, start: int, steps: int = 8, ahead: tuple[int, ...] = 
     return fig
 
 
-__all__ = ["Thought", "Recorder", "Watcher", "read_recording", "still", "VIDEO_HORIZONS"]
+def recorded_still(agent, steps: int = 120, start: int = 100, shown: int = 8, every: int = 1, path=None):
+    """Record the first ``steps`` steps of ``agent``'s first scored bout (to ``path``, a temporary
+    file by default) and draw :func:`still` from step ``start``; returns the figure and the
+    recording's summary (``errors`` by steps ahead)."""
+    import tempfile
+
+    kept, agent.max_steps = agent.max_steps, steps
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            target = Path(path) if path else Path(folder) / "bout.rrd"
+            summary = agent.record(1, target)
+            figure = still(read_recording(target), start, shown, ahead=tuple(j for j in (1, 4, 8) if j <= agent.horizon),
+                           every=every)
+    finally:
+        agent.max_steps = kept
+    return figure, summary
+
+
+__all__ = ["Thought", "Recorder", "Watcher", "read_recording", "still", "recorded_still", "VIDEO_HORIZONS"]

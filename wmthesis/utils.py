@@ -109,6 +109,16 @@ def data_dir(*parts: str) -> Path:
     return path
 
 
+def shown_path(path: str | os.PathLike) -> str:
+    """``path`` as a reader should see it: under the data folder as ``data/...``, else as given
+    (no machine's own folders in a notebook's outputs)."""
+    path = Path(path)
+    try:
+        return str(Path("data") / path.resolve().relative_to(data_dir().resolve()))
+    except ValueError:
+        return str(path)
+
+
 def derive_seeds(*keys: int, n: int = 1) -> np.ndarray:
     """``n`` well-mixed uint32 seeds derived from integer ``keys`` (e.g. a base seed and an
     episode index) with NumPy's SeedSequence: the one way every module derives seeds."""

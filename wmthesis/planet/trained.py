@@ -108,6 +108,21 @@ class PlanetAgent(TrainedAgent):
             thought.seen, thought.imagined = frames[0], {j + 1: f for j, f in enumerate(frames[1:])}
         return thought
 
+    def open_loop_figure(self, bouts=(0, 1, 2), start: int = 100, context: int = 5, horizon: int = 15,
+                         title: str | None = None):
+        """The thesis's open-loop figure (Fig. 58-511) from this agent: on each of its scored
+        ``bouts``, the stretch from step ``start`` as its planner played it, ``context`` frames
+        filtered, then ``horizon`` steps imagined along the actions it took, beside what came."""
+        from wmthesis.planet.figures import open_loop_figure
+
+        outs = []
+        for bout in bouts:
+            frames, actions = self.stretch(bout, start + context + horizon)
+            outs.append(self.open_loop(frames[start:], actions[start:], context=context, seed=bout))
+        result = {"truth": np.stack([o["truth"] for o in outs]), "prediction": np.stack([o["prediction"] for o in outs]),
+                  "context": context}
+        return open_loop_figure(result, sequences=len(outs), title=title)
+
     def play_bouts(self, bouts: int, frames: list | None = None, on_bout=None) -> list[dict]:
         if bouts > len(self.info["bouts"]):
             raise ValueError(f"{self.path} was scored on {len(self.info['bouts'])} bouts, not {bouts}")
