@@ -278,3 +278,43 @@ def test_the_command_line_checks_its_arguments_before_torch_ray_or_ale_py_load()
             "print(code, sorted(m for m in ('torch', 'ray', 'ale_py', 'gymnasium') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["2", "[]"]
+
+
+def test_ctrl_c_in_any_command_is_one_line_and_exit_status_130(monkeypatch, capsys):
+    import wmthesis.__main__ as cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    for command, name in ((["reproduce", "boxing-wm", "--profile", "smoke"], "cmd_reproduce"),
+                          (["collect", "boxing", "--profile", "smoke"], "cmd_collect")):
+        monkeypatch.setattr(cli, name, interrupted)
+        assert cli.main(command) == 130
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"{command[0]} interrupted: what it finished is kept; run the same command again to resume"]
+
+
+def test_a_seed_range_is_bounded_before_anything_counts_it_out():
+    import time
+
+    from wmthesis.sweep import MAX_SEED, parse_seeds
+
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match="more than 100 seeds"):
+        parse_seeds("0-1000000000")
+    assert time.perf_counter() - start < 0.1  # refused, not enumerated
+    with pytest.raises(ValueError, match="seeds are at most 2,147,483,647"):
+        parse_seeds(str(10**20))
+    assert parse_seeds(f"0-2,{MAX_SEED}") == [0, 1, 2, MAX_SEED]
+    assert len(parse_seeds("0-99")) == 100
+
+
+def test_a_storage_url_that_is_no_database_is_one_line(capsys, tmp_path):
+    from wmthesis.__main__ import main
+
+    assert main(["search", "planet-boxing", "--trials", "1", "--storage", "bogus://nowhere"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "name a database URL of sqlite://..., postgresql://..., mysql://..." in err[0]
+    assert main(["search", "planet-boxing", "--trials", "1", "--storage", f"sqlite:///{tmp_path}/no/such/folder/x.db"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: cannot open the optuna storage sqlite:///")

@@ -31,14 +31,15 @@ def test_solve_sokoban_refuses_the_held_out_boxoban_sets(capsys):
 
 
 def test_validate_refuses_an_unknown_lever_before_any_runs_and_reports_each_lever(capsys, monkeypatch):
-    import wmthesis.validation as validation
-
     called = []
     row = {"solved": 92, "levels": 100, "solve_rate": 0.92, "nodes_per_level": 7229.4, "seconds_per_level": 6.04}
-    monkeypatch.setattr(validation, "validate_sokoban", lambda *args: called.append(args[:4]) or {"rows": {"unfiltered": row}})
+    import importlib
+
+    recipe = importlib.import_module("wmthesis.experiments.sokoban_search")  # the module, not its recipe function
+    monkeypatch.setattr(recipe, "validate", lambda *args: called.append(args[:4]) or {"rows": {"unfiltered": row}})
     assert main(["validate", "sokoban-search", "baseline", "bigger-brain", "--profile", "smoke"]) == 2
     err = capsys.readouterr().err
-    assert "unknown lever 'bigger-brain' of sokoban-search; valid: baseline," in err and not called
+    assert "unknown lever 'bigger-brain' of sokoban-search; valid: baseline;" in err and not called
     assert "docs/findings/sokoban-search.md" in err  # where a removed lever's numbers went
     assert main(["validate", "planet-boxing-value", "H2 from a zero mean", "--profile", "smoke"]) == 2
     assert "docs/findings/planet-boxing-value.md" in capsys.readouterr().err  # a removed planner lever
@@ -51,7 +52,7 @@ def test_validate_refuses_an_unknown_lever_before_any_runs_and_reports_each_leve
     with pytest.raises(SystemExit) as refused:  # no levers: refused by the argument check
         main(["validate", "planet-boxing-agent", "x"])
     assert refused.value.code == 2
-    monkeypatch.setattr(validation, "reproduce", lambda *args: called.append(args) or {
+    monkeypatch.setattr("wmthesis.experiments.reproduce", lambda *args: called.append(args) or {
         "score": {"mean": 31.0, "std": 4.0, "episodes": 10}, "wall_seconds": 3000.0})
     assert main(["validate", "boxing-wm", "separable-64", "--seeds", "0", "--profile", "smoke"]) == 2
     assert "chosen on seeds 10, 11, 12, not 0" in capsys.readouterr().err  # a reported seed never chooses

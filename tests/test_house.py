@@ -169,3 +169,18 @@ def test_every_declaration_resolves_and_names_only_declared_experiments():
                  "sokoban-search"):
         relative = agent_file(name).relative_to(Path(os.environ["WMTHESIS_DATA"]))
         assert (shipped / relative).is_file(), relative
+
+
+def test_the_summary_never_replaces_the_readmes_table_with_one_from_fewer_runs(tmp_path):
+    from wmthesis.summary import write_summary
+
+    readme = tmp_path / "README.md"
+    readme.write_text((Path(__file__).resolve().parents[1] / "README.md").read_text())
+    before = readme.read_text()
+    empty = tmp_path / "results"
+    empty.mkdir()
+    with pytest.raises(ValueError, match="holds fewer runs than the README's table: it would drop .*World Models on Boxing"):
+        write_summary(empty, readme)
+    assert readme.read_text() == before and not (empty / "summary.md").exists()  # nothing written
+    write_summary(empty, readme, force=True)
+    assert "not run yet" in readme.read_text()

@@ -231,7 +231,19 @@ def cmd_evaluate_sokoban(args) -> int:
     return 0
 
 
+STORAGE_SCHEMES = ("sqlite", "postgresql", "mysql")  # the databases optuna's RDB storage speaks
+
+
+def check_storage(url: str | None) -> None:
+    """A ``--storage`` URL of a database optuna stores studies in; ValueError naming those otherwise."""
+    scheme = url.split("://", 1)[0].split("+", 1)[0] if url and "://" in url else None
+    if url is not None and scheme not in STORAGE_SCHEMES:
+        raise ValueError(f"--storage {url!r}: name a database URL of {', '.join(s + '://...' for s in STORAGE_SCHEMES)} "
+                         "(e.g. sqlite:///data/search/mine.db)")
+
+
 def cmd_search(args) -> int:
+    check_storage(args.storage)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -295,7 +307,7 @@ def cmd_summary(args) -> int:
         raise ValueError(f"--results {args.results}: no such folder")
     readme = Path(__file__).resolve().parents[1] / "README.md"  # the checkout's front door, where its results block is
     with_table = folder is None and readme.is_file() and BEGIN in readme.read_text()
-    rows = write_summary(folder, readme if with_table else None)
+    rows = write_summary(folder, readme if with_table else None, force=args.force)
     print(markdown_table(rows))
     if with_table:
         print(f"the results table in {readme} is written anew")
@@ -409,6 +421,7 @@ def parser() -> argparse.ArgumentParser:
 
     summary = commands.add_parser("summary", help="one table over every run: seeds, mean, std, 95%% interval")
     summary.add_argument("--results", help="the folder of results (default: data/results)")
+    summary.add_argument("--force", action="store_true", help="write the README's table even where it holds fewer runs")
     summary.set_defaults(run=cmd_summary)
     return top
 
@@ -420,6 +433,10 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, TypeError, OSError, FolderHeld) as error:  # bad input: a clear message, no traceback
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # every step a run finished is on disk: running it again resumes after it
+        print(f"{args.command} interrupted: what it finished is kept; run the same command again to resume",
+              file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -17,6 +17,9 @@ import importlib
 from dataclasses import dataclass
 
 
+NO_SCORE = "wmthesis.scores:no_score"  # the score of an experiment without a headline (a study, the curves)
+
+
 def resolve(path: str):
     """``"module:name"`` -> the object it names (importing the module)."""
     module, name = path.split(":")
@@ -44,8 +47,12 @@ class Declaration:
     (``"module:function"``), ``variants`` (``"module:NAME"`` of its
     :class:`~wmthesis.variants.Variants`; None: it has none), ``builds_on`` (the experiments whose
     runs of the same profile and seed it uses), ``agent`` (:class:`AgentFile`; None: it ships
-    no agent) and ``score``, how its headline is read from its ``metrics.json`` (``"module:function"``,
-    :mod:`wmthesis.scores`)."""
+    no agent), ``score``, how its headline is read from its ``metrics.json`` (``"module:function"``,
+    :mod:`wmthesis.scores`), ``levers`` (``"module:function"`` that makes its :class:`~wmthesis.variants.Levers`,
+    measured on validation splits by ``validate``; None: it has none), ``frozen_model`` (the
+    ``metrics.json`` key of the thesis CEM's bouts on the frozen model that its variants mean to
+    share, by which the summary pairs them; None: variants pair by seed) and ``every_variant``
+    (a run without a variant runs all its variants, not its default)."""
     name: str
     section: str
     recipe: str
@@ -53,6 +60,9 @@ class Declaration:
     builds_on: tuple[str, ...] = ()
     agent: AgentFile | None = None
     score: str = "wmthesis.scores:variant_score"
+    levers: str | None = None
+    frozen_model: str | None = None
+    every_variant: bool = False
 
     def registry(self):
         """Its :class:`~wmthesis.variants.Variants`, or None."""
@@ -62,11 +72,11 @@ class Declaration:
 DECLARATIONS = (
     Declaration("sokoban-wm", "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models"),
     Declaration("boxing-wm", "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
-                variants="wmthesis.world_models.variants:BOXING_WM",
+                variants="wmthesis.world_models.variants:BOXING_WM", levers="wmthesis.validation:boxing_wm_levers",
                 agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.world_models.trained:load_trained", "boxing")),
     Declaration("boxing-wm-alphazero", "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
-                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",), score="wmthesis.scores:alphazero_scores",
+                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",), score="wmthesis.scores:alphazero_scores", every_variant=True,
                 agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.alphazero.trained:load_trained", "boxing")),
     Declaration("planet-sokoban", "5.5.1", "wmthesis.experiments.planet:planet_sokoban",
@@ -82,7 +92,7 @@ DECLARATIONS = (
                 agent=AgentFile("{profile}/planet-freeway/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "freeway")),
     Declaration("planet-boxing-study", "5.6.1-5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_study",
-                score="wmthesis.scores:no_score"),
+                score=NO_SCORE),
     Declaration("planet-boxing-search", "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search"),
     Declaration("planet-boxing-agent", "5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_agent",
                 score="wmthesis.scores:agent_score",
@@ -90,24 +100,25 @@ DECLARATIONS = (
                                 "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration("planet-boxing-value", "beyond", "wmthesis.experiments.planet_boxing_value:planet_boxing_value",
                 variants="wmthesis.planet.value_variants:VALUE_VARIANTS", builds_on=("planet-boxing-agent",),
-                score="wmthesis.scores:value_scores",
+                score="wmthesis.scores:value_scores", levers="wmthesis.validation:boxing_value_levers",
+                frozen_model="planet",
                 agent=AgentFile("{profile}/planet-boxing-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration("planet-freeway-value", "beyond", "wmthesis.experiments.planet_freeway_value:planet_freeway_value",
                 variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=("planet-freeway",),
-                score="wmthesis.scores:value_scores",
+                score="wmthesis.scores:value_scores", levers="wmthesis.validation:freeway_value_levers",
                 agent=AgentFile("{profile}/planet-freeway-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "freeway")),
     Declaration("sokoban-search", "beyond (ch. 1)", "wmthesis.experiments.sokoban_search:sokoban_search",
-                score="wmthesis.scores:sokoban_scores",
+                score="wmthesis.scores:sokoban_scores", levers="wmthesis.validation:sokoban_levers",
                 agent=AgentFile("{profile}/sokoban-search/seed{seed}/pixels/state.pt",
                                 "wmthesis.sokoban_search.trained:load_trained", "sokoban")),
     Declaration("planning-budget", "ch. 1", "wmthesis.experiments.planning_budget:planning_budget",
-                builds_on=("sokoban-search", "boxing-wm-alphazero", "planet-boxing-value"), score="wmthesis.scores:no_score"),
+                builds_on=("sokoban-search", "boxing-wm-alphazero", "planet-boxing-value"), score=NO_SCORE),
 )
 DECLARED = {d.name: d for d in DECLARATIONS}
 EXPERIMENTS = tuple(DECLARED)
 AGENTS = tuple(d.name for d in DECLARATIONS if d.agent is not None)
 BUILDS_ON = {d.name: d.builds_on for d in DECLARATIONS if d.builds_on}
 
-__all__ = ["Declaration", "AgentFile", "DECLARATIONS", "DECLARED", "EXPERIMENTS", "AGENTS", "BUILDS_ON", "resolve"]
+__all__ = ["NO_SCORE", "Declaration", "AgentFile", "DECLARATIONS", "DECLARED", "EXPERIMENTS", "AGENTS", "BUILDS_ON", "resolve"]

@@ -25,7 +25,7 @@ import numpy as np
 from wmthesis.budget_curves import budget_markdown, read_budget_rows
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
 from wmthesis.declarations import DECLARED, resolve
-from wmthesis.headline import ablation_table, headline_rows, headline_table, readme_with_table
+from wmthesis.headline import BEGIN, END, ablation_table, headline_rows, headline_table, readme_with_table
 from wmthesis.metrics import aggregate
 from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
 from wmthesis.references import PUBLISHED
@@ -66,12 +66,13 @@ class Run(NamedTuple):
 
 
 def model_fingerprint(metrics: dict) -> str | None:
-    """The frozen PlaNet model a Boxing value run (``planet-boxing-value``, whose variants all
-    mean to share their seed's model) was fitted on, told by what the thesis's CEM scored on it
+    """The frozen PlaNet model a value run (of an experiment that declares ``frozen_model``: its
+    variants all mean to share their seed's model) was fitted on, told by what the thesis's CEM scored on it
     over the same evaluation bouts (``"mean/std/min/max"``: one model plays those bouts alike;
     a model trained again, even from the same seed, does not). None for other experiments, whose
     variants are paired by seed alone, and for a run that did not play the thesis's CEM."""
-    planet = metrics.get("planet") if metrics["experiment"] == "planet-boxing-value" else None
+    key = DECLARED[metrics["experiment"]].frozen_model
+    planet = metrics.get(key) if key else None
     if not planet:
         return None
     return f"{planet['mean']:.2f}/{planet['std']:.3f}/{planet['min']:g}/{planet['max']:g}"
@@ -276,14 +277,18 @@ def headlines(profile: str = "quick", folder=None) -> list[dict]:
     return out
 
 
-def write_summary(folder: str | Path | None = None, readme: str | Path | None = None) -> list[dict]:
+def write_summary(folder: str | Path | None = None, readme: str | Path | None = None, force: bool = False) -> list[dict]:
     """Read every run under ``folder`` (default ``data/results``), write ``summary.md`` (the
     headline table, :mod:`wmthesis.headline`, then every row), ``summary.json``, ``summary.csv``
     and ``summary.png`` there, and into ``readme`` where given the headline table and the notebook
-    index (:mod:`wmthesis.notebook_index`) between their markers; return the rows."""
+    index (:mod:`wmthesis.notebook_index`) between their markers; return the rows. A table built
+    from fewer runs than ``readme``'s (more headline rows "not run yet") is refused before anything
+    is written, naming the rows it would drop, unless ``force``."""
     folder = Path(folder) if folder is not None else data_dir("results")
     rows = summarise(read_runs(folder))
     headline = headline_table(rows)
+    if readme is not None and not force:
+        check_not_fewer(Path(readme).read_text(), headline, folder)
     ablations = ablation_table(rows, roots={name: v.root for name, v in VARIANTS.items() if v.root})
     budget = budget_markdown(read_budget_rows("quick", folder)) or "no seed measured yet (`python -m wmthesis reproduce planning-budget`)"
     outputs = {"md": f"## Headline\n\n{headline}\n\n## Ablations: each variant against its headline row, paired by seed on the same frozen model"
@@ -305,5 +310,18 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
     return rows
 
 
-__all__ = ["headlines", "Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
+def check_not_fewer(readme: str, table: str, folder: Path) -> None:
+    """ValueError where ``table`` leaves "not run yet" a headline row that ``readme``'s table fills."""
+    def unfilled(text: str) -> set[str]:
+        return {line.split(" | ")[0].lstrip("| ") for line in text.splitlines() if "| not run yet |" in line}
+
+    start = readme.find(BEGIN)
+    held = readme[start:readme.find(END, start)] if start >= 0 else ""
+    dropped = sorted(unfilled(table) - unfilled(held))
+    if held and dropped:
+        raise ValueError(f"{folder} holds fewer runs than the README's table: it would drop {'; '.join(dropped)} "
+                         "(is WMTHESIS_DATA the folder you meant? `summary --force` writes it anyway)")
+
+
+__all__ = ["check_not_fewer", "headlines", "Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
            "write_summary", "headline_line", "model_fingerprint", "HEADLINE_LINE", "INTERVAL"]

@@ -29,7 +29,7 @@ from typing import Callable, NamedTuple
 from tqdm import tqdm
 
 from wmthesis.config import profile_name
-from wmthesis.declarations import BUILDS_ON
+from wmthesis.declarations import BUILDS_ON, DECLARED, NO_SCORE
 from wmthesis.experiments import DEFAULT_RESULTS, EXPERIMENTS, VARIANTS, reproduce
 from wmthesis.runs import atomic_path
 from wmthesis.summary import run_scores
@@ -59,9 +59,14 @@ def variants_of(experiment: str) -> tuple[str, ...]:
     return tuple(VARIANTS.get(experiment, ()))
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``"0-4"`` -> [0, 1, 2, 3, 4]; ``"0,2,7"`` and ``"3"`` as written; a bad range raises ValueError."""
-    seeds = []
+MAX_SEED = 2**31 - 1  # seeds are 31-bit: every generator and store of the package takes them
+MAX_SEEDS = 100  # seeds one command takes: a longer range is almost surely a typo
+
+
+def parse_seeds(text: str, most: int = MAX_SEEDS) -> list[int]:
+    """``"0-4"`` -> [0, 1, 2, 3, 4]; ``"0,2,7"`` and ``"3"`` as written; a bad range, a seed above
+    :data:`MAX_SEED` or more than ``most`` seeds raises ValueError (before anything is counted out)."""
+    seeds: set[int] = set()
     for part in text.split(","):
         match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
         if match is None:
@@ -69,8 +74,12 @@ def parse_seeds(text: str) -> list[int]:
         low, high = int(match[1]), int(match[2] if match[2] is not None else match[1])
         if high < low:
             raise ValueError(f"--seeds {text!r}: the range {low}-{high} is empty (write it low-high)")
-        seeds.extend(range(low, high + 1))
-    return sorted(set(seeds))
+        if high > MAX_SEED:
+            raise ValueError(f"--seeds {text!r}: seeds are at most {MAX_SEED:,} (31 bits), got {high:,}")
+        if len(seeds) + high - low + 1 > most:
+            raise ValueError(f"--seeds {text!r}: more than {most} seeds; name at most {most} in one command")
+        seeds.update(range(low, high + 1))
+    return sorted(seeds)
 
 
 def parse_runs(specs: list[str], seeds: list[int]) -> list[SweepRun]:
@@ -111,9 +120,10 @@ def _wanted_variants(run: SweepRun) -> set:
         return {run.variant}
     if run.experiment in DEFAULT_RESULTS:
         return {DEFAULT_RESULTS[run.experiment]}
-    if run.experiment == "boxing-wm-alphazero":
+    declaration = DECLARED[run.experiment]
+    if declaration.every_variant:
         return set(variants_of(run.experiment))
-    return {None} if run.experiment != "planet-boxing-study" else set()
+    return set() if declaration.score == NO_SCORE else {None}
 
 
 def _run_task(runner: Callable, run: SweepRun, profile: str, threads: int, *prerequisites) -> tuple[dict, str]:

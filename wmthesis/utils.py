@@ -160,6 +160,14 @@ def process_pool(workers: int | None = None):
                                                   initializer=worker_init, initargs=(1,))
 
 
+def over_seeds(call, seeds, workers: int | None = None) -> dict:
+    """``{seed: call(seed, executor)}`` for each of ``seeds``, seed after seed in threads that
+    share one :func:`process_pool` of ``workers`` processes."""
+    with process_pool(workers) as pool, concurrent.futures.ThreadPoolExecutor(max(1, len(seeds))) as threads:
+        futures = {seed: threads.submit(call, seed, pool) for seed in seeds}
+        return {seed: future.result() for seed, future in futures.items()}
+
+
 def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None, executor=None) -> list:
     """``fn(*args)`` for each ``(fn, *args)`` in ``calls`` (module-level functions), two at a
     time in spawned processes with one torch thread each on a machine with 2 cores or more

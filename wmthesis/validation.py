@@ -1,4 +1,4 @@
-"""Levers measured on validation bouts or levels, for every experiment that has them:
+"""Levers measured on validation bouts or levels, for every experiment that declares them:
 ``python -m wmthesis validate EXPERIMENT LEVER ... [--variant V] [--seeds 0,1] [--count N]``.
 
 A lever is a change that a choice may adopt: the Sokoban agent's config (trained in a folder of its
@@ -6,79 +6,127 @@ own unless it changes the search alone), the planner that ends in a fitted PlaNe
 World Models controller's recipe (a variant of ``boxing-wm``). Each is played on the experiment's
 validation split only (Boxoban's valid 000-001, the value's validation bouts, ``boxing-wm``'s
 validation seeds 10-12), never on what the results report, and saved as it goes: a run cut off
-plays only the rest.
+plays only the rest. An experiment's levers are its declaration's
+(:class:`~wmthesis.variants.Levers`).
 The levers that lost, with their numbers, are in ``docs/findings/EXPERIMENT.md``.
 """
 from __future__ import annotations
 
-import concurrent.futures
+from wmthesis.declarations import DECLARED, DECLARATIONS, resolve
+from wmthesis.utils import check_choice, over_seeds
+from wmthesis.variants import FINDINGS, Levers
 
-from wmthesis.experiments.planet_boxing_value import (PLANNER_LEVERS as BOXING_LEVERS,
-                                                      validate_planners as validate_boxing)
-from wmthesis.experiments.planet_freeway_value import (PLANNER_LEVERS as FREEWAY_LEVERS,
-                                                       validate_planners as validate_freeway)
-from wmthesis.experiments import reproduce
-from wmthesis.experiments.sokoban_search import LEVERS as SOKOBAN_LEVERS, validate as validate_sokoban
-from wmthesis.planet.value_tables import planner_lever_rows
-from wmthesis.sokoban_search.tables import solved_line
-from wmthesis.utils import check_choice, process_pool
-from wmthesis.variants import FINDINGS
-from wmthesis.world_models.variants import BOXING_WM, VALIDATION_SEEDS as BOXING_WM_SEEDS
+# ---------------------------------------------------------------------------- the lever sets
+def validate_recipes(levers, *, profile=None, seeds=(0,), variant=None, count=None, workers=None,
+                     progress: bool = True) -> dict[int, dict]:
+    """boxing-wm: each controller recipe of ``levers`` (its variants) trained on each of ``seeds``,
+    which must be its validation seeds (the reported seeds never choose a recipe)."""
+    from wmthesis.experiments import reproduce
+    from wmthesis.world_models.variants import VALIDATION_SEEDS
 
-# Experiment -> its levers (name -> changes).
-LEVERS = {"sokoban-search": {name: SOKOBAN_LEVERS.changes(name) for name in SOKOBAN_LEVERS},
-          "planet-boxing-value": BOXING_LEVERS, "planet-freeway-value": FREEWAY_LEVERS,
-          "boxing-wm": {name: BOXING_WM.changes(name) for name in BOXING_WM}}
+    wrong = [seed for seed in seeds if seed not in VALIDATION_SEEDS]
+    if wrong:
+        raise ValueError(f"boxing-wm's recipes are chosen on seeds {', '.join(map(str, VALIDATION_SEEDS))}, "
+                         f"not {', '.join(map(str, wrong))}")
+    return {seed: {lever: reproduce("boxing-wm", profile, seed, lever, progress) for lever in levers} for seed in seeds}
+
+
+def recipe_lines(results: dict[str, dict]) -> list[str]:
+    return [f"{lever}: {m['score']['mean']:.1f} ± {m['score']['std']:.1f} over {m['score']['episodes']} bouts, "
+            f"{m.get('first_run_wall_seconds', m['wall_seconds']) / 60:.0f} min" for lever, m in results.items()]
+
+
+def validate_agent_levers(levers, *, profile=None, seeds=(0,), variant=None, count=None, workers=None,
+                          progress: bool = True) -> dict[int, dict]:
+    """sokoban-search: each lever (a change to the pixel agent) on each seed's validation levels."""
+    import importlib
+
+    if variant is not None:
+        raise ValueError("sokoban-search's levers are variants of its agent: name them as levers, not --variant")
+    recipe = importlib.import_module("wmthesis.experiments.sokoban_search")
+    return {seed: {lever: recipe.validate(lever, profile, seed, count, progress) for lever in levers} for seed in seeds}
+
+
+def agent_lever_lines(results: dict[str, dict]) -> list[str]:
+    from wmthesis.sokoban_search.tables import solved_line
+
+    return [solved_line(lever, result["rows"]) for lever, result in results.items()]
+
+
+def planner_levers(module: str) -> Levers:
+    """A value experiment's planner levers (``module``'s ``PLANNER_LEVERS`` and ``validate_planners``),
+    every seed's validation bouts in one pool of ``workers`` processes."""
+    import importlib
+
+    from wmthesis.planet.value_tables import planner_lever_rows
+
+    recipe = importlib.import_module(module)
+
+    def run(levers, *, profile=None, seeds=(0,), variant=None, count=None, workers=None, progress=True):
+        return over_seeds(lambda seed, pool: recipe.validate_planners(profile, seed, tuple(levers), count, progress,
+                                                                      variant=variant, executor=pool), seeds, workers)
+
+    return Levers(recipe.PLANNER_LEVERS, run,
+                  lambda results: [" | ".join(row) for row in planner_lever_rows(results, recipe.PLANNER_LEVERS)])
+
+
+def boxing_wm_levers() -> Levers:
+    from wmthesis.world_models.variants import BOXING_WM
+
+    return Levers({name: BOXING_WM.changes(name) for name in BOXING_WM}, validate_recipes, recipe_lines)
+
+
+def sokoban_levers() -> Levers:
+    from wmthesis.experiments.sokoban_search import LEVERS
+
+    return Levers({name: LEVERS.changes(name) for name in LEVERS}, validate_agent_levers, agent_lever_lines)
+
+
+def boxing_value_levers() -> Levers:
+    return planner_levers("wmthesis.experiments.planet_boxing_value")
+
+
+def freeway_value_levers() -> Levers:
+    return planner_levers("wmthesis.experiments.planet_freeway_value")
+
+
+WITH_LEVERS = tuple(d.name for d in DECLARATIONS if d.levers is not None)
+
+
+def levers_of(experiment: str) -> Levers:
+    """``experiment``'s :class:`~wmthesis.variants.Levers` (its declaration names the function that
+    makes them); ValueError naming the experiments that have some."""
+    check_choice("experiment with levers", experiment, WITH_LEVERS)
+    return resolve(DECLARED[experiment].levers)()
 
 
 def check_levers(experiment: str, levers: list[str]) -> None:
     """Refuse an experiment without levers, or an unknown (or removed) lever, listing the valid ones."""
-    check_choice("experiment with levers", experiment, tuple(LEVERS))
+    names = levers_of(experiment).changes
+    valid = "; ".join(names)
     if not levers:
-        raise ValueError(f"name at least one lever of {experiment}; valid: {', '.join(LEVERS[experiment])}")
+        raise ValueError(f"name at least one lever of {experiment}; valid: {valid}")
     for lever in levers:
-        if lever not in LEVERS[experiment]:
-            raise ValueError(f"unknown lever {lever!r} of {experiment}; valid: {', '.join(LEVERS[experiment])} "
+        if lever not in names:
+            raise ValueError(f"unknown lever {lever!r} of {experiment}; valid: {valid} "
                              f"(levers no longer in the code, with their numbers: {FINDINGS}/{experiment}.md)")
 
 
 def validate(experiment: str, levers: list[str], *, profile: str | None = None, seeds=(0,), variant: str | None = None,
              count: int | None = None, workers: int | None = None, progress: bool = True) -> dict[int, dict]:
     """Each of ``levers`` of ``experiment`` on its validation split, for each of ``seeds``: seed ->
-    lever -> its result (Sokoban: :func:`~wmthesis.experiments.sokoban_search.validate`'s; a PlaNet
-    value: the planner's config and scores, ``validate_planners``). ``count``: levels (Sokoban) or
-    bouts (a value) each, the profile's by default; ``variant``: the value run whose agent the
-    planners end in. A value's bouts of every seed share one pool of ``workers`` processes (two by
-    default), seed after seed: on a machine with more cores, pass its count."""
+    lever -> its result. ``count``: levels (Sokoban) or bouts (a value) each, the profile's by
+    default; ``variant``: the value run whose agent the planners end in; ``workers``: the
+    processes a value's bouts share (two by default)."""
     check_levers(experiment, levers)
-    if experiment == "boxing-wm":
-        wrong = [seed for seed in seeds if seed not in BOXING_WM_SEEDS]
-        if wrong:  # the seeds a recipe is reported on never choose one
-            raise ValueError(f"boxing-wm's recipes are chosen on seeds {', '.join(map(str, BOXING_WM_SEEDS))}, "
-                             f"not {', '.join(map(str, wrong))}")
-        return {seed: {lever: reproduce("boxing-wm", profile, seed, lever, progress) for lever in levers}
-                for seed in seeds}
-    if experiment == "sokoban-search":
-        if variant is not None:
-            raise ValueError("sokoban-search's levers are variants of its agent: name them as levers, not --variant")
-        return {seed: {lever: validate_sokoban(lever, profile, seed, count, progress) for lever in levers}
-                for seed in seeds}
-    validate_planners = validate_boxing if experiment == "planet-boxing-value" else validate_freeway
-    with process_pool(workers) as pool, concurrent.futures.ThreadPoolExecutor(max(1, len(seeds))) as threads:
-        futures = {seed: threads.submit(validate_planners, profile, seed, tuple(levers), count, progress,
-                                        variant=variant, executor=pool) for seed in seeds}
-        return {seed: future.result() for seed, future in futures.items()}
+    return levers_of(experiment).run(levers, profile=profile, seeds=seeds, variant=variant, count=count,
+                                     workers=workers, progress=progress)
 
 
 def lever_lines(experiment: str, results: dict[str, dict]) -> list[str]:
-    """One seed's results as lines: each lever's solve rates and costs (Sokoban), or the planner
-    levers' table rows paired against the first (a value)."""
-    if experiment == "sokoban-search":
-        return [solved_line(lever, result["rows"]) for lever, result in results.items()]
-    if experiment == "boxing-wm":
-        return [f"{lever}: {m['score']['mean']:.1f} ± {m['score']['std']:.1f} over {m['score']['episodes']} bouts, "
-                f"{m.get('first_run_wall_seconds', m['wall_seconds']) / 60:.0f} min" for lever, m in results.items()]
-    return [" | ".join(row) for row in planner_lever_rows(results, LEVERS[experiment])]
+    """One seed's results as lines, as the experiment says them."""
+    return levers_of(experiment).lines(results)
 
 
-__all__ = ["LEVERS", "check_levers", "validate", "lever_lines"]
+__all__ = ["WITH_LEVERS", "levers_of", "check_levers", "validate", "lever_lines", "planner_levers", "validate_recipes",
+           "validate_agent_levers", "boxing_wm_levers", "sokoban_levers", "boxing_value_levers", "freeway_value_levers"]

@@ -117,4 +117,15 @@ def no_variant(experiment: str, variant: str | None) -> None:
         raise ValueError(f"experiment {experiment!r} has no variants, got {variant!r}")
 
 
-__all__ = ["Variant", "Variants", "FINDINGS", "no_variant"]
+@dataclass(frozen=True)
+class Levers:
+    """An experiment's levers, the changes a choice may adopt on its validation split:
+    ``changes`` (lever name -> its changes); ``run(levers, *, profile, seeds, variant, count,
+    workers, progress)`` plays them, ``{seed: {lever: result}}``; ``lines(results)`` says one
+    seed's results in lines."""
+    changes: Mapping
+    run: object
+    lines: object
+
+
+__all__ = ["Levers", "Variant", "Variants", "FINDINGS", "no_variant"]

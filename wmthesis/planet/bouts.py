@@ -68,4 +68,40 @@ def agent_table(metrics: dict) -> str:
         f"| thesis PlaNet ({THESIS_PLANET_BOXING.source}) | {THESIS_PLANET_BOXING.value} | |"])
 
 
-__all__ = ["agent_table", "FIRST_STEPS", "play_bout", "bout_result", "bout_scores"]
+def budget_table(config, metrics: dict, benchmark: dict | None = None) -> str:
+    """Our PlaNet run's training budget beside the thesis's (Markdown): ``config``, the run's
+    :class:`~wmthesis.planet.config.PlaNetConfig`, against the thesis's defaults (4.4.3-4.4.5;
+    what it does not state, "not stated"); ``metrics``, the run's (agent steps and updates it
+    spent); ``benchmark``, ``benchmarks/results/planet.json`` where given: what one update and one
+    plan cost on the machine it measured, at both sizes."""
+    import dataclasses
+
+    thesis = type(config)()
+    measured = {r["what"]: r["seconds"] for r in (benchmark or {}).get("results", [])}
+
+    def cost(name: str) -> str:
+        return f"{measured[name]:.2f} s" if name in measured else "not measured"
+
+    rows = [("frames", f"{config.frame_size}x{config.frame_size}, {config.bits} bits",
+             f"{thesis.frame_size}x{thesis.frame_size}, {thesis.bits} bits"),
+            ("encoder depth (first convolution's channels)", config.depth, thesis.depth),
+            ("batch (chunks x steps)", f"{config.batch_size} x {config.chunk_length}",
+             f"{thesis.batch_size} x {thesis.chunk_length}"),
+            ("latent overshooting distance", config.overshooting_distance, thesis.overshooting_distance),
+            ("random seed bouts", config.seed_episodes, thesis.seed_episodes),
+            ("updates between collected bouts", f"{config.update_steps:,}", f"{thesis.update_steps:,}"),
+            ("updates in all", f"{metrics['updates']:,}", "not stated"),
+            ("agent steps collected", f"{metrics['env_steps']:,}", "not stated"),
+            ("CEM: candidates x horizon x iterations", f"{config.candidates} x {config.horizon} x {config.iterations}",
+             f"{thesis.candidates} x {thesis.horizon} x {thesis.iterations}")]
+    if benchmark is not None:
+        where = f"{benchmark['meta'].get('cores')} cores, {benchmark['meta'].get('threads')} thread(s)"
+        rows += [(f"one update ({where})", cost("update (quick)"), cost("update (thesis)")),
+                 (f"one plan ({where})", cost("cem_plan (quick)"), cost("cem_plan (thesis)"))]
+    changed = [f.name for f in dataclasses.fields(config) if getattr(config, f.name) != getattr(thesis, f.name)]
+    lines = ["| | ours | the thesis |", "|---|---|---|"]
+    lines += [f"| {name} | {ours} | {theirs} |" for name, ours, theirs in rows]
+    return "\n".join(lines) + f"\n\nEvery setting of ours that differs from the thesis's: {', '.join(changed)}."
+
+
+__all__ = ["budget_table", "agent_table", "FIRST_STEPS", "play_bout", "bout_result", "bout_scores"]

@@ -50,6 +50,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 import optuna
+import sqlalchemy
 import torch
 from optuna.distributions import FloatDistribution
 from optuna.samplers import RandomSampler
@@ -158,14 +159,14 @@ def study_dir(study_name: str, storage: str | None = None) -> Path:
 
 def make_storage(url: str, cfg: SearchConfig) -> optuna.storages.RDBStorage:
     """An optuna RDB storage with heartbeats (``cfg.heartbeat_interval``, ``cfg.grace_period``)."""
-    if url.startswith("sqlite"):
-        engine = {"connect_args": {"timeout": 120}}   # workers wait for each other's writes
-    else:
-        engine = {"pool_pre_ping": True}
+    engine = {"connect_args": {"timeout": 120}} if url.startswith("sqlite") else {"pool_pre_ping": True}  # sqlite: wait
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        return optuna.storages.RDBStorage(url, engine_kwargs=engine, heartbeat_interval=cfg.heartbeat_interval,
-                                          grace_period=cfg.grace_period)
+        try:
+            return optuna.storages.RDBStorage(url, engine_kwargs=engine, heartbeat_interval=cfg.heartbeat_interval,
+                                              grace_period=cfg.grace_period)
+        except (sqlalchemy.exc.SQLAlchemyError, ImportError) as error:  # one line, not the driver's traceback
+            raise OSError(f"cannot open the optuna storage {url}: {str(error).splitlines()[0]}") from None
 
 
 def study_name(name: str, profile: str, objective: str) -> str:
