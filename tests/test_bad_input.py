@@ -1,6 +1,7 @@
 """Bad input never acts silently: each row of the "what happens when ..." table (docs/reference.md) is a
 test here (or names the test that covers it)."""
 import os
+import re
 import subprocess
 import sys
 import time
@@ -318,3 +319,20 @@ def test_a_storage_url_that_is_no_database_is_one_line(capsys, tmp_path):
     assert main(["search", "planet-boxing", "--trials", "1", "--storage", f"sqlite:///{tmp_path}/no/such/folder/x.db"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: cannot open the optuna storage sqlite:///")
+
+
+@pytest.mark.parametrize("actions, says", [([99, -1], "action 99 of game 0 is out of range"),
+                                           ([0.5, 1.7], "are not integers"), ([1, 2, 3], "2 actions, got shape (3,)"),
+                                           ([True, False], "are not integers")])
+def test_a_batched_game_checks_its_actions_as_a_single_game_does(actions, says):
+    from wmthesis.envs.vector import make_game
+
+    for name in ("boxing", "sokoban-small"):
+        game = make_game(name, 2)
+        try:
+            game.reset(np.array([0, 1]))
+            with pytest.raises(ValueError, match=re.escape(says)):
+                game.step(actions)
+            game.step(np.array([0, 1]))  # a good batch still plays
+        finally:
+            game.close()

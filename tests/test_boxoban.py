@@ -78,6 +78,9 @@ def test_the_environment_plays_boxoban_levels_by_the_rules(tmp_path):
     assert len({env.reset()[1]["level"] for _ in range(20)}) > 10  # else drawn from the whole source
     with pytest.raises(ValueError, match="level 1000 is outside the level source"):
         env.reset(options={"level": 1000})
+    for index in (1.5, "1", True):  # not silently another level
+        with pytest.raises(TypeError, match="options\\['level'\\] is a level's index, an integer"):
+            env.reset(options={"level": index})
     # a text file of one's own is a source too
     mine = tmp_path / "mine.txt.gz"
     with gzip.open(mine, "wt") as f:

@@ -75,7 +75,8 @@ def test_a_boxoban_file_holds_several_levels_and_outside_floor_becomes_wall(tmp_
     ("#####\n#@$.@#\n######", "exactly one player"),
     ("#####\n#@$x#\n#####", "'x'"),
     ("#####\n#@ .#\n#####", "at least one box"),
-    ("#####\n#@$ #\n#####", "a target per box"),
+    ("#####\n#@$ #\n#####", "exactly one target per box"),
+    ("######\n#@$..#\n######", "exactly one target per box; found 1 boxes and 2 targets"),  # a spare target
 ])
 def test_unplayable_levels_are_refused_naming_why(text, words):
     with pytest.raises(LevelError, match=words):

@@ -270,11 +270,18 @@ def test_the_summary_skips_corrupt_and_foreign_files_naming_them(tmp_path):
     foreign.parent.mkdir(parents=True)
     foreign.write_text(json.dumps({"loss": 0.1}))
     alien = _write_run(tmp_path, "someone-elses", 0, 1.0)
+    not_a_number = tmp_path / "results" / "boxing-wm" / "quick-seed2" / "metrics.json"
+    not_a_number.parent.mkdir(parents=True)
+    not_a_number.write_text('{"experiment": "boxing-wm", "profile": "quick", "seed": 2, "score": {"mean": NaN}}')
+    wrong_shape = tmp_path / "results" / "boxing-wm" / "quick-seed3" / "metrics.json"
+    wrong_shape.parent.mkdir(parents=True)
+    wrong_shape.write_text(json.dumps([{"experiment": "boxing-wm"}]))
     with pytest.warns(UserWarning) as caught:
         runs = read_runs(tmp_path / "results")
     assert [(r.experiment, r.seed, r.score, r.path) for r in runs] == [("boxing-wm", 0, 5.0, str(good))]
     warned = " ".join(str(w.message) for w in caught)
-    assert all(f"{path}: skipped" in warned for path in (corrupt, foreign, alien))
+    assert all(f"{path}: skipped" in warned for path in (corrupt, foreign, alien, not_a_number, wrong_shape))
+    assert f"{not_a_number}: skipped, its score is not a number" in warned
 
 
 # ---------------------------------------------------------------------------- on a local Ray

@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import re
 import warnings
 from pathlib import Path
@@ -101,8 +102,12 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             header = (str(metrics["profile"]), int(metrics["seed"]),
                       metrics.get("first_run_wall_seconds", metrics.get("wall_seconds")))
             scores = run_scores(metrics)
-        except (ValueError, KeyError, TypeError) as error:
+        except (ValueError, KeyError, TypeError, AttributeError, IndexError) as error:
             warnings.warn(f"{path}: skipped, not a run's metrics ({type(error).__name__}: {error})", stacklevel=2)
+            continue
+        broken = {variant: score for variant, score in scores.items() if not math.isfinite(float(score))}
+        if broken:
+            warnings.warn(f"{path}: skipped, its score is not a number ({broken})", stacklevel=2)
             continue
         registry = VARIANTS.get(metrics["experiment"])
         gone = [v for v in metrics.get("variants", [metrics.get("variant")]) if v is not None and registry is not None

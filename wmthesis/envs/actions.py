@@ -27,6 +27,21 @@ def check_action(action, n: int) -> int:
     return int(value)
 
 
+def check_actions(actions, n: int, count: int) -> np.ndarray:
+    """``actions`` of a batch of ``count`` games as int64 (count,): one integer in ``[0, n)`` each,
+    as :func:`check_action` takes one; a ``ValueError`` saying which is wrong otherwise."""
+    values = np.asarray(actions)
+    if values.shape != (count,):
+        raise ValueError(f"pass one action per game: {count} actions, got shape {values.shape}")
+    if values.dtype == bool or not np.issubdtype(values.dtype, np.integer):
+        raise ValueError(f"actions {actions!r} are not integers; a valid action is an integer in [0, {n - 1}]")
+    wrong = np.flatnonzero((values < 0) | (values >= n))
+    if len(wrong):
+        raise ValueError(f"action {values[wrong[0]]} of game {wrong[0]} is out of range; a valid action is an integer "
+                         f"in [0, {n - 1}]")
+    return values.astype(np.int64)
+
+
 def check_order(state: str) -> None:
     """Refuse a ``step()`` in episode ``state`` ``new`` (no reset yet) or ``ended``."""
     if state == "new":

@@ -118,7 +118,8 @@ def fit_board(board: np.ndarray, dim_room, name: str = "level") -> np.ndarray:
 
 def check_board(board: np.ndarray, name: str = "level") -> None:
     """Refuse a board that cannot be played: codes outside 0..6, an outer ring that is not
-    wall, not exactly one player, no box, or fewer targets than boxes."""
+    wall, not exactly one player, no box, or not one target per box (the game is solved when every
+    target holds a box, so a spare target could never be filled)."""
     board = np.asarray(board)
     if board.ndim != 2 or min(board.shape) < 3:
         raise LevelError(f"{name}: a board is 2-D, at least 3x3; got shape {board.shape}")
@@ -133,8 +134,8 @@ def check_board(board: np.ndarray, name: str = "level") -> None:
     targets = int(count[TARGET] + count[BOX_ON_TARGET] + count[PLAYER_ON_TARGET])
     if players != 1:
         raise LevelError(f"{name}: needs exactly one player ('@' or '+'), found {players}")
-    if boxes == 0 or targets < boxes:
-        raise LevelError(f"{name}: needs at least one box and a target per box; "
+    if boxes == 0 or targets != boxes:
+        raise LevelError(f"{name}: needs at least one box and exactly one target per box; "
                          f"found {boxes} boxes and {targets} targets")
 
 

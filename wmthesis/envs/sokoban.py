@@ -112,6 +112,8 @@ class SokobanEnv(gym.Env):
             self.board = fit_board(board.astype(np.uint8), self.dim_room)
         elif self.levels is not None:
             index = options.get("level")
+            if index is not None and (isinstance(index, bool) or not isinstance(index, (int, np.integer))):
+                raise TypeError(f"options['level'] is a level's index, an integer; got {index!r}")
             index = int(self.np_random.integers(len(self.levels))) if index is None else int(index)
             if not 0 <= index < len(self.levels):
                 raise ValueError(f"level {index} is outside the level source (levels 0 to {len(self.levels) - 1})")

@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 
 from wmthesis.envs import ATARI_GAMES, make_env
+from wmthesis.envs.actions import check_actions
 from wmthesis.envs.preprocessing import CROPS, crop_resize
 from wmthesis.utils import check_choice, timed
 
@@ -59,7 +60,7 @@ class AtariGame:
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         with timed(self.timings, "env"):
-            raw, rewards, terminated, truncated, _ = self.env.step(np.asarray(actions, np.int64))
+            raw, rewards, terminated, truncated, _ = self.env.step(check_actions(actions, self.n_actions, self.num_envs))
         rewards = np.where(self.done, 0.0, rewards.astype(np.float64))
         self.done |= terminated | truncated
         return self._preprocess(raw), rewards, self.done.copy()
@@ -95,7 +96,7 @@ class ListGame:
         return self.observations
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        rewards = np.zeros(self.num_envs)
+        rewards, actions = np.zeros(self.num_envs), check_actions(actions, self.n_actions, self.num_envs)
         with timed(self.timings, "env"):
             for i in np.flatnonzero(~self.done):
                 observation, rewards[i], terminated, truncated, _ = self.envs[i].step(int(actions[i]))
