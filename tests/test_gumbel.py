@@ -3,6 +3,8 @@ schedule), and the guarantee: on a bandit with known Q, the action returned is a
 as the prior's in expectation, at every budget from 2 to 256."""
 from __future__ import annotations
 
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -108,3 +110,27 @@ def test_the_configs_root_chooses_the_search():
     assert isinstance(gumbel, GumbelMCTS) and gumbel.considered == 4 and not gumbel.reuse_tree
     with pytest.raises(ValueError, match="unknown root 'x'; valid: puct, gumbel"):
         root_search(dataclasses.replace(config, root="x"), bandit, lambda s: (np.ones(4), 0.0), 0)
+
+
+@pytest.mark.parametrize("changes, says", [
+    (dict(root="gumble"), "unknown root 'gumble'; valid: puct, gumbel"),
+    (dict(root="gumbel", simulations=1), "at least 2 simulations, got 1"),
+    (dict(root="gumbel", simulations=2.5), "an integer budget of at least 2 simulations, got 2.5"),
+    (dict(root="gumbel", considered=1), "considers an integer number of actions, at least 2, got 1"),
+])
+def test_a_search_that_cannot_run_is_refused_when_it_is_configured(changes, says):
+    from wmthesis.alphazero.config import AlphaZeroConfig
+
+    with pytest.raises(ValueError, match=re.escape(says)):
+        AlphaZeroConfig(**changes)
+
+
+def test_a_gumbel_root_that_would_consider_more_actions_than_the_game_has_is_refused():
+    from wmthesis.alphazero.config import AlphaZeroConfig
+    from wmthesis.alphazero.gumbel import root_search
+
+    class Game:
+        action_space = type("Space", (), {"n": 18})()
+
+    with pytest.raises(ValueError, match="at most the game's 18 actions, got 20"):
+        root_search(AlphaZeroConfig(root="gumbel", considered=20), Game(), None, seed=0)

@@ -19,17 +19,18 @@ SHOWS = {
     "01_sokoban_world_models": ("5.3.1-5.3.3", "VAE reconstructions (Fig. 54), memory rollouts (Fig. 55), grid states, "
                                                "auxiliary heads, as numbers"),
     "02_boxing_world_models": ("5.4.1", "Fig. 56 and 57, every seed's CMA-ES curve, the score over seeds, the shipped "
-                                        "agent playing; the controller evolved in the dream"),
+                                        "agent playing and dreaming beside the game"),
     "03_boxing_world_models_alphazero": ("5.4.2", "MCTS in the memory: self-play, why the thesis's version fails, the "
                                                   "variants side by side"),
     "04_planet_sokoban": ("5.5.1", "PlaNet's open-loop rollouts on Sokoban (Fig. 58)"),
-    "05_planet_boxing": ("5.6.1-5.6.4", "the model study (Fig. 59, 510) measured on held-out bouts; the tuned agent's bouts"),
+    "05_planet_boxing": ("5.6.1-5.6.4", "the model study (Fig. 59, 510) measured on held-out bouts; the tuned agent's "
+                                        "bouts; its budget beside the thesis's"),
     "06_kl_scale_free_nats_search": ("5.6.3-5.6.5", "the random search over KL scale and free nats (optuna)"),
     "07_sokoban_search": ("beyond (ch. 1)", "Sokoban solved by search in a learned model: Boxoban over seeds, the levers, "
                                             "failures as pictures"),
-    "08_planet_freeway": ("5.6.5-5.6.6", "the tuned Freeway agent, its value variants, the perfect-model ceiling"),
+    "08_planet_freeway": ("5.6.5-5.6.6", "Fig. 511 from the shipped agent, its value variants, the perfect-model ceiling"),
     "09_planet_boxing_value": ("beyond", "a learned value on PlaNet's frozen Boxing model: its rounds, over seeds"),
-    "10_planet_value_planner": ("beyond", "CEM with that value at the end of its horizon; its levers on validation bouts"),
+    "10_planet_value_planner": ("beyond", "CEM with that value at the end of its horizon, over seeds"),
     "11_planning_budget": ("beyond (ch. 1)", "score against search budget: Sokoban's search, MCTS and CEM on Boxing, each "
                                              "without search and under growing budgets"),
 }

@@ -84,5 +84,19 @@ class AlphaZeroConfig:
     expert_epochs: int = 30
     memory_games: int = 0                # own-memory variant: the memory also learns this many expert bouts
 
+    def __post_init__(self):
+        """Refuse a search that cannot run, before anything plays: an unknown root, a Gumbel root
+        without an integer budget of 2 simulations or more, or fewer than 2 actions considered."""
+        if self.root not in (None, *ROOTS):
+            raise ValueError(f"unknown root {self.root!r}; valid: {', '.join(ROOTS)} (None: the thesis's puct)")
+        if self.root == "gumbel":
+            if isinstance(self.simulations, bool) or not isinstance(self.simulations, int) or self.simulations < 2:
+                raise ValueError(f"a Gumbel root needs an integer budget of at least 2 simulations, got {self.simulations!r}")
+            if self.considered is not None and (isinstance(self.considered, bool) or not isinstance(self.considered, int)
+                                                or self.considered < 2):
+                raise ValueError(f"a Gumbel root considers an integer number of actions, at least 2, got {self.considered!r}")
 
-__all__ = ["AlphaZeroConfig"]
+
+ROOTS = ("puct", "gumbel")  # the thesis's PUCT root, Gumbel MuZero's (wmthesis.alphazero.gumbel)
+
+__all__ = ["AlphaZeroConfig", "ROOTS"]

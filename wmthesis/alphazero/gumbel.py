@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 
+from wmthesis.alphazero.config import ROOTS
 from wmthesis.alphazero.mcts import MCTS, Node
 
 LOW_LOGIT = -1e9
@@ -157,9 +158,6 @@ class GumbelMCTS(MCTS):
         return interior_action(logits_of(node.P), self.transformed(node), node.N)
 
 
-ROOTS = ("puct", "gumbel")
-
-
 def root_search(config, mdp, evaluator, seed) -> MCTS:
     """The search of an :class:`~wmthesis.alphazero.config.AlphaZeroConfig`: the thesis's PUCT root,
     or Gumbel MuZero's where ``config.root == "gumbel"``."""
@@ -169,7 +167,10 @@ def root_search(config, mdp, evaluator, seed) -> MCTS:
     options = dict(c=config.c, n_simulations=config.simulations, timeout=config.timeout, gamma=config.gamma,
                    dirichlet_alpha=config.dirichlet_alpha, max_depth=config.search_depth, seed=seed)
     if root == "gumbel":
-        considered = config.considered or min(16, int(mdp.action_space.n))
+        actions = int(mdp.action_space.n)
+        if config.considered is not None and config.considered > actions:
+            raise ValueError(f"a Gumbel root considers at most the game's {actions} actions, got {config.considered}")
+        considered = config.considered or min(16, actions)
         return GumbelMCTS(mdp, evaluator, considered=considered, **options)
     return MCTS(mdp, evaluator, noise_ratio=config.noise_ratio, normalize_q=config.normalize_q,
                 reuse_tree=config.reuse_tree, root_actions=config.root_actions, **options)
