@@ -86,4 +86,18 @@ def value_table(metrics: dict) -> str:
         f"| human ({HUMAN['boxing'].source}) | {human('boxing')} |"])
 
 
-__all__ = ["agent_rows", "planner_lever_rows", "paired_rows", "planner_rows", "value_table"]
+def frozen_model_line(value_run: dict, agent_run: dict) -> str:
+    """Which PlaNet model a value run froze, told by the thesis CEM's bouts on it against those of
+    notebook 05's agent run of the same seed (the same 10 evaluation bouts): the same model, or an
+    earlier training of that seed (a value fitted before the agent was trained again)."""
+    ours, theirs = value_run["planet"], agent_run["agent"]["full"]
+    same = all(abs(ours[k] - theirs[k]) < 1e-9 for k in ("mean", "std", "min", "max"))
+    said = (f"the thesis's CEM scores {ours['mean']:.1f} on this value run's frozen PlaNet model and "
+            f"{theirs['mean']:.1f} on notebook 05's agent of the same seed, over the same bouts: ")
+    if same:
+        return said + "the same model"
+    return said + (f"another training of that seed (this value run is of {value_run['date']}, the agent run of "
+                   f"{agent_run['date']}): each number is its own model's")
+
+
+__all__ = ["frozen_model_line", "agent_rows", "planner_lever_rows", "paired_rows", "planner_rows", "value_table"]
