@@ -184,3 +184,33 @@ def test_the_summary_never_replaces_the_readmes_table_with_one_from_fewer_runs(t
     assert readme.read_text() == before and not (empty / "summary.md").exists()  # nothing written
     write_summary(empty, readme, force=True)
     assert "not run yet" in readme.read_text()
+
+
+def test_no_branch_on_an_experiments_name_outside_the_declarations():
+    """What an experiment does differently is declared once (wmthesis/declarations.py), never
+    tested for by its name elsewhere."""
+    names = set(EXPERIMENTS)
+    branches = []
+    for path in PACKAGE.rglob("*.py"):
+        if path.name == "declarations.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.If, ast.IfExp)) and any(
+                    isinstance(n, ast.Constant) and n.value in names for n in ast.walk(node.test)):
+                branches.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
+    assert branches == []
+
+
+def test_profile_sized_tables_outside_the_config_modules_only_shrink():
+    """Each profile's sizes belong in a config dataclass, overridden per profile in one place
+    (wmthesis.config.OVERRIDES); the tables keyed by profile that remain elsewhere may only go."""
+    profiles = {"smoke", "quick", "thesis"}
+    tables = []
+    for path in PACKAGE.rglob("*.py"):
+        if path.name in ("config.py", "profiles.py"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Dict) and node.keys and all(isinstance(k, ast.Constant) and k.value in profiles
+                                                                  for k in node.keys):
+                tables.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
+    assert len(tables) <= 12, tables

@@ -40,18 +40,19 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     from wmthesis.experiments import reproduce
     from wmthesis.budget_curves import COLUMNS
-    from wmthesis.experiments.planning_budget import (BOXING_BOUTS, CEM_BUDGETS, MCTS_BUDGETS, SOKOBAN_BUDGETS,
-                                                      SOKOBAN_LEVELS)
+    from wmthesis.experiments.planning_budget import curve_sizes
+
+    sizes = curve_sizes("smoke")
 
     metrics = reproduce("planning-budget", "smoke", 0, progress=False)
     rows = metrics["rows"]
     sokoban, mcts, cem = ([r for r in rows if r["planner"] == planner] for planner in ("sokoban-search", "mcts", "cem"))
-    assert [r["budget"] for r in sokoban] == [0, *SOKOBAN_BUDGETS["smoke"]]
-    assert [r["budget"] for r in mcts] == [0, *MCTS_BUDGETS["smoke"]]
-    assert [r["budget"] for r in cem] == [0, *(h * j * i for h, j, i in CEM_BUDGETS["smoke"])]  # H x J x I
-    assert all(r["levels"] == BOXING_BOUTS["smoke"] for r in cem)
-    assert all(r["levels"] == SOKOBAN_LEVELS["smoke"] and 0 <= r["score"] <= 100 for r in sokoban)
-    assert all(r["levels"] == BOXING_BOUTS["smoke"] for r in mcts)
+    assert [r["budget"] for r in sokoban] == [0, *sizes.sokoban_budgets]
+    assert [r["budget"] for r in mcts] == [0, *sizes.mcts_budgets]
+    assert [r["budget"] for r in cem] == [0, *(h * j * i for h, j, i in sizes.cem_budgets)]  # H x J x I
+    assert all(r["levels"] == sizes.boxing_bouts for r in cem)
+    assert all(r["levels"] == sizes.sokoban_levels and 0 <= r["score"] <= 100 for r in sokoban)
+    assert all(r["levels"] == sizes.boxing_bouts for r in mcts)
     for curve in (sokoban, mcts, cem):  # every budget on the same bouts or levels as the row without search
         assert all(r["no_search_score"] == curve[0]["score"] and r["ms_per_action"] > 0 for r in curve)
         assert all(abs(r["gain"] - (r["score"] - r["no_search_score"])) < 1e-9 for r in curve)
@@ -60,11 +61,11 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     assert tuple(table[0]) == COLUMNS == ("planner", "game", "budget", "seed", "score", "no_search_score",
                                           "ms_per_action")
     assert [(r["planner"], r["game"], int(r["budget"])) for r in table] == \
-        [("cem", "boxing", r["budget"]) for r in cem] + [("mcts", "boxing", b) for b in (0, *MCTS_BUDGETS["smoke"])] + \
-        [("sokoban-search", "boxoban-medium", b) for b in (0, *SOKOBAN_BUDGETS["smoke"])]
+        [("cem", "boxing", r["budget"]) for r in cem] + [("mcts", "boxing", b) for b in (0, *sizes.mcts_budgets)] + \
+        [("sokoban-search", "boxoban-medium", b) for b in (0, *sizes.sokoban_budgets)]
     saved = sorted((tmp_path / "smoke" / "planning-budget" / "seed0").glob("budget-*.json"))
     saved += sorted((tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / ALPHAZERO.default.name).glob("*-simulations-*.pkl"))
-    assert len(saved) == 2 * len(sokoban) + len(MCTS_BUDGETS["smoke"])  # Sokoban's budgets in two parts each
+    assert len(saved) == 2 * len(sokoban) + len(sizes.mcts_budgets)  # Sokoban's budgets in two parts each
     stamps = [p.stat().st_mtime_ns for p in saved]
     again = reproduce("planning-budget", "smoke", 0, progress=False)
     assert again["rows"] == rows and [p.stat().st_mtime_ns for p in saved] == stamps
@@ -76,6 +77,7 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     from wmthesis.alphazero.replay import game_seeds
     from wmthesis.config import for_profile
     from wmthesis.envs.atari import noop_count
+    from wmthesis.experiments.planning_budget import curve_sizes
     from wmthesis.utils import read_pickle
 
     last = saved[-1]  # the top MCTS budget's games
@@ -84,12 +86,12 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     last.unlink()
     played, real_play = [], evaluation.play
     monkeypatch.setattr(evaluation, "play", lambda *a, **k: played.append(a[3]) or real_play(*a, **k))
-    assert main(["budget-curve", "mcts", "--budgets", f"{MCTS_BUDGETS['smoke'][-1]},3", "--profile", "smoke"]) == 0
-    assert played == [*range(1, BOXING_BOUTS["smoke"]), *range(BOXING_BOUTS["smoke"])]  # the cut budget's rest, then 3's
+    assert main(["budget-curve", "mcts", "--budgets", f"{curve_sizes('smoke').mcts_budgets[-1]},3", "--profile", "smoke"]) == 0
+    assert played == [*range(1, sizes.boxing_bouts), *range(sizes.boxing_bouts)]  # the cut budget's rest, then 3's
     after = {(r["planner"], r["budget"]): r for r in read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0"
                                                                 / "metrics.json")["rows"]}
-    assert [b for p, b in after if p == "mcts"] == [0, MCTS_BUDGETS["smoke"][-1], 3]
-    assert after[("mcts", MCTS_BUDGETS["smoke"][-1])]["score"] == mcts[-1]["score"]  # the resumed games score the same
+    assert [b for p, b in after if p == "mcts"] == [0, sizes.mcts_budgets[-1], 3]
+    assert after[("mcts", sizes.mcts_budgets[-1])]["score"] == mcts[-1]["score"]  # the resumed games score the same
     assert [after[(r["planner"], r["budget"])]["score"] for r in sokoban + cem] == [r["score"] for r in sokoban + cem]
 
     # the validation bouts: games the evaluation never plays, written apart from the report's rows
@@ -98,12 +100,12 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     validation = read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0" /
                            f"validation-{ALPHAZERO.default.name}.json")
     assert validation["variant"] == ALPHAZERO.default.name and validation["bouts"] == "validation"
-    assert [r["budget"] for r in validation["rows"]] == [0, *MCTS_BUDGETS["smoke"]]
+    assert [r["budget"] for r in validation["rows"]] == [0, *sizes.mcts_budgets]
     work = tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / ALPHAZERO.default.name
-    budget = MCTS_BUDGETS["smoke"][0]
+    budget = sizes.mcts_budgets[0]
     noop_max = for_profile(AlphaZeroConfig, "smoke").noop_max  # 3 counts: 2 evaluation bouts leave 1 to validate on
     counts = {split: [noop_count(game_seeds(s)[0], noop_max) for s in read_pickle(
-        work / f"{split}-{budget}-simulations-{BOXING_BOUTS['smoke']}.pkl")["key"]["seeds"]]
+        work / f"{split}-{budget}-simulations-{curve_sizes('smoke').boxing_bouts}.pkl")["key"]["seeds"]]
         for split in ("evaluation", "validation")}
     assert len(counts["evaluation"]) == 2 and len(counts["validation"]) == 1
     assert not set(counts["validation"]) & set(counts["evaluation"])

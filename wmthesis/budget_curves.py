@@ -8,6 +8,7 @@ import csv
 import io
 import json
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,22 @@ from wmthesis.utils import data_dir
 
 NO_SEARCH = 0
 COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action")
+
+
+
+@dataclass(frozen=True)
+class BudgetCurveConfig:
+    """The budgets each curve plays (the thesis profile's; ``quick`` and ``smoke`` override them in
+    :data:`~wmthesis.config.OVERRIDES`): ``sokoban_budgets``, nodes a search may expand, on the
+    first ``sokoban_levels`` Boxoban medium report levels; ``mcts_budgets``, simulations an action;
+    ``cem_budgets``, CEM with the value's (H, J, I), H x J x I imagined steps an action (the value
+    alone, H = 1, is the row without search); Boxing's curves on ``boxing_bouts`` evaluation bouts a
+    seed, the same for every budget."""
+    sokoban_budgets: tuple = (1_000, 5_000, 20_000, 40_000, 160_000)
+    sokoban_levels: int = 1000
+    mcts_budgets: tuple = (16, 64, 256)
+    boxing_bouts: int = 10
+    cem_budgets: tuple = ((3, 1000, 10), (6, 1000, 10), (12, 1000, 10))
 
 
 def check_planners(planners) -> None:
@@ -161,4 +178,4 @@ def write_budget_table(profile: str) -> str:
     return text.getvalue()
 
 
-__all__ = ["COLUMNS", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
+__all__ = ["BudgetCurveConfig", "COLUMNS", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "read_budget_rows", "write_budget_table", "plot_budget_curves"]

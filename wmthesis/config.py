@@ -68,6 +68,9 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         "SokobanSearchConfig": dict(random_levels=20, rounds=1, levels_per_round=4, channels=16, model_updates=20,
                                     round_updates=5, batch_size=32, value_channels=8, value_updates=5,
                                     budget=300, eval_levels=4),
+        "SokobanEvaluationConfig": dict(report_levels=2, reference_levels=2, validation_levels=2),
+        "BudgetCurveConfig": dict(sokoban_budgets=(50, 300), sokoban_levels=4, mcts_budgets=(2, 4), boxing_bouts=2,
+                                  cem_budgets=((2, 16, 2), (3, 16, 2))),
     },
     "quick": {
         "CollectConfig": dict(episodes=20),
@@ -90,6 +93,10 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         # set (chosen on the validation files: docs/findings/sokoban-search.md).
         "SokobanSearchConfig": dict(random_levels=1000, rounds=2, levels_per_round=250, model_updates=1500,
                                     round_updates=250, value_updates=1000, budget=20_000, eval_budget=40_000),
+        # fewer reference levels keep the run in its time (on 500 they take about 20 CPU-minutes)
+        "SokobanEvaluationConfig": dict(report_levels=500, reference_levels=100, validation_levels=200),
+        # CEM: quick's J and I are its PlaNet's; no H12 (its bouts cost more than the rest; its 12th step weighs 2%)
+        "BudgetCurveConfig": dict(sokoban_levels=500, cem_budgets=((2, 100, 3), (3, 100, 3), (6, 100, 3))),
     },
     "thesis": {},
 }

@@ -2,11 +2,11 @@
 search budget on a seed's trained models, the same bouts or levels for every budget:
 
 - the Sokoban agent (``sokoban-search``) on the first Boxoban medium report levels, without search
-  and under each node budget of :data:`SOKOBAN_BUDGETS`;
+  and under each node budget of the profile's ``sokoban_budgets`` (:func:`curve_sizes`);
 - MCTS in the World Models memory (``boxing-wm-alphazero``'s default run) on Boxing: its
-  policy head alone, then each number of simulations of :data:`MCTS_BUDGETS`;
+  policy head alone, then each number of simulations of ``mcts_budgets``;
 - CEM in PlaNet's model with the learned value (``planet-boxing-value``'s default) on Boxing: the
-  value alone, then each horizon x candidates x iterations of :data:`CEM_BUDGETS`.
+  value alone, then each horizon x candidates x iterations of ``cem_budgets``.
 
 Writes the run's ``metrics.json`` and every seed's rows of the profile
 (:mod:`wmthesis.budget_curves`)."""
@@ -19,7 +19,7 @@ import numpy as np
 
 from wmthesis.alphazero.evaluation import evaluation_games, policy_head_games, trained_run
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
-from wmthesis.budget_curves import PLANNERS, check_planners, plot_budget_curves, write_budget_table
+from wmthesis.budget_curves import BudgetCurveConfig, PLANNERS, check_planners, plot_budget_curves, write_budget_table
 from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
@@ -35,15 +35,9 @@ from wmthesis.training import with_added_defaults
 from wmthesis.variants import no_variant
 from wmthesis.viz import save_figure
 
-SOKOBAN_BUDGETS = {"smoke": (50, 300), "quick": (1_000, 5_000, 20_000, 40_000, 160_000),
-                   "thesis": (1_000, 5_000, 20_000, 40_000, 160_000)}  # nodes a search may expand
-SOKOBAN_LEVELS = {"smoke": 4, "quick": 500, "thesis": 1000}  # the first Boxoban medium report levels
-MCTS_BUDGETS = {"smoke": (2, 4), "quick": (16, 64, 256), "thesis": (16, 64, 256)}  # simulations an action
-BOXING_BOUTS = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation bouts a seed, the same for every budget
-# CEM with the value: (H, J, I), H x J x I imagined steps an action; the value alone (H = 1) is the row without
-# search. quick's J, I: its PlaNet's; no H12 (its bouts cost more than the rest; its 12th step weighs 0.7^11 = 2%).
-CEM_BUDGETS = {"smoke": ((2, 16, 2), (3, 16, 2)), "quick": ((2, 100, 3), (3, 100, 3), (6, 100, 3)),
-               "thesis": ((3, 1000, 10), (6, 1000, 10), (12, 1000, 10))}
+def curve_sizes(profile: str | None) -> BudgetCurveConfig:
+    """The profile's budgets and levels or bouts (:class:`~wmthesis.budget_curves.BudgetCurveConfig`)."""
+    return for_profile(BudgetCurveConfig, profile)
 
 
 @releasing_holds
@@ -100,14 +94,14 @@ def _write_run(rows: list[dict], profile: str, seed: int, seconds: float) -> dic
 
 def sokoban_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
     """The Sokoban agent's rows: without search (budget 0) and under each node budget of
-    ``budgets`` (default the profile's :data:`SOKOBAN_BUDGETS`)."""
+    ``budgets`` (default the profile's ``sokoban_budgets``)."""
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
     folder = work_folder(profile, "sokoban-search", seed) / "pixels"
     if load_run(folder, cfg) is None:
         built_on("sokoban-search", profile, seed, progress=progress)
     work = hold(work_folder(profile, "planning-budget", seed))
-    budgets = (NO_SEARCH, *(budgets or SOKOBAN_BUDGETS[profile]))
-    jobs = budget_jobs(work, folder, cfg, BOXOBAN_SPLITS["report"]["medium"], SOKOBAN_LEVELS[profile], budgets)
+    budgets = (NO_SEARCH, *(budgets or curve_sizes(profile).sokoban_budgets))
+    jobs = budget_jobs(work, folder, cfg, BOXOBAN_SPLITS["report"]["medium"], curve_sizes(profile).sokoban_levels, budgets)
     run_jobs(jobs, progress)
     plays = {budget: budget_plays(jobs, budget) for budget in budgets}
     solved = {budget: 100.0 * np.array([p["solved"] for p in plays[budget]], np.float64) for budget in budgets}
@@ -119,17 +113,17 @@ def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = 
                split: str = "evaluation", variant: str | None = None) -> list[dict]:
     """MCTS in the World Models memory on Boxing: the policy head alone (budget 0) of ``variant``
     (default: the default variant), then its search under each number of simulations of
-    ``budgets`` (default the profile's :data:`MCTS_BUDGETS`), on the same :data:`BOXING_BOUTS`
+    ``budgets`` (default the profile's ``mcts_budgets``), on the same ``boxing_bouts``
     bouts of ``split`` (``"validation"``: games none of the evaluation bouts plays, to choose on)."""
     name = variant or ALPHAZERO.default.name
     built_on("boxing-wm-alphazero", profile, seed, name, progress)
     work = work_folder(profile, "boxing-wm-alphazero", seed)
     run, vision, memory, cfg = trained_run(work_folder(profile, "boxing-wm", seed), work, name)
-    cfg = dataclasses.replace(cfg, eval_episodes=BOXING_BOUTS[profile])
+    cfg = dataclasses.replace(cfg, eval_episodes=curve_sizes(profile).boxing_bouts)
     head = policy_head_games(run, vision, memory, cfg, work / name, seed, split)
     without = np.array(head["returns"])
     rows = [_row("mcts", "boxing", NO_SEARCH, seed, without, without, head["ms_per_action"])]
-    for budget in budgets or MCTS_BUDGETS[profile]:
+    for budget in budgets or curve_sizes(profile).mcts_budgets:
         games = evaluation_games(run, vision, memory, cfg, work / name, seed, simulations=budget, split=split)
         ms = 1000 * sum(g.seconds for g in games) / max(1, sum(len(g.actions) for g in games))
         rows.append(_row("mcts", "boxing", budget, seed, np.array([g.score for g in games]), without, ms))
@@ -139,15 +133,15 @@ def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = 
 def cem_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
     """CEM with the value on PlaNet's Boxing model: the default value run's planner with its horizon,
     candidates and iterations set by each ``(H, J, I)`` of ``budgets`` (default the profile's
-    :data:`CEM_BUDGETS`; budget H x J x I x its particles), and the value alone (H = 1: budget 0), on the first
-    :data:`BOXING_BOUTS` of the value's evaluation bouts."""
+    ``cem_budgets``; budget H x J x I x its particles), and the value alone (H = 1: budget 0), on the first
+    ``boxing_bouts`` of the value's evaluation bouts."""
     metrics, work = frozen_agent("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(None), progress)
     base = with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"])
     budgets = {NO_SEARCH: dict(horizon=1), **{h * j * i * (base["particles"] or 1): dict(horizon=h, candidates=j, iterations=i)
-                                              for h, j, i in budgets or CEM_BUDGETS[profile]}}
+                                              for h, j, i in budgets or curve_sizes(profile).cem_budgets}}
     planners = {f"budget {budget}": ValuePlannerConfig(**{**base, **changes}) for budget, changes in budgets.items()}
     scores = lever_scores(frozen_agent("planet-boxing-agent", profile, seed, progress=progress)[1], work,
-                          metrics, planners, metrics["bouts"][:BOXING_BOUTS[profile]], progress, folder="planning-budget")
+                          metrics, planners, metrics["bouts"][:curve_sizes(profile).boxing_bouts], progress, folder="planning-budget")
     without = np.array(scores[f"budget {NO_SEARCH}"]["returns"])
     return [_row("cem", "boxing", budget, seed, np.array(scores[f"budget {budget}"]["returns"]), without,
                  scores[f"budget {budget}"].get("ms_per_action", float("nan"))) for budget in budgets]
@@ -163,5 +157,4 @@ def _row(planner: str, game: str, budget: int, seed: int, scores: np.ndarray, wi
             "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(scores)}
 
 
-__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "mcts_validation", "cem_curve", "SOKOBAN_BUDGETS", "SOKOBAN_LEVELS",
-           "MCTS_BUDGETS", "BOXING_BOUTS", "CEM_BUDGETS"]
+__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "mcts_validation", "cem_curve", "curve_sizes"]

@@ -16,7 +16,7 @@ from wmthesis.runs import (cached, first_run_seconds, hold, jsonable, machine_na
 from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import EVAL_PURPOSE, level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table, render_cells
-from wmthesis.sokoban_search.config import SokobanSearchConfig
+from wmthesis.sokoban_search.config import SokobanEvaluationConfig, SokobanSearchConfig
 from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
                                                 random_board_row, random_row, replay_states)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution
@@ -27,13 +27,12 @@ from wmthesis.sokoban_search.report import (BOXOBAN_AGENTS, EVAL_PARTS, boxoban_
 from wmthesis.variants import Variant, Variants, no_variant
 from wmthesis.viz import save_figure
 
-BOXOBAN_LEVELS = {"smoke": 2, "quick": 500, "thesis": 1000}  # the first of the report files' levels, each kind
-# The reference rows play the first of each evaluation's levels only (Boxoban's and our generator's):
-# the pixel agent's search and value with the true rules in place of its model, which tells how much
-# of the failures are the model's, and A*. Fewer levels keep the run in its time (in quick they
-# would take about 20 of the experiment's CPU-minutes on 500 levels).
-REFERENCE_LEVELS = {"smoke": 2, "quick": 100, "thesis": 1000}
 GENERATED = ("sokoban-small", "sokoban")  # our generator's variants: each evaluated on unseen levels
+
+
+def evaluation_levels(profile: str | None) -> SokobanEvaluationConfig:
+    """The profile's levels to evaluate on (report, reference, validation)."""
+    return for_profile(SokobanEvaluationConfig, profile)
 
 
 def work_folder(profile: str, seed: int) -> Path:
@@ -47,7 +46,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
     """Train the search agent from pixels (resumable), evaluate it on ``eval_levels`` unseen
     levels of each of our generator's variants (:data:`GENERATED`) and on Boxoban's report files
     beside random play, the thesis, and its search with the true rules and A* (the reference rows,
-    on the first :data:`REFERENCE_LEVELS` of them); return the metrics."""
+    on the first reference levels of them: :func:`evaluation_levels`); return the metrics."""
     no_variant("sokoban-search", variant)
     profile = profile_name(profile)
     started = time.time()
@@ -60,7 +59,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
     generated = list(GENERATED)  # unseen levels of our generator; Boxoban's below
     agents = {"pixels": (work / "pixels", cfg, False),
               "simulator": (work / "pixels", cfg, True)}  # its search and value with the true rules
-    played_on = {"pixels": seeds, "simulator": seeds[:REFERENCE_LEVELS[profile]]}  # the reference: the first
+    played_on = {"pixels": seeds, "simulator": seeds[:evaluation_levels(profile).reference_levels]}  # the reference: the first
     evaluations = {(name, variant, part): generated_job(work, name, agents[name], variant, played_on[name], part)
                    for variant in reversed(generated) for name in agents
                    for part in range(EVAL_PARTS)}  # the larger boards first: the pool ends together
@@ -130,7 +129,6 @@ LEVERS = Variants(
 )
 AFTERWARDS = ("prior-afterwards",)  # on the baseline's run with a policy prior fitted after it
 SEARCH_FIELDS = ("budget", "eval_budget", "batch", "weights", "doubt", "replans")  # a lever of these alone needs no training
-VALIDATION_LEVELS = {"smoke": 2, "quick": 200, "thesis": 1000}  # the first of each validation set
 
 
 @releasing_holds
@@ -142,7 +140,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     ``validation-LEVER.json``."""
     changes = LEVERS.changes(LEVERS.check(lever).name)
     profile = profile_name(profile)
-    levels = VALIDATION_LEVELS[profile] if levels is None else int(levels)
+    levels = evaluation_levels(profile).validation_levels if levels is None else int(levels)
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels", **changes)
     search_only = set(changes) <= set(SEARCH_FIELDS) or lever in AFTERWARDS  # the baseline's run
     trained = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels") if search_only else cfg
@@ -169,7 +167,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
 def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 1000, progress: bool = True) -> dict:
     """The pixel agent that :func:`sokoban_search` trains (trained here first, alone, if the
     experiment has not) on the first ``levels`` levels of each report set (:data:`BOXOBAN_SPLITS`),
-    beyond the experiment's own :data:`BOXOBAN_LEVELS`: the closing figures. Resumable level by
+    beyond the experiment's own report levels: the closing figures. Resumable level by
     level, and each level another evaluation of the same run played as this one would (the same
     search, or a play under a smaller budget that never reached it) is taken from it. Returns,
     and writes to the run's results folder as ``boxoban-report-LEVELS.json``, each kind's row
@@ -196,18 +194,17 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
 def _boxoban_jobs(work: Path, agents: dict, profile: str) -> dict:
     """The Boxoban evaluations as :func:`run_jobs` jobs, keyed (row, kind, part): each agent
     of ``agents`` (name: (folder, cfg, simulator)) on the first levels of each report file set
-    (:data:`BOXOBAN_LEVELS` for pixels, :data:`REFERENCE_LEVELS` for the true rules), in parts;
+    (:func:`evaluation_levels`: the report levels for pixels, the reference levels for the true rules), in parts;
     random play on the pixel agent's levels and A* on the reference's, whole."""
-    jobs = {}
+    jobs, sizes = {}, evaluation_levels(profile)
     for kind, source in BOXOBAN_SPLITS["report"].items():
         for name, (folder, cfg, simulator) in agents.items():
-            count = (BOXOBAN_LEVELS if name == "pixels" else REFERENCE_LEVELS)[profile]
+            count = sizes.report_levels if name == "pixels" else sizes.reference_levels
             jobs.update({(name, kind, part): boxoban_job(work / f"eval-boxoban-{name}-{kind}-{count}-{part}.json",
                                                           folder, cfg, source, count, part, simulator)
                          for part in range(EVAL_PARTS)})
-        for name, row, counts in (("random", random_board_row, BOXOBAN_LEVELS), ("astar", astar_board_row,
-                                                                                  REFERENCE_LEVELS)):
-            count = counts[profile]
+        for name, row, count in (("random", random_board_row, sizes.report_levels),
+                                 ("astar", astar_board_row, sizes.reference_levels)):
             jobs[name, kind, 0] = (work / f"{name}-boxoban-{kind}-{count}.json", (boxoban_reference, row, source, count),
                                    None)
     return jobs
@@ -291,5 +288,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "validate", "evaluate_report", "work_folder", "training_seconds", "evaluation_seconds", "LEVERS", "GENERATED", "VALIDATION_LEVELS",
-           "BOXOBAN_LEVELS", "REFERENCE_LEVELS"]
+__all__ = ["sokoban_search", "validate", "evaluate_report", "work_folder", "training_seconds", "evaluation_seconds", "LEVERS", "GENERATED",
+           "evaluation_levels"]

@@ -84,4 +84,15 @@ class SokobanSearchConfig:
     ADDED_AS: ClassVar[dict] = {"backups": 0}
 
 
-__all__ = ["SokobanSearchConfig"]
+@dataclass(frozen=True)
+class SokobanEvaluationConfig:
+    """How many levels the experiment plays beyond training: ``report_levels``, the first of each of
+    Boxoban's report files; ``reference_levels``, the first of each evaluation's levels that the
+    reference rows play (the true rules in place of the model, and A*: how much of the failures
+    are the model's); ``validation_levels``, the first of each validation file a lever plays."""
+    report_levels: int = 1000
+    reference_levels: int = 1000
+    validation_levels: int = 1000
+
+
+__all__ = ["SokobanSearchConfig", "SokobanEvaluationConfig"]
