@@ -57,7 +57,7 @@ def test_a_level_in_text_reads_to_the_board_codes_and_back():
     board = parse_level("#####\n#@$.#\n#####")
     assert board.tolist() == [[0, 0, 0, 0, 0], [0, 5, 4, 2, 0], [0, 0, 0, 0, 0]]
     assert board_to_text(board) == "#####\n#@$.#\n#####"
-    assert parse_level("#####\n#+*$#\n# . #\n#####")[1].tolist() == [0, 6, 3, 4, 0]
+    assert parse_level("#####\n#+*$#\n#   #\n#####")[1].tolist() == [0, 6, 3, 4, 0]  # + and * are targets
 
 
 def test_a_boxoban_file_holds_several_levels_and_outside_floor_becomes_wall(tmp_path):
