@@ -11,6 +11,8 @@ of ``play`` without ``--record``. Writes ``benchmarks/results/record.json``.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -59,9 +61,13 @@ def main(argv=None) -> None:
             errors = next((line.split(": ", 1)[1] for line in out.splitlines() if line.startswith("imagination")), "")
             mb = path.stat().st_size / 1e6
             rows.append({"agent": name, "bouts": bouts, "play_s": play_s, "record_s": record_s,
+                         "load_average": os.getloadavg()[0],
                          "ratio": record_s / play_s, "size_mb": mb, "errors_by_steps_ahead": errors,
                          "met": mb <= MAX_MB and (record_s / play_s <= MAX_RATIO or "boxing" not in name)})
             print_table(rows[-1:])
+    if args.out.is_file():  # the rows of agents not run now stay, each with the load it ran under
+        ran = {row["agent"] for row in rows}
+        rows = [r for r in json.loads(args.out.read_text())["results"] if r["agent"] not in ran] + rows
     print_table(rows, ["agent", "bouts", "play_s", "record_s", "ratio", "size_mb", "met"])
     write_results(args.out, machine_meta(max_mb=MAX_MB, max_ratio=MAX_RATIO), rows)
 
