@@ -38,8 +38,10 @@ SHOWS = {
 # notebook -> the runs its numbers come from and the runs they build on, each to be trained from
 # nothing (``quick``): (experiment, its variants (None: the default), seeds); those of TRAINS_HERE
 # train as they run (their committed run is their time from scratch), and the others train nothing
-TRAINS_HERE = ("01_sokoban_world_models", "04_planet_sokoban")
+TRAINS_HERE: tuple[str, ...] = ()
 TRAINS = {
+    "01_sokoban_world_models": (("sokoban-wm", (None,), (0,)),),
+    "04_planet_sokoban": (("planet-sokoban", ("unchanged",), (0,)),),
     "02_boxing_world_models": (("boxing-wm", ("separable-64",), range(10)),),
     "03_boxing_world_models_alphazero": (("boxing-wm-alphazero", ("own-memory", "own-reward"), (0,)),
                                          ("boxing-wm", ("separable-64",), (0,))),
