@@ -70,7 +70,7 @@ class Recorder:
             self.stream.log("notes", rr.TextDocument(left_out), static=True)
         self.video_path, self.video = (Path(video) if video else None), None
         self.step_index, self.pending, self.errors = 0, {}, {}
-        self.last_frame, self.plan_drawn = None, False
+        self.plan_drawn = False
 
     def blueprint(self):
         """Reality, the model's view and its imagination side by side; rewards, errors and what the
@@ -92,7 +92,7 @@ class Recorder:
     # ---------------------------------------------------------------- one bout
     def start_bout(self, bout: int) -> None:
         """A new bout: imagination reaching past the last one is dropped."""
-        self.pending, self.last_frame = {}, None
+        self.pending = {}
         self._at(self.step_index)
         self._scalar("bout", bout)
 
@@ -128,7 +128,6 @@ class Recorder:
             self._scalar(f"values/{name}", value)
         self._imagine(thought)
         self._video_frame(frame, thought.seen, arrived)
-        self.last_frame = frame
 
     def outcome(self, reward: float) -> None:
         """The real reward of the action just taken (logged at the step it arrives)."""
@@ -180,13 +179,11 @@ class Recorder:
             panels.append(predicted if predicted is not None and predicted.shape == frame.shape else blank)
         strip = np.concatenate(panels, axis=1)
         strip = np.repeat(np.repeat(strip, self.scale, axis=0), self.scale, axis=1)
-        if self.video is None:
-            import cv2
-
-            height, width = strip.shape[:2]
-            self.video = cv2.VideoWriter(str(self.video_path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (width, height))
         import cv2
 
+        if self.video is None:
+            height, width = strip.shape[:2]
+            self.video = cv2.VideoWriter(str(self.video_path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (width, height))
         self.video.write(cv2.cvtColor(np.ascontiguousarray(strip), cv2.COLOR_RGB2BGR))
 
 
