@@ -108,6 +108,10 @@ def test_the_configs_root_chooses_the_search():
     assert type(root_search(config, bandit, lambda s: (np.ones(4), 0.0), 0)) is MCTS
     gumbel = root_search(dataclasses.replace(config, root="gumbel"), bandit, lambda s: (np.ones(4), 0.0), 0)
     assert isinstance(gumbel, GumbelMCTS) and gumbel.considered == 4 and not gumbel.reuse_tree
+    assert (gumbel.gumbel_scale, gumbel.c_scale) == (1.0, 0.1)
+    tuned = root_search(dataclasses.replace(config, root="gumbel", gumbel_scale=0.0, c_scale=0.03), bandit,
+                        lambda s: (np.ones(4), 0.0), 0)
+    assert (tuned.gumbel_scale, tuned.c_scale) == (0.0, 0.03)
     with pytest.raises(ValueError, match="unknown root 'x'; valid: puct, gumbel"):
         root_search(dataclasses.replace(config, root="x"), bandit, lambda s: (np.ones(4), 0.0), 0)
 
@@ -117,6 +121,8 @@ def test_the_configs_root_chooses_the_search():
     (dict(root="gumbel", simulations=1), "at least 2 simulations, got 1"),
     (dict(root="gumbel", simulations=2.5), "an integer budget of at least 2 simulations, got 2.5"),
     (dict(root="gumbel", considered=1), "considers an integer number of actions, at least 2, got 1"),
+    (dict(root="gumbel", c_scale=0.0), "c_scale > 0, got 1.0, 0.0"),
+    (dict(root="gumbel", gumbel_scale=-1.0), "gumbel_scale >= 0"),
 ])
 def test_a_search_that_cannot_run_is_refused_when_it_is_configured(changes, says):
     from wmthesis.alphazero.config import AlphaZeroConfig
@@ -134,3 +140,28 @@ def test_a_gumbel_root_that_would_consider_more_actions_than_the_game_has_is_ref
 
     with pytest.raises(ValueError, match="at most the game's 18 actions, got 20"):
         root_search(AlphaZeroConfig(root="gumbel", considered=20), Game(), None, seed=0)
+
+
+def test_where_the_search_moved_the_heads_action_and_what_those_steps_earned():
+    """``search_changes`` on a game whose head prefers action 0 everywhere: the steps where the
+    search played another action, and each step's real return over the next steps, by hand."""
+    import torch
+
+    from wmthesis.alphazero.budget import search_changes, steps_ahead_returns
+    from wmthesis.alphazero.heads import AlphaZeroHeads
+    from wmthesis.alphazero.replay import Game
+
+    assert steps_ahead_returns(np.array([1.0, 0.0, -1.0, 2.0]), 2).tolist() == [1.0, -1.0, 1.0, 2.0]
+    heads = AlphaZeroHeads(1, 1, 3)
+    with torch.no_grad():
+        heads.policy.weight.zero_()
+        heads.policy.bias.copy_(torch.tensor([1.0, 0.0, 0.0]))
+    T = 4
+    game = Game(index=0, features=np.zeros((T, 2), np.float32), policies=np.zeros((T, 3), np.float32),
+                actions=np.array([0, 2, 0, 1]), rewards=np.array([1.0, 0.0, -1.0, 2.0], np.float32),
+                predicted_rewards=np.zeros(T, np.float32), root_values=np.zeros(T, np.float32),
+                depths=np.zeros(T, np.int16), q=np.zeros((T, 3), np.float32), terminated=True,
+                last_features=np.zeros(2, np.float32), seconds=1.0)
+    changes = search_changes(heads, [game, game], steps=2)
+    assert changes["changed"] == 0.5
+    assert changes["return_changed"] == np.mean([-1.0, 2.0]) and changes["return_kept"] == np.mean([1.0, 1.0])

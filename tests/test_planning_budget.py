@@ -59,18 +59,23 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     with open(tmp_path / "results" / "planning_budget-smoke.csv") as f:
         table = list(csv.DictReader(f))
     assert tuple(table[0]) == COLUMNS == ("planner", "game", "budget", "seed", "score", "no_search_score",
-                                          "ms_per_action")
+                                          "ms_per_action", "search", "changed", "return_changed", "return_kept")
+    for row in mcts[1:]:  # where the search moved the head's action, read from its games
+        assert 0 <= row["changed"] <= 1 and row["search"] == "puct"
+        assert (row["return_changed"] is not None) == (row["changed"] > 0)
     assert [(r["planner"], r["game"], int(r["budget"])) for r in table] == \
         [("cem", "boxing", r["budget"]) for r in cem] + [("mcts", "boxing", b) for b in (0, *sizes.mcts_budgets)] + \
         [("sokoban-search", "boxoban-medium", b) for b in (0, *sizes.sokoban_budgets)]
     saved = sorted((tmp_path / "smoke" / "planning-budget" / "seed0").glob("budget-*.json"))
-    saved += sorted((tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / ALPHAZERO.default.name).glob("*-simulations-*.pkl"))
+    saved += sorted((tmp_path / "smoke" / "planning-budget" / "seed0").glob("evaluation-own-*.pkl"),
+                    key=lambda p: int(p.name.split("-")[2]))
     assert len(saved) == 2 * len(sokoban) + len(sizes.mcts_budgets)  # Sokoban's budgets in two parts each
     stamps = [p.stat().st_mtime_ns for p in saved]
     again = reproduce("planning-budget", "smoke", 0, progress=False)
     assert again["rows"] == rows and [p.stat().st_mtime_ns for p in saved] == stamps
 
     # a budget cut off after its first game plays only the rest; one planner's new budgets keep the others' rows
+    import wmthesis.alphazero.budget as budget_games
     import wmthesis.alphazero.evaluation as evaluation
     from wmthesis.__main__ import main
     from wmthesis.alphazero.config import AlphaZeroConfig
@@ -82,10 +87,10 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
 
     last = saved[-1]  # the top MCTS budget's games
     games = read_pickle(last)
-    evaluation._save_games(last.with_name(last.stem + ".partial.pkl"), games["key"], games["games"][:1])
+    evaluation.save_games(last.with_name(last.stem + ".partial.pkl"), games["key"], games["games"][:1])
     last.unlink()
-    played, real_play = [], evaluation.play
-    monkeypatch.setattr(evaluation, "play", lambda *a, **k: played.append(a[3]) or real_play(*a, **k))
+    played, real_play = [], budget_games.play
+    monkeypatch.setattr(budget_games, "play", lambda *a, **k: played.append(a[3]) or real_play(*a, **k))
     assert main(["budget-curve", "mcts", "--budgets", f"{curve_sizes('smoke').mcts_budgets[-1]},3", "--profile", "smoke"]) == 0
     assert played == [*range(1, sizes.boxing_bouts), *range(sizes.boxing_bouts)]  # the cut budget's rest, then 3's
     after = {(r["planner"], r["budget"]): r for r in read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0"
@@ -101,18 +106,25 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
                            f"validation-{ALPHAZERO.default.name}.json")
     assert validation["variant"] == ALPHAZERO.default.name and validation["bouts"] == "validation"
     assert [r["budget"] for r in validation["rows"]] == [0, *sizes.mcts_budgets]
-    work = tmp_path / "smoke" / "boxing-wm-alphazero" / "seed0" / ALPHAZERO.default.name
+    work = tmp_path / "smoke" / "planning-budget" / "seed0"
     budget = sizes.mcts_budgets[0]
     noop_max = for_profile(AlphaZeroConfig, "smoke").noop_max  # 3 counts: 2 evaluation bouts leave 1 to validate on
     counts = {split: [noop_count(game_seeds(s)[0], noop_max) for s in read_pickle(
-        work / f"{split}-{budget}-simulations-{curve_sizes('smoke').boxing_bouts}.pkl")["key"]["seeds"]]
-        for split in ("evaluation", "validation")}
+        next(work.glob(f"{split}-own-{budget}-*.pkl")))["key"]["seeds"]] for split in ("evaluation", "validation")}
     assert len(counts["evaluation"]) == 2 and len(counts["validation"]) == 1
     assert not set(counts["validation"]) & set(counts["evaluation"])
     assert (tmp_path / "results" / "planning_budget-smoke.csv").read_text() == report
     assert read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0" / "metrics.json")["rows"] == \
         list(after.values())
     assert main(["budget-curve", "cem", "--validation", "--profile", "smoke"]) == 2
+
+    # another root on the same validation bouts: its own file, its own games, the same head alone
+    assert main(["budget-curve", "mcts", "--validation", "--profile", "smoke", "--search", "root=gumbel,c_scale=0.05"]) == 0
+    gumbel = read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0" /
+                       f"validation-{ALPHAZERO.default.name}-gumbel-c_scale=0.05.json")["rows"]
+    assert [r["search"] for r in gumbel] == ["gumbel c_scale=0.05"] * (1 + len(sizes.mcts_budgets))
+    assert gumbel[0]["score"] == validation["rows"][0]["score"]
+    assert len(list(work.glob(f"validation-gumbel-{budget}-*.pkl"))) == 1
 
 
 def test_bad_planners_and_budgets_are_refused_in_one_line_before_anything_plays(capsys):
@@ -124,7 +136,11 @@ def test_bad_planners_and_budgets_are_refused_in_one_line_before_anything_plays(
                         (["mcts", "--budgets", "16,-4"], "'-4' is negative"), (["sokoban-search", "--budgets", "1e3"], "not an integer"),
                         (["cem", "--budgets", "1x100x3"], "horizon 1 is the value alone"), (["cem", "--budgets", "6x100"], "not HxJxI"),
                         (["cem", "--budgets", "6x0x3"], "has a 0"), (["mcts", "--variant", "own-memory"], "with --validation"),
-                        (["mcts", "--validation", "--variant", "chess"], "unknown variant 'chess'")]:
+                        (["mcts", "--validation", "--variant", "chess"], "unknown variant 'chess'"),
+                        (["mcts", "--search", "root=gumbel"], "with --validation"),
+                        (["mcts", "--validation", "--search", "root=chess"], "unknown root 'chess'"),
+                        (["mcts", "--validation", "--search", "depth=3"], "is not NAME=VALUE"),
+                        (["mcts", "--validation", "--search", "root=gumbel,c_scale=0"], "c_scale > 0")]:
         assert main(["budget-curve", *argv, "--profile", "smoke"]) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err

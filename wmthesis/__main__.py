@@ -11,7 +11,7 @@
         (# wall, space floor, . target, $ box, * box on target, @ player, + player on target;
         levels after "; N" lines) or of a Boxoban source (boxoban-medium-valid:005-009);
         writes a JSON list of {level, solved, steps, actions}.
-    budget-curve PLANNER [--budgets B,...] [--profile P] [--seed S] [--validation [--variant V]]
+    budget-curve PLANNER [--budgets B,...] [--profile P] [--seed S] [--validation [--variant V] [--search S]]
         One planner's score against its search budget on the seed's trained models (mcts,
         cem, sokoban-search; `reproduce planning-budget` measures all three at the profile's
         budgets), with its row without search; resumable; rows into data/results/planning_budget.csv.
@@ -173,6 +173,9 @@ def cmd_budget_curve(args) -> int:
         from wmthesis.alphazero.variants import VARIANTS
 
         VARIANTS.check(args.variant)
+    if args.search and not args.validation:
+        raise ValueError("--search chooses the root the validation bouts measure (with --validation); the report's "
+                         "curve searches with the profile's root (BudgetCurveConfig.mcts_search)")
     if args.validation and args.planner != "mcts":
         raise ValueError(f"--validation plays MCTS's validation bouts; {args.planner} chooses on its own validation "
                          "(sokoban-search: `validate`; cem: planet-boxing-value's validation bouts)")
@@ -180,19 +183,28 @@ def cmd_budget_curve(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from wmthesis.experiments.planning_budget import mcts_validation, planning_budget
+    from wmthesis.experiments.planning_budget import mcts_validation, planning_budget, search_settings, search_tag
 
+    search = None if args.search is None else search_settings(args.profile, args.search)
     if args.validation:
-        metrics = mcts_validation(args.profile, args.seed, budgets=(budgets or {}).get("mcts"), variant=args.variant)
-        print(f"validation bouts, {metrics['variant']}:")
+        metrics = mcts_validation(args.profile, args.seed, budgets=(budgets or {}).get("mcts"), variant=args.variant,
+                                  search=search)
+        print(f"validation bouts, {metrics['variant']}, {search_tag(search or search_settings(args.profile))}:")
     else:
         metrics = planning_budget(args.profile, args.seed, planners=(args.planner,), budgets=budgets)
     for row in (r for r in metrics["rows"] if r["planner"] == args.planner):
         interval = "" if row["gain_ci_low"] is None else f" [{row['gain_ci_low']:+.1f}, {row['gain_ci_high']:+.1f}]"
         gain = "" if row["budget"] == 0 else f", gain {row['gain']:+.1f}{interval}"
+        changed = "" if row.get("changed") is None else \
+            (f", search moved the head's action on {100 * row['changed']:.0f}% of steps (next-10-step return "
+             f"{_signed(row['return_changed'])} there, {_signed(row['return_kept'])} elsewhere)")
         print(f"{args.planner} on {row['game']}, budget {row['budget']:,}: {row['score']:.1f}{gain}, "
-              f"{row['ms_per_action']:.1f} ms an action")
+              f"{row['ms_per_action']:.1f} ms an action{changed}")
     return 0
+
+
+def _signed(x: float | None) -> str:
+    return "none" if x is None else f"{x:+.2f}"
 
 
 def cmd_play(args) -> int:
@@ -363,6 +375,8 @@ def parser() -> argparse.ArgumentParser:
                              "not reported)")
     budget.add_argument("--variant", help="with --validation: the boxing-wm-alphazero variant searched (default: "
                                           "the default)")
+    budget.add_argument("--search", help="with --validation: the MCTS root's settings, e.g. root=gumbel,c_scale=0.03 "
+                                         "(root, considered, gumbel_scale, c_scale; default: the profile's)")
     budget.set_defaults(run=cmd_budget_curve)
 
     player = commands.add_parser("play", help="a trained agent plays, with no training")

@@ -19,7 +19,9 @@ from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir
 
 NO_SEARCH = 0
-COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action")
+COLUMNS = ("planner", "game", "budget", "seed", "score", "no_search_score", "ms_per_action", "search", "changed",
+           "return_changed", "return_kept")
+CHANGES = ("changed", "return_changed", "return_kept")  # MCTS: where the search moved its head's action
 
 
 
@@ -28,12 +30,15 @@ class BudgetCurveConfig:
     """The budgets each curve plays (the thesis profile's; ``quick`` and ``smoke`` override them in
     :data:`~wmthesis.config.OVERRIDES`): ``sokoban_budgets``, nodes a search may expand, on the
     first ``sokoban_levels`` Boxoban medium report levels; ``mcts_budgets``, simulations an action;
+    ``mcts_search``, the root it searches with (``(name, value)`` pairs of
+    :class:`~wmthesis.alphazero.config.AlphaZeroConfig` fields; none: the agent's own);
     ``cem_budgets``, CEM with the value's (H, J, I), H x J x I imagined steps an action (the value
     alone, H = 1, is the row without search); Boxing's curves on ``boxing_bouts`` evaluation bouts a
     seed, the same for every budget."""
     sokoban_budgets: tuple = (1_000, 5_000, 20_000, 40_000, 160_000)
     sokoban_levels: int = 1000
-    mcts_budgets: tuple = (16, 64, 256)
+    mcts_budgets: tuple = (2, 4, 8, 16, 64, 256)
+    mcts_search: tuple = ()
     boxing_bouts: int = 10
     cem_budgets: tuple = ((3, 1000, 10), (6, 1000, 10), (12, 1000, 10))
 
@@ -155,7 +160,8 @@ def read_budget_rows(profile: str, folder: Path | None = None) -> list[dict]:
         return []
     with open(path) as f:
         return [{**r, "budget": int(r["budget"]), "seed": int(r["seed"]),
-                 **{k: float(r[k]) for k in ("score", "no_search_score", "ms_per_action")}} for r in csv.DictReader(f)]
+                 **{k: float(r[k]) for k in ("score", "no_search_score", "ms_per_action")},
+                 **{k: float(r[k]) if r.get(k) else None for k in CHANGES}} for r in csv.DictReader(f)]
 
 
 def write_budget_table(profile: str) -> str:
@@ -170,12 +176,12 @@ def write_budget_table(profile: str) -> str:
     text = io.StringIO()
     writer = csv.DictWriter(text, COLUMNS, extrasaction="ignore", lineterminator="\n")
     writer.writeheader()
-    writer.writerows({**r, **{k: round(r[k], 3) for k in ("score", "no_search_score", "ms_per_action")}}
-                     for r in rows)
+    writer.writerows({**r, **{k: round(r[k], 3) for k in ("score", "no_search_score", "ms_per_action")},
+                      **{k: round(r[k], 4) for k in CHANGES if r.get(k) is not None}} for r in rows)
     name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
     with atomic_path(results / name) as tmp:
         tmp.write_text(text.getvalue())
     return text.getvalue()
 
 
-__all__ = ["BudgetCurveConfig", "COLUMNS", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
+__all__ = ["BudgetCurveConfig", "COLUMNS", "CHANGES", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "read_budget_rows", "write_budget_table", "plot_budget_curves"]

@@ -45,10 +45,12 @@ class Agent(NamedTuple):
     config: AlphaZeroConfig
     info: dict
 
-    def mind(self, simulations: int | None = None) -> AlphaZeroMind:
-        """The agent as it searched in its evaluation games (``simulations``: another budget)."""
-        config = self.config if simulations is None else dataclasses.replace(self.config, simulations=simulations)
-        return AlphaZeroMind(self.vision, self.mdp, Evaluator(self.heads), config)
+    def mind(self, simulations: int | None = None, **changes) -> AlphaZeroMind:
+        """The agent as it searched in its evaluation games (``simulations``: another budget;
+        ``changes``: other :class:`AlphaZeroConfig` fields, e.g. ``root="gumbel"``)."""
+        if simulations is not None:
+            changes["simulations"] = simulations
+        return AlphaZeroMind(self.vision, self.mdp, Evaluator(self.heads), dataclasses.replace(self.config, **changes))
 
 
 def save_agent(path: str | os.PathLike, variant: str, vae: VAE, memory, run, memory_config: MemoryConfig,

@@ -21,7 +21,8 @@ class AlphaZeroConfig:
     ``max_depth`` and ``root_actions``) and ``decision_beta`` (greedy games choose by
     :func:`~wmthesis.alphazero.selfplay.prior_and_q`, not by visit counts), ``root="gumbel"``
     (:mod:`~wmthesis.alphazero.gumbel`: the root samples ``considered`` actions and halves them, acts
-    on the survivor, and the heads learn its improved policy); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
+    on the survivor, and the heads learn its improved policy; ``gumbel_scale`` on its noise,
+    ``c_scale`` in its sigma); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
     (equal visit counts go to the higher root Q, not to the first action),
     ``value_target="n-step"`` (``n_step``-step bootstrapped targets instead of ``"monte-carlo"``
     returns) and ``reuse_tree=False``. The ``learned-reward`` variant adds ``reward_model``: the
@@ -49,6 +50,8 @@ class AlphaZeroConfig:
     decision_beta: float | None = None   # beyond the thesis: greedy games play argmax log P + beta (Q - V), not the most visited
     root: str | None = None              # beyond the thesis: "gumbel", Gumbel MuZero's root (None: the thesis's PUCT)
     considered: int | None = None        # the Gumbel root's k actions sampled (None: 16, at most the actions)
+    gumbel_scale: float = 1.0            # the Gumbel root's noise (0: the prior's top k, no sampling)
+    c_scale: float = 0.1                 # the Gumbel root's sigma: how far Q moves the prior's logits
     gamma: float = 0.99
     dirichlet_alpha: float = 0.3
     noise_ratio: float = 0.25
@@ -95,6 +98,9 @@ class AlphaZeroConfig:
             if self.considered is not None and (isinstance(self.considered, bool) or not isinstance(self.considered, int)
                                                 or self.considered < 2):
                 raise ValueError(f"a Gumbel root considers an integer number of actions, at least 2, got {self.considered!r}")
+            if not (self.gumbel_scale >= 0 and self.c_scale > 0):
+                raise ValueError(f"a Gumbel root needs gumbel_scale >= 0 and c_scale > 0, got {self.gumbel_scale!r}, "
+                                 f"{self.c_scale!r}")
 
 
 ROOTS = ("puct", "gumbel")  # the thesis's PUCT root, Gumbel MuZero's (wmthesis.alphazero.gumbel)

@@ -124,14 +124,14 @@ def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained
            "seeds": bout_seeds(split, seed, cfg.eval_episodes, cfg.noop_max),
            **({} if simulations is None else {"simulations": cfg.simulations}),
            **({} if cfg.decision_beta is None else {"decision_beta": cfg.decision_beta})}
-    cached = _cached_games(path, key)  # a missing or corrupt cache is played again
+    cached = cached_games(path, key)  # a missing or corrupt cache is played again
     if cached is not None:
         return cached
     heads = run.pretrained_heads() if pretrained else run.heads
     mind = AlphaZeroMind(vision, run.mdp(memory), Evaluator(heads), cfg)
     env = boxing_env(cfg.noop_max)
     partial = path.with_name(path.stem + ".partial.pkl")  # the games played so far: a cut-off run resumes game by game
-    games = _cached_games(partial, key) or []
+    games = cached_games(partial, key) or []
     try:
         for k, game_seed in list(enumerate(key["seeds"]))[len(games):]:
             mind.keep_frames = k == 0
@@ -139,15 +139,15 @@ def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained
             if game.frames is not None:
                 game.frames = game.frames[:RECORDING_STEPS]
             games.append(game)
-            _save_games(partial, key, games)
+            save_games(partial, key, games)
     finally:
         env.close()
-    _save_games(path, key, games)
+    save_games(path, key, games)
     partial.unlink(missing_ok=True)
     return games
 
 
-def _cached_games(path: Path, key: dict) -> list | None:
+def cached_games(path: Path, key: dict) -> list | None:
     """The games saved in ``path`` under ``key``; None where missing, corrupt or of another key."""
     try:
         cached = read_pickle(path)
@@ -156,7 +156,8 @@ def _cached_games(path: Path, key: dict) -> list | None:
         return None
 
 
-def _save_games(path: Path, key: dict, games: list) -> None:
+def save_games(path: Path, key: dict, games: list) -> None:
+    """``games`` under ``key`` in ``path``, atomically (what :func:`cached_games` reads)."""
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         pickle.dump({"key": key, "games": games}, f)
 

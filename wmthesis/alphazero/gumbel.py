@@ -171,7 +171,8 @@ def root_search(config, mdp, evaluator, seed) -> MCTS:
         if config.considered is not None and config.considered > actions:
             raise ValueError(f"a Gumbel root considers at most the game's {actions} actions, got {config.considered}")
         considered = config.considered or min(16, actions)
-        return GumbelMCTS(mdp, evaluator, considered=considered, **options)
+        return GumbelMCTS(mdp, evaluator, considered=considered, gumbel_scale=config.gumbel_scale,
+                          c_scale=config.c_scale, **options)
     return MCTS(mdp, evaluator, noise_ratio=config.noise_ratio, normalize_q=config.normalize_q,
                 reuse_tree=config.reuse_tree, root_actions=config.root_actions, **options)
 

@@ -12,12 +12,11 @@ Writes the run's ``metrics.json`` and every seed's rows of the profile
 (:mod:`wmthesis.budget_curves`)."""
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
 
-from wmthesis.alphazero.evaluation import evaluation_games, policy_head_games, trained_run
+from wmthesis.alphazero.budget import head_games, search_changes, searched_games
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
 from wmthesis.budget_curves import BudgetCurveConfig, PLANNERS, check_planners, plot_budget_curves, write_budget_table
 from wmthesis.config import for_profile, profile_name
@@ -63,17 +62,19 @@ def planning_budget(profile: str | None = None, seed: int = 0, variant: str | No
 
 
 def mcts_validation(profile: str | None = None, seed: int = 0, progress: bool = True,
-                    budgets: tuple | None = None, variant: str | None = None) -> dict:
-    """The MCTS curve (:func:`mcts_curve`) of ``variant`` (default: the default) on the validation
-    bouts, the evidence a choice of the search, its variant or its budget is made on: written to the
-    run's ``validation-<variant>.json``, never to the report's rows, the CSV or the summary.
-    Resumable bout by bout."""
+                    budgets: tuple | None = None, variant: str | None = None, search: dict | None = None) -> dict:
+    """The MCTS curve (:func:`mcts_curve`) of ``variant`` (default: the default) with the root
+    ``search`` (default: the profile's) on the validation bouts, the evidence a choice of the
+    search, its variant, its root or its budget is made on: written to the run's
+    ``validation-<variant>.json`` (``validation-<variant>-<search>.json`` for another root than the
+    profile's), never to the report's rows, the CSV or the summary. Resumable bout by bout."""
     profile, started = profile_name(profile), time.time()
     variant = ALPHAZERO.check(variant).name
-    rows = mcts_curve(profile, seed, progress, budgets, split="validation", variant=variant)
+    rows = mcts_curve(profile, seed, progress, budgets, split="validation", variant=variant, search=search)
     result = {**run_header("planning-budget", profile, seed, time.time() - started,
                            variant=variant, bouts="validation"), "rows": rows}
-    write_json(results_folder("planning-budget", profile, seed) / f"validation-{variant}.json", result)
+    name = variant if search is None else f"{variant}-{search_tag(search).replace(' ', '-')}"
+    write_json(results_folder("planning-budget", profile, seed) / f"validation-{name}.json", result)
     return result
 
 
@@ -110,24 +111,68 @@ def sokoban_curve(profile: str, seed: int, progress: bool, budgets: tuple | None
 
 
 def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None,
-               split: str = "evaluation", variant: str | None = None) -> list[dict]:
-    """MCTS in the World Models memory on Boxing: the policy head alone (budget 0) of ``variant``
-    (default: the default variant), then its search under each number of simulations of
-    ``budgets`` (default the profile's ``mcts_budgets``), on the same ``boxing_bouts``
-    bouts of ``split`` (``"validation"``: games none of the evaluation bouts plays, to choose on)."""
-    name = variant or ALPHAZERO.default.name
-    built_on("boxing-wm-alphazero", profile, seed, name, progress)
-    work = work_folder(profile, "boxing-wm-alphazero", seed)
-    run, vision, memory, cfg = trained_run(work_folder(profile, "boxing-wm", seed), work, name)
-    cfg = dataclasses.replace(cfg, eval_episodes=curve_sizes(profile).boxing_bouts)
-    head = policy_head_games(run, vision, memory, cfg, work / name, seed, split)
+               split: str = "evaluation", variant: str | None = None, search: dict | None = None) -> list[dict]:
+    """MCTS in the World Models memory on Boxing, on the loaded agent of ``variant`` (default: the
+    default; trained first where it is not there): its policy head alone (budget 0), then its search
+    under each number of simulations of ``budgets`` (default the profile's ``mcts_budgets``) with the
+    root ``search`` (default the profile's ``mcts_search``: :func:`search_settings`), on the same
+    ``boxing_bouts`` bouts of ``split`` (``"validation"``: games none of the evaluation bouts plays,
+    to choose on). Each searched row adds where the search moved the head's action
+    (:func:`~wmthesis.alphazero.budget.search_changes`)."""
+    sizes = curve_sizes(profile)
+    search = search_settings(profile) if search is None else dict(search)
+    agent = alphazero_agent(profile, seed, variant, progress)
+    folder, bouts = work_folder(profile, "planning-budget", seed), sizes.boxing_bouts
+    head = head_games(agent, split, bouts, folder)
     without = np.array(head["returns"])
-    rows = [_row("mcts", "boxing", NO_SEARCH, seed, without, without, head["ms_per_action"])]
-    for budget in budgets or curve_sizes(profile).mcts_budgets:
-        games = evaluation_games(run, vision, memory, cfg, work / name, seed, simulations=budget, split=split)
+    tag = search_tag(search)
+    rows = [{**_row("mcts", "boxing", NO_SEARCH, seed, without, without, head["ms_per_action"]), "search": tag}]
+    for budget in budgets or sizes.mcts_budgets:
+        games = searched_games(agent, budget, split, bouts, folder, progress, **search)
         ms = 1000 * sum(g.seconds for g in games) / max(1, sum(len(g.actions) for g in games))
-        rows.append(_row("mcts", "boxing", budget, seed, np.array([g.score for g in games]), without, ms))
+        rows.append({**_row("mcts", "boxing", budget, seed, np.array([g.score for g in games]), without, ms),
+                     "search": tag, **search_changes(agent.heads, games)})
     return rows
+
+
+def search_settings(profile: str | None, text: str | None = None) -> dict:
+    """The search's root settings: ``text`` (``"root=gumbel,c_scale=0.03"``: fields of
+    :class:`~wmthesis.alphazero.config.AlphaZeroConfig`), or the profile's ``mcts_search``;
+    ValueError in one line for a field that is not the root's or a value it refuses."""
+    from wmthesis.alphazero.config import AlphaZeroConfig
+
+    pairs = curve_sizes(profile).mcts_search if text is None else \
+        [item.split("=", 1) for item in text.split(",") if item.strip()]
+    settings = {}
+    for pair in pairs:
+        if len(pair) != 2 or pair[0].strip() not in SEARCH_FIELDS:
+            raise ValueError(f"search setting {'='.join(pair)!r} is not NAME=VALUE of {', '.join(SEARCH_FIELDS)}")
+        name, value = pair[0].strip(), str(pair[1]).strip()
+        settings[name] = value if name == "root" else int(value) if name == "considered" else float(value)
+    AlphaZeroConfig(simulations=2, **settings)  # refuses an unknown root or a setting it cannot run with
+    return settings
+
+
+SEARCH_FIELDS = ("root", "considered", "gumbel_scale", "c_scale")
+
+
+def search_tag(search: dict) -> str:
+    """A search's settings in a row: ``"puct"`` (the agent's own) or ``"gumbel c_scale=0.03"``."""
+    rest = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in search.items() if k != "root")
+    return " ".join(filter(None, [search.get("root", "puct"), rest]))
+
+
+def alphazero_agent(profile: str, seed: int, variant: str | None, progress: bool):
+    """``boxing-wm-alphazero``'s loaded agent of ``variant`` (default: the default), trained first
+    where its file is not there."""
+    from wmthesis.agents import load
+
+    name = ALPHAZERO.check(variant).name
+    try:
+        return load("boxing-wm-alphazero", variant=name, profile=profile, seed=seed)
+    except FileNotFoundError:
+        built_on("boxing-wm-alphazero", profile, seed, name, progress)
+        return load("boxing-wm-alphazero", variant=name, profile=profile, seed=seed)
 
 
 def cem_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
@@ -157,4 +202,5 @@ def _row(planner: str, game: str, budget: int, seed: int, scores: np.ndarray, wi
             "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(scores)}
 
 
-__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "mcts_validation", "cem_curve", "curve_sizes"]
+__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "mcts_validation", "cem_curve", "curve_sizes",
+           "search_settings", "search_tag", "alphazero_agent", "SEARCH_FIELDS"]
