@@ -42,11 +42,13 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 from pathlib import Path
 
-from wmthesis.config import ATARI_ENVIRONMENTS, PLANNERS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, for_profile
-from wmthesis.runs import FolderHeld, write_json
+from wmthesis.config import (ATARI_ENVIRONMENTS, PLANNERS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, check_storage,
+                             for_profile)
+from wmthesis.runs import DiskFull, FolderHeld, check_writable, write_json
 from wmthesis.utils import data_dir
 
 
@@ -80,6 +82,8 @@ def cmd_collect(args) -> int:
     max_steps = args.max_steps if args.max_steps is not None else cfg.max_steps
     preprocessing = args.preprocessing or ("world_models" if args.env in ATARI_ENVIRONMENTS else None)
     out = Path(args.out) if args.out else default_store_path(args.env, preprocessing)
+    if args.out:  # the user's path, checked before anything plays (the default folder is made)
+        check_writable(out, ".h5", make_folder=True)
     workers = cfg.workers if args.workers is None else args.workers
     path = collect(args.env, episodes, out, workers=workers, seed=args.seed,
                    preprocessing=preprocessing, max_steps=max_steps)
@@ -146,6 +150,8 @@ def cmd_solve_sokoban(args) -> int:
     from wmthesis.sokoban_search.iteration import evaluation_search, load_run
 
     profile = profile_name(args.profile)
+    if args.out:  # the user's path, checked before any level is played
+        check_writable(args.out, ".json")
     boards = load_levels(args.levels)
     folder = work_folder(profile, args.seed) / "pixels"
     run = load_run(folder)
@@ -163,7 +169,7 @@ def cmd_solve_sokoban(args) -> int:
 
 
 def cmd_budget_curve(args) -> int:
-    from wmthesis.budget_curves import check_planners, parse_budgets
+    from wmthesis.budget_curves import check_planners, parse_budgets, row_line
 
     check_planners([args.planner])  # bad input refused before anything loads or plays
     if args.variant and not args.validation:
@@ -183,7 +189,8 @@ def cmd_budget_curve(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from wmthesis.experiments.planning_budget import mcts_validation, planning_budget, search_settings, search_tag
+    from wmthesis.alphazero.budget import search_settings, search_tag
+    from wmthesis.experiments.planning_budget import mcts_validation, planning_budget
 
     search = None if args.search is None else search_settings(args.profile, args.search)
     if args.validation:
@@ -193,18 +200,8 @@ def cmd_budget_curve(args) -> int:
     else:
         metrics = planning_budget(args.profile, args.seed, planners=(args.planner,), budgets=budgets)
     for row in (r for r in metrics["rows"] if r["planner"] == args.planner):
-        interval = "" if row["gain_ci_low"] is None else f" [{row['gain_ci_low']:+.1f}, {row['gain_ci_high']:+.1f}]"
-        gain = "" if row["budget"] == 0 else f", gain {row['gain']:+.1f}{interval}"
-        changed = "" if row.get("changed") is None else \
-            (f", search moved the head's action on {100 * row['changed']:.0f}% of steps (next-10-step return "
-             f"{_signed(row['return_changed'])} there, {_signed(row['return_kept'])} elsewhere)")
-        print(f"{args.planner} on {row['game']}, budget {row['budget']:,}: {row['score']:.1f}{gain}, "
-              f"{row['ms_per_action']:.1f} ms an action{changed}")
+        print(row_line(row))
     return 0
-
-
-def _signed(x: float | None) -> str:
-    return "none" if x is None else f"{x:+.2f}"
 
 
 def cmd_play(args) -> int:
@@ -241,17 +238,6 @@ def cmd_evaluate_sokoban(args) -> int:
     result = evaluate_report(args.profile, args.seed, args.levels)
     print(solved_line(f"pixel agent (seed {args.seed}), report files", result["rows"]))
     return 0
-
-
-STORAGE_SCHEMES = ("sqlite", "postgresql", "mysql")  # the databases optuna's RDB storage speaks
-
-
-def check_storage(url: str | None) -> None:
-    """A ``--storage`` URL of a database optuna stores studies in; ValueError naming those otherwise."""
-    scheme = url.split("://", 1)[0].split("+", 1)[0] if url and "://" in url else None
-    if url is not None and scheme not in STORAGE_SCHEMES:
-        raise ValueError(f"--storage {url!r}: name a database URL of {', '.join(s + '://...' for s in STORAGE_SCHEMES)} "
-                         "(e.g. sqlite:///data/search/mine.db)")
 
 
 def cmd_search(args) -> int:
@@ -444,7 +430,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         return args.run(args)
+    except DiskFull as error:  # nothing partial is left behind: the run resumes once there is space
+        print(f"error: {error.strerror}", file=sys.stderr)
+        return 1
     except (ValueError, TypeError, OSError, FolderHeld) as error:  # bad input: a clear message, no traceback
+        if isinstance(error, OSError) and error.errno == errno.ENOSPC:
+            print(f"error: no space left on {error.filename or 'the disk'}: {error}", file=sys.stderr)
+            return 1
         print(f"error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # every step a run finished is on disk: running it again resumes after it

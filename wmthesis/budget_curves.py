@@ -138,6 +138,19 @@ def budget_table(rows: list[dict]) -> list[dict]:
     return out
 
 
+def row_line(row: dict) -> str:
+    """One row of a curve as the command line prints it: the score, the paired gain over no
+    search with its interval, the time an action and, for MCTS, where the search moved its head."""
+    interval = "" if row["gain_ci_low"] is None else f" [{row['gain_ci_low']:+.1f}, {row['gain_ci_high']:+.1f}]"
+    gain = "" if row["budget"] == NO_SEARCH else f", gain {row['gain']:+.1f}{interval}"
+    signed = lambda x: "none" if x is None else f"{x:+.2f}"  # noqa: E731
+    changed = "" if row.get("changed") is None else \
+        (f", search moved the head's action on {100 * row['changed']:.0f}% of steps (next-10-step return "
+         f"{signed(row['return_changed'])} there, {signed(row['return_kept'])} elsewhere)")
+    return (f"{row['planner']} on {row['game']}, budget {row['budget']:,}: {row['score']:.1f}{gain}, "
+            f"{row['ms_per_action']:.1f} ms an action{changed}")
+
+
 def budget_markdown(rows: list[dict]) -> str:
     """:func:`budget_table` of ``rows`` as markdown (an empty string without rows)."""
     if not rows:
@@ -184,4 +197,4 @@ def write_budget_table(profile: str) -> str:
     return text.getvalue()
 
 
-__all__ = ["BudgetCurveConfig", "COLUMNS", "CHANGES", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
+__all__ = ["BudgetCurveConfig", "COLUMNS", "CHANGES", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "row_line", "read_budget_rows", "write_budget_table", "plot_budget_curves"]

@@ -102,6 +102,17 @@ OVERRIDES: dict[str, dict[str, dict]] = {
 }
 
 
+STORAGE_SCHEMES = ("sqlite", "postgresql", "mysql")  # the databases optuna's RDB storage speaks
+
+
+def check_storage(url: str | None) -> None:
+    """A ``--storage`` URL of a database optuna stores studies in; ValueError naming those otherwise."""
+    scheme = url.split("://", 1)[0].split("+", 1)[0] if url and "://" in url else None
+    if url is not None and scheme not in STORAGE_SCHEMES:
+        raise ValueError(f"--storage {url!r}: name a database URL of {', '.join(s + '://...' for s in STORAGE_SCHEMES)} "
+                         "(e.g. sqlite:///data/search/mine.db)")
+
+
 def profile_name(name: str | None = None) -> str:
     """The profile to use: `name` if given, else ``$WMTHESIS_PROFILE``, else ``quick``."""
     name = name or os.environ.get("WMTHESIS_PROFILE") or DEFAULT_PROFILE

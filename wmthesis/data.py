@@ -39,7 +39,7 @@ import hdf5plugin
 import numpy as np
 import torch
 
-from wmthesis.runs import atomic_path
+from wmthesis.runs import atomic_path, check_space
 from wmthesis.utils import check_choice
 
 FORMAT = "wmthesis-episodes"
@@ -206,7 +206,10 @@ class EpisodeStore:
         if not -len(self) <= index < len(self):
             raise IndexError(f"{self.path}: episode {index} out of range ({len(self)} episodes)")
         rows = slice(int(self._starts[index]), int(self._ends[index]))
-        return {name: dataset[rows] for name, dataset in self._data.items()}
+        try:
+            return {name: dataset[rows] for name, dataset in self._data.items()}
+        except OSError as error:
+            raise self._corrupt(f"episode {index}", error) from None
 
     def sample_chunks(self, batch: int, length: int, generator: np.random.Generator,
                       episodes=None) -> dict[str, torch.Tensor]:
@@ -222,10 +225,18 @@ class EpisodeStore:
         observations = np.empty((batch, length, *self.obs_shape), np.uint8)
         for b in np.argsort(rows, kind="stable"):  # file order: neighbouring chunks stay cached
             source = np.s_[int(rows[b]):int(rows[b]) + length]
-            self._data["observations"].read_direct(observations, source, np.s_[b])
+            try:
+                self._data["observations"].read_direct(observations, source, np.s_[b])
+            except OSError as error:
+                raise self._corrupt(f"steps {int(rows[b])}-{int(rows[b]) + length - 1}", error) from None
         steps = rows[:, None] + np.arange(length)
         out = {name: torch.from_numpy(array[steps]) for name, array in self._scalars().items()}
         return {"observations": torch.from_numpy(observations), **out}
+
+    def _corrupt(self, what: str, error: OSError) -> "StoreError":
+        """The :class:`StoreError` of a read that HDF5 could not decode."""
+        return StoreError(f"{self.path}: cannot read {what} ({error}); the file is damaged: "
+                          "delete it and collect again")
 
     def _scalars(self) -> dict[str, np.ndarray]:
         """Actions, rewards and terminals of every row, kept in memory once read (13 bytes a
@@ -249,6 +260,8 @@ class EpisodeStore:
             raise ValueError(f"{self.path}: opened read-only; use mode='a' to append")
         episode = self._validated(observations, actions, rewards, terminals)
         steps = len(episode["actions"])
+        check_space(self.path.parent, sum(a.nbytes for a in episode.values()),
+                    f"episode {len(self)} of {self.path.name} (the {len(self)} before it are kept)")
         start = int(_align(self._ends[-1], self.chunk_steps)) if len(self) else 0
         rows = int(_align(start + steps, self.chunk_steps))
         for name, data in episode.items():
@@ -284,6 +297,9 @@ class EpisodeStore:
             raise ValueError(f"{self.path}: episode actions have dtype {actions.dtype}, expected integers")
         if rewards.dtype.kind not in "iuf":
             raise ValueError(f"{self.path}: episode rewards have dtype {rewards.dtype}, expected numbers")
+        if rewards.dtype.kind == "f" and not np.isfinite(rewards).all():
+            raise ValueError(f"{self.path}: episode rewards hold NaN or infinity "
+                             f"(step {int(np.argmin(np.isfinite(rewards)))} of {steps})")
         if terminals.dtype != np.bool_:
             raise ValueError(f"{self.path}: episode terminals have dtype {terminals.dtype}, expected bool")
         if terminals[:-1].any():

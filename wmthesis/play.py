@@ -21,20 +21,15 @@ import numpy as np
 from wmthesis.agents import agent_file
 from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.declarations import AGENTS as PLAYABLE
+from wmthesis.runs import check_writable
 from wmthesis.utils import check_choice
 
 
 def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
-    """``path`` for a recording or video if it can be written (a file ending in ``suffix`` in a
-    folder that exists and is writable); ValueError naming it otherwise, before anything plays."""
-    if path is None:
-        return None
-    path = Path(path)
-    if path.suffix != suffix:
-        raise ValueError(f"{path}: name a {suffix} file")
-    if path.is_dir() or not path.parent.is_dir() or not os.access(path.parent, os.W_OK):
-        raise ValueError(f"{path} cannot be written: its folder {path.parent} is missing or not writable")
-    return path
+    """``path`` for a recording or video if it can be written (:func:`~wmthesis.runs.check_writable`:
+    a file ending in ``suffix`` in a folder that takes a new file); ValueError naming it otherwise,
+    before anything plays."""
+    return None if path is None else check_writable(path, suffix)
 
 
 def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant: str | None = None, bouts: int = 10,

@@ -11,11 +11,14 @@ cut off resumes where it stopped.
 from __future__ import annotations
 
 import atexit
+import errno
 import functools
 import json
 import os
 import platform
+import shutil
 import sys
+import tempfile
 from collections.abc import Callable
 from contextlib import contextmanager
 from datetime import date, datetime, timezone
@@ -56,11 +59,70 @@ def built_on(experiment: str, profile: str, seed: int, variant: str | None = Non
 
 
 # ----------------------------------------------------------------------------- files written whole
+class DiskFull(OSError):
+    """No space left on the folder a file was being written to (errno ENOSPC): the file was not
+    written, and every earlier file is intact."""
+
+    def __init__(self, folder: str | os.PathLike, what: str):
+        super().__init__(errno.ENOSPC, f"no space left on {folder}: {what}; free some space and run it again")
+
+
+MIN_FREE_BYTES = 1 << 20  # below this a failed write is read as a full disk (torch and HDF5 hide ENOSPC)
+
+
+def is_disk_full(error: BaseException, folder: str | os.PathLike) -> bool:
+    """Whether ``error``, raised while writing into ``folder``, is a full disk: ENOSPC, a message
+    that says so, or any failed write on a folder with less than :data:`MIN_FREE_BYTES` free."""
+    if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    if "no space left" in str(error).lower():
+        return True
+    try:
+        return shutil.disk_usage(folder).free < MIN_FREE_BYTES
+    except OSError:
+        return False
+
+
+def check_space(folder: str | os.PathLike, need: int, what: str) -> None:
+    """:class:`DiskFull` naming ``folder`` where it has fewer than ``need`` bytes free (plus
+    :data:`MIN_FREE_BYTES`): checked before a write that cannot be undone cleanly (an HDF5 append)."""
+    free = shutil.disk_usage(folder).free
+    if free < need + MIN_FREE_BYTES:
+        raise DiskFull(folder, f"{what} needs about {need / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free")
+
+
+def check_writable(path: str | os.PathLike, suffix: str | None = None, make_folder: bool = False) -> Path:
+    """``path`` if a file can be written there: it ends in ``suffix`` (where given), is not a
+    folder, and its folder exists (``make_folder``: is made) and takes a new file (tried: a
+    read-only mount or ``/proc`` passes ``os.access`` as root). ValueError naming the user's path
+    otherwise, before any work."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path} is a folder: name a file in it")
+    if suffix is not None and path.suffix != suffix:
+        raise ValueError(f"{path}: name a {suffix} file")
+    if make_folder:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise ValueError(f"{path}: cannot create its folder ({error.strerror}); choose a folder you can write") from None
+    if not path.parent.is_dir():
+        raise ValueError(f"{path} cannot be written: its folder {path.parent} does not exist")
+    try:
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.probe"):
+            pass
+    except OSError as error:
+        raise ValueError(f"{path} cannot be written: its folder {path.parent} takes no new file "
+                         f"({error.strerror or error})") from None
+    return path
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path next to ``path``; move it into place only if the block succeeds.
 
-    A crash mid-write leaves the previous file (if any) untouched.
+    A crash mid-write leaves the previous file (if any) untouched, and no partial file behind;
+    a write that fails on a full disk raises :class:`DiskFull` naming the folder.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -68,6 +130,10 @@ def atomic_path(path: str | os.PathLike):
     try:
         yield tmp
         os.replace(tmp, path)
+    except Exception as error:
+        if not isinstance(error, DiskFull) and is_disk_full(error, path.parent):
+            raise DiskFull(path.parent, f"{path.name} was not written") from error
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -348,7 +414,8 @@ def _alive(pid) -> bool:
     return True
 
 
-__all__ = ["work_folder", "results_folder", "register_runner", "built_on", "atomic_path", "write_json", "read_json", "jsonable", "cached",
+__all__ = ["work_folder", "results_folder", "register_runner", "built_on", "DiskFull", "MIN_FREE_BYTES", "is_disk_full",
+           "check_space", "check_writable", "atomic_path", "write_json", "read_json", "jsonable", "cached",
            "run_header", "first_run_seconds", "cached_for", "played_bouts", "played_groups", "partial_path",
            "run_jobs", "LOCK_NAME", "FolderHeld", "hold", "release", "releasing_holds", "save_agent_file",
            "read_agent_file"]

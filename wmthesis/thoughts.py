@@ -51,6 +51,9 @@ class Thought:
     plan: np.ndarray | None = None
 
 
+SPACE_CHECK_STEPS = 64  # the recorder checks the disk for the next this many steps' frames
+
+
 class Recorder:
     """A rerun recording (and optionally an mp4) of bouts, written step by step (module docstring).
 
@@ -70,7 +73,7 @@ class Recorder:
             self.stream.log("notes", rr.TextDocument(left_out), static=True)
         self.video_path, self.video = (Path(video) if video else None), None
         self.step_index, self.pending, self.errors = 0, {}, {}
-        self.plan_drawn = False
+        self.plan_drawn = self.closed = False
 
     def blueprint(self):
         """Reality, the model's view and its imagination side by side; rewards, errors and what the
@@ -128,6 +131,8 @@ class Recorder:
             self._scalar(f"values/{name}", value)
         self._imagine(thought)
         self._video_frame(frame, thought.seen, arrived)
+        if self.step_index % SPACE_CHECK_STEPS == 0:
+            self._check_space(frame)
 
     def outcome(self, reward: float) -> None:
         """The real reward of the action just taken (logged at the step it arrives)."""
@@ -146,6 +151,8 @@ class Recorder:
     def close(self) -> dict:
         """Flush what was recorded (a valid recording, however the bout ended): the mean error of
         imagination per imagined step and the steps recorded."""
+        if self.closed:  # removed on a full disk
+            return {"steps": self.step_index, "errors": {}}
         self.stream.flush()
         self.stream.disconnect()
         if self.video is not None:
@@ -153,6 +160,26 @@ class Recorder:
         return {"steps": self.step_index, "errors": {j: float(np.mean(e)) for j, e in sorted(self.errors.items())}}
 
     # ---------------------------------------------------------------- helpers
+    def _check_space(self, frame: np.ndarray) -> None:
+        """:class:`~wmthesis.runs.DiskFull` naming the folder where the next steps may not fit
+        (rerun and opencv drop a failed write silently); the recording and the video, which would
+        end half-written, are removed."""
+        from wmthesis.runs import DiskFull, check_space
+
+        need = SPACE_CHECK_STEPS * (2 + self.horizon) * np.asarray(frame).nbytes
+        try:
+            for path in filter(None, (self.path, self.video_path)):
+                check_space(path.parent, need, f"{path.name} was not written (stopped at step {self.step_index})")
+        except DiskFull:
+            self.stream.disconnect()
+            if self.video is not None:
+                self.video.release()
+            for path in filter(None, (self.path, self.video_path)):
+                path.unlink(missing_ok=True)
+            self.video = self.video_path = None
+            self.closed = True
+            raise
+
     def _imagine(self, thought: Thought) -> None:
         frames, rewards = thought.imagined, thought.imagined_rewards
         count = max(max(frames, default=0), len(rewards) if rewards is not None else 0)
@@ -184,6 +211,8 @@ class Recorder:
         if self.video is None:
             height, width = strip.shape[:2]
             self.video = cv2.VideoWriter(str(self.video_path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (width, height))
+            if not self.video.isOpened():
+                raise OSError(f"{self.video_path}: opencv cannot write an mp4 there")
         self.video.write(cv2.cvtColor(np.ascontiguousarray(strip), cv2.COLOR_RGB2BGR))
 
 

@@ -176,8 +176,14 @@ def markdown_table(rows: Sequence[Sequence], headers: Sequence[str]) -> str:
 
 
 def save_figure(fig, path: str | Path, dpi: int = 80) -> Path:
-    """Write ``fig`` to ``path`` (at the modest DPI the committed notebooks use) and close it."""
+    """Write ``fig`` to ``path`` (at the modest DPI the committed notebooks use), whole
+    (:func:`~wmthesis.runs.atomic_path`), and close it."""
+    from wmthesis.runs import atomic_path
+
     path = Path(path)
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+    finally:
+        plt.close(fig)
     return path

@@ -16,7 +16,8 @@ import time
 
 import numpy as np
 
-from wmthesis.alphazero.budget import head_games, search_changes, searched_games
+from wmthesis.alphazero.budget import (alphazero_agent, head_games, search_changes, search_settings, search_tag,
+                                      searched_games)
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
 from wmthesis.budget_curves import BudgetCurveConfig, PLANNERS, check_planners, plot_budget_curves, write_budget_table
 from wmthesis.config import for_profile, profile_name
@@ -115,7 +116,7 @@ def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = 
     """MCTS in the World Models memory on Boxing, on the loaded agent of ``variant`` (default: the
     default; trained first where it is not there): its policy head alone (budget 0), then its search
     under each number of simulations of ``budgets`` (default the profile's ``mcts_budgets``) with the
-    root ``search`` (default the profile's ``mcts_search``: :func:`search_settings`), on the same
+    root ``search`` (default the profile's ``mcts_search``: :func:`~wmthesis.alphazero.budget.search_settings`), on the same
     ``boxing_bouts`` bouts of ``split`` (``"validation"``: games none of the evaluation bouts plays,
     to choose on). Each searched row adds where the search moved the head's action
     (:func:`~wmthesis.alphazero.budget.search_changes`)."""
@@ -133,46 +134,6 @@ def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = 
         rows.append({**_row("mcts", "boxing", budget, seed, np.array([g.score for g in games]), without, ms),
                      "search": tag, **search_changes(agent.heads, games)})
     return rows
-
-
-def search_settings(profile: str | None, text: str | None = None) -> dict:
-    """The search's root settings: ``text`` (``"root=gumbel,c_scale=0.03"``: fields of
-    :class:`~wmthesis.alphazero.config.AlphaZeroConfig`), or the profile's ``mcts_search``;
-    ValueError in one line for a field that is not the root's or a value it refuses."""
-    from wmthesis.alphazero.config import AlphaZeroConfig
-
-    pairs = curve_sizes(profile).mcts_search if text is None else \
-        [item.split("=", 1) for item in text.split(",") if item.strip()]
-    settings = {}
-    for pair in pairs:
-        if len(pair) != 2 or pair[0].strip() not in SEARCH_FIELDS:
-            raise ValueError(f"search setting {'='.join(pair)!r} is not NAME=VALUE of {', '.join(SEARCH_FIELDS)}")
-        name, value = pair[0].strip(), str(pair[1]).strip()
-        settings[name] = value if name == "root" else int(value) if name == "considered" else float(value)
-    AlphaZeroConfig(simulations=2, **settings)  # refuses an unknown root or a setting it cannot run with
-    return settings
-
-
-SEARCH_FIELDS = ("root", "considered", "gumbel_scale", "c_scale")
-
-
-def search_tag(search: dict) -> str:
-    """A search's settings in a row: ``"puct"`` (the agent's own) or ``"gumbel c_scale=0.03"``."""
-    rest = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in search.items() if k != "root")
-    return " ".join(filter(None, [search.get("root", "puct"), rest]))
-
-
-def alphazero_agent(profile: str, seed: int, variant: str | None, progress: bool):
-    """``boxing-wm-alphazero``'s loaded agent of ``variant`` (default: the default), trained first
-    where its file is not there."""
-    from wmthesis.agents import load
-
-    name = ALPHAZERO.check(variant).name
-    try:
-        return load("boxing-wm-alphazero", variant=name, profile=profile, seed=seed)
-    except FileNotFoundError:
-        built_on("boxing-wm-alphazero", profile, seed, name, progress)
-        return load("boxing-wm-alphazero", variant=name, profile=profile, seed=seed)
 
 
 def cem_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
@@ -202,5 +163,4 @@ def _row(planner: str, game: str, budget: int, seed: int, scores: np.ndarray, wi
             "gain_ci_low": gain["ci_low"], "gain_ci_high": gain["ci_high"], "levels": len(scores)}
 
 
-__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "mcts_validation", "cem_curve", "curve_sizes",
-           "search_settings", "search_tag", "alphazero_agent", "SEARCH_FIELDS"]
+__all__ = ["planning_budget", "sokoban_curve", "mcts_curve", "mcts_validation", "cem_curve", "curve_sizes"]

@@ -1,0 +1,130 @@
+"""A full disk, an unwritable output and a damaged store: one line, nothing half-written left
+behind, every earlier file intact. The full disk is injected (ENOSPC raised by a write, or the
+folder's free space reported as none): this machine cannot mount a small filesystem."""
+import errno
+import json
+import shutil
+import time
+from collections import namedtuple
+
+import numpy as np
+import pytest
+
+import wmthesis.runs as runs
+from wmthesis.runs import DiskFull, atomic_path, check_writable, write_json
+
+Usage = namedtuple("Usage", "total used free")
+
+
+def no_space(monkeypatch):
+    """Every folder reports no free space from now on (where the runs module asks)."""
+    monkeypatch.setattr(runs.shutil, "disk_usage", lambda folder: Usage(1 << 30, 1 << 30, 0))
+
+
+def test_a_write_that_fails_on_a_full_disk_names_the_folder_and_leaves_the_earlier_file(tmp_path, monkeypatch):
+    path = write_json(tmp_path / "metrics.json", {"score": 1})
+    with pytest.raises(DiskFull, match=f"no space left on {tmp_path}: metrics.json was not written") as raised:
+        with atomic_path(path) as tmp:
+            tmp.write_text('{"score": ')
+            raise OSError(errno.ENOSPC, "No space left on device")
+    assert raised.value.errno == errno.ENOSPC
+    assert json.loads(path.read_text()) == {"score": 1} and [p.name for p in tmp_path.iterdir()] == ["metrics.json"]
+
+    import torch  # torch hides ENOSPC behind "basic_ios::clear: iostream error": the free space tells
+
+    no_space(monkeypatch)
+    with pytest.raises(DiskFull, match="weights.pt was not written"):
+        with atomic_path(tmp_path / "weights.pt") as tmp:
+            torch.save({"w": torch.zeros(3)}, tmp)
+            raise RuntimeError("basic_ios::clear: iostream error")
+    assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]
+    with pytest.raises(ValueError, match="not a full disk"):  # other errors stay what they are
+        monkeypatch.setattr(runs.shutil, "disk_usage", lambda folder: Usage(1 << 30, 0, 1 << 30))
+        with atomic_path(tmp_path / "x.json"):
+            raise ValueError("not a full disk")
+
+
+def test_collect_onto_a_full_disk_is_one_line_exit_1_and_keeps_the_episodes_before(tmp_path, monkeypatch, capsys):
+    from wmthesis.__main__ import main
+    from wmthesis.data import EpisodeStore
+
+    out = tmp_path / "store.h5"
+    assert main(["collect", "sokoban-small", "--episodes", "2", "--workers", "1", "--out", str(out),
+                 "--profile", "smoke"]) == 0
+    capsys.readouterr()
+    no_space(monkeypatch)
+    assert main(["collect", "sokoban-small", "--episodes", "4", "--workers", "1", "--out", str(out),
+                 "--profile", "smoke"]) == 1
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip() and "collect sokoban-small" not in line]  # the bar aside
+    assert len(lines) == 1 and f"no space left on {tmp_path}: episode 2 of store.h5" in lines[0], err
+    assert "MiB are free" in err and "Traceback" not in err
+    with EpisodeStore(out) as store:
+        assert len(store) == 2  # the earlier episodes, whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["store.h5"]
+
+
+def test_a_recording_onto_a_full_disk_stops_and_leaves_no_half_file(tmp_path, monkeypatch):
+    from wmthesis.thoughts import SPACE_CHECK_STEPS, Recorder
+
+    recorder = Recorder(tmp_path / "bout.rrd", horizon=2, video=tmp_path / "bout.mp4")
+    frame = np.zeros((16, 16, 3), np.uint8)
+    for _ in range(SPACE_CHECK_STEPS):
+        recorder.step(frame)
+        recorder.outcome(0.0)
+    no_space(monkeypatch)
+    with pytest.raises(DiskFull, match=f"no space left on {tmp_path}: bout.rrd was not written"):
+        recorder.step(frame)
+    assert recorder.close()["errors"] == {} and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name, says", [
+    ("folder", "is a folder: name a file in it"),
+    ("missing/x.json", "its folder {tmp}/missing does not exist"),
+    ("x.txt", "name a .json file"),
+])
+def test_an_output_that_cannot_be_written_is_refused_naming_the_users_path(tmp_path, name, says):
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(ValueError, match=says.format(tmp=tmp_path)):
+        check_writable(tmp_path / name, ".json")
+
+
+def test_an_output_in_a_folder_that_takes_no_file_is_refused_before_any_level_is_played(tmp_path, capsys):
+    from wmthesis.__main__ import main
+
+    with pytest.raises(ValueError, match="/proc/x.json cannot be written: its folder /proc takes no new file"):
+        check_writable("/proc/x.json")  # writable to os.access as root, yet no file can be made there
+    levels = tmp_path / "levels.txt"
+    levels.write_text("#####\n#@$.#\n#####\n")
+    started = time.perf_counter()
+    assert main(["solve-sokoban", str(levels), "--out", "/proc/x.json", "--profile", "smoke"]) == 2
+    err = capsys.readouterr().err
+    assert "/proc/x.json cannot be written" in err and ".tmp" not in err and err.count("\n") == 1
+    assert time.perf_counter() - started < 5  # before the agent loads or a level plays
+    assert main(["collect", "sokoban-small", "--episodes", "1", "--out", str(tmp_path), "--profile", "smoke"]) == 2
+    assert "is a folder" in capsys.readouterr().err
+
+
+def test_the_store_refuses_nan_rewards_and_names_itself_when_a_chunk_is_damaged(tmp_path):
+    from wmthesis.data import EpisodeStore, StoreError
+    from wmthesis.rollouts import collect
+
+    path = collect("sokoban-small", 2, tmp_path / "s.h5", progress=False)
+    with EpisodeStore(path, "a") as store:
+        steps = len(store.episode(0)["actions"])
+        episode = store.episode(0)
+        rewards = episode["rewards"].copy()
+        rewards[1] = np.nan
+        with pytest.raises(ValueError, match=r"rewards hold NaN or infinity \(step 1 of"):
+            store.append_episode(episode["observations"], episode["actions"], rewards, episode["terminals"])
+        assert len(store) == 2
+    data = bytearray(path.read_bytes())
+    with EpisodeStore(path) as store:  # the first observation chunk's bytes, found in the file
+        offset = store._data["observations"].id.get_chunk_info(0).byte_offset
+    data[offset + 16:offset + 400] = bytes(384)
+    damaged = tmp_path / "damaged.h5"
+    damaged.write_bytes(bytes(data))
+    with EpisodeStore(damaged) as store:
+        assert steps > 0
+        with pytest.raises(StoreError, match=r"damaged\.h5: cannot read episode 0 .*delete it and collect again"):
+            store.episode(0)
