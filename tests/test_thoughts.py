@@ -195,7 +195,7 @@ def test_an_interrupted_recording_keeps_what_was_played_and_opens(tmp_path, ship
 def test_a_recording_path_is_refused_before_anything_plays(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr("wmthesis.agents.load", lambda *a, **k: pytest.fail("it loaded an agent"))
     (tmp_path / "folder.rrd").mkdir()
-    for path, says in ((tmp_path / "folder.rrd", "cannot be written"), (tmp_path / "x", "name a .rrd file"),
+    for path, says in ((tmp_path / "folder.rrd", "is a folder"), (tmp_path / "x", "name a .rrd file"),
                        (tmp_path / "no" / "x.rrd", "cannot be written")):
         assert main(["play", "boxing-wm", "--record", str(path)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
