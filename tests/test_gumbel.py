@@ -109,9 +109,9 @@ def test_the_configs_root_chooses_the_search():
     gumbel = root_search(dataclasses.replace(config, root="gumbel"), bandit, lambda s: (np.ones(4), 0.0), 0)
     assert isinstance(gumbel, GumbelMCTS) and gumbel.considered == 4 and not gumbel.reuse_tree
     assert (gumbel.gumbel_scale, gumbel.c_scale) == (1.0, 0.1)
-    tuned = root_search(dataclasses.replace(config, root="gumbel", gumbel_scale=0.0, c_scale=0.03), bandit,
+    tuned = root_search(dataclasses.replace(config, root="gumbel", gumbel_scale=0.0, c_scale=0.03, c_visit=0.0), bandit,
                         lambda s: (np.ones(4), 0.0), 0)
-    assert (tuned.gumbel_scale, tuned.c_scale) == (0.0, 0.03)
+    assert (tuned.gumbel_scale, tuned.c_scale, tuned.c_visit) == (0.0, 0.03, 0.0)
     with pytest.raises(ValueError, match="unknown root 'x'; valid: puct, gumbel"):
         root_search(dataclasses.replace(config, root="x"), bandit, lambda s: (np.ones(4), 0.0), 0)
 
@@ -121,8 +121,9 @@ def test_the_configs_root_chooses_the_search():
     (dict(root="gumbel", simulations=1), "at least 2 simulations, got 1"),
     (dict(root="gumbel", simulations=2.5), "an integer budget of at least 2 simulations, got 2.5"),
     (dict(root="gumbel", considered=1), "considers an integer number of actions, at least 2, got 1"),
-    (dict(root="gumbel", c_scale=0.0), "c_scale > 0, got 1.0, 0.0"),
+    (dict(root="gumbel", c_scale=0.0), "c_scale > 0 and c_visit >= 0, got 1.0, 0.0, 50.0"),
     (dict(root="gumbel", gumbel_scale=-1.0), "gumbel_scale >= 0"),
+    (dict(root="gumbel", c_visit=-1.0), "c_visit >= 0"),
 ])
 def test_a_search_that_cannot_run_is_refused_when_it_is_configured(changes, says):
     from wmthesis.alphazero.config import AlphaZeroConfig

@@ -49,7 +49,7 @@ def search_settings(profile: str | None, text: str | None = None) -> dict:
     return settings
 
 
-SEARCH_FIELDS = ("root", "considered", "gumbel_scale", "c_scale")
+SEARCH_FIELDS = ("root", "considered", "gumbel_scale", "c_scale", "c_visit")
 
 
 def search_tag(search: dict) -> str:

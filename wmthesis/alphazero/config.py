@@ -22,7 +22,7 @@ class AlphaZeroConfig:
     :func:`~wmthesis.alphazero.selfplay.prior_and_q`, not by visit counts), ``root="gumbel"``
     (:mod:`~wmthesis.alphazero.gumbel`: the root samples ``considered`` actions and halves them, acts
     on the survivor, and the heads learn its improved policy; ``gumbel_scale`` on its noise,
-    ``c_scale`` in its sigma); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
+    ``c_scale`` and ``c_visit`` in its sigma); the ``improved`` variant: ``normalize_q`` (min-max Q, MuZero), ``tie_break="q"``
     (equal visit counts go to the higher root Q, not to the first action),
     ``value_target="n-step"`` (``n_step``-step bootstrapped targets instead of ``"monte-carlo"``
     returns) and ``reuse_tree=False``. The ``learned-reward`` variant adds ``reward_model``: the
@@ -51,7 +51,8 @@ class AlphaZeroConfig:
     root: str | None = None              # beyond the thesis: "gumbel", Gumbel MuZero's root (None: the thesis's PUCT)
     considered: int | None = None        # the Gumbel root's k actions sampled (None: 16, at most the actions)
     gumbel_scale: float = 1.0            # the Gumbel root's noise (0: the prior's top k, no sampling)
-    c_scale: float = 0.1                 # the Gumbel root's sigma: how far Q moves the prior's logits
+    c_scale: float = 0.1                 # the Gumbel root's sigma: how far Q moves the prior's logits ...
+    c_visit: float = 50.0                # ... times (c_visit + the most visits an action has)
     gamma: float = 0.99
     dirichlet_alpha: float = 0.3
     noise_ratio: float = 0.25
@@ -98,9 +99,9 @@ class AlphaZeroConfig:
             if self.considered is not None and (isinstance(self.considered, bool) or not isinstance(self.considered, int)
                                                 or self.considered < 2):
                 raise ValueError(f"a Gumbel root considers an integer number of actions, at least 2, got {self.considered!r}")
-            if not (self.gumbel_scale >= 0 and self.c_scale > 0):
-                raise ValueError(f"a Gumbel root needs gumbel_scale >= 0 and c_scale > 0, got {self.gumbel_scale!r}, "
-                                 f"{self.c_scale!r}")
+            if not (self.gumbel_scale >= 0 and self.c_scale > 0 and self.c_visit >= 0):
+                raise ValueError(f"a Gumbel root needs gumbel_scale >= 0, c_scale > 0 and c_visit >= 0, got "
+                                 f"{self.gumbel_scale!r}, {self.c_scale!r}, {self.c_visit!r}")
 
 
 ROOTS = ("puct", "gumbel")  # the thesis's PUCT root, Gumbel MuZero's (wmthesis.alphazero.gumbel)

@@ -172,7 +172,7 @@ def root_search(config, mdp, evaluator, seed) -> MCTS:
             raise ValueError(f"a Gumbel root considers at most the game's {actions} actions, got {config.considered}")
         considered = config.considered or min(16, actions)
         return GumbelMCTS(mdp, evaluator, considered=considered, gumbel_scale=config.gumbel_scale,
-                          c_scale=config.c_scale, **options)
+                          c_scale=config.c_scale, c_visit=config.c_visit, **options)
     return MCTS(mdp, evaluator, noise_ratio=config.noise_ratio, normalize_q=config.normalize_q,
                 reuse_tree=config.reuse_tree, root_actions=config.root_actions, **options)
 
