@@ -128,3 +128,26 @@ def test_the_store_refuses_nan_rewards_and_names_itself_when_a_chunk_is_damaged(
         assert steps > 0
         with pytest.raises(StoreError, match=r"damaged\.h5: cannot read episode 0 .*delete it and collect again"):
             store.episode(0)
+
+
+def test_the_models_refuse_nan_at_their_door():
+    import torch
+
+    from wmthesis.world_models.controller import Controller
+    from wmthesis.world_models.vision import VAE, VAEVision
+
+    controller = Controller(4, 3, 5)
+    with pytest.raises(ValueError, match=r"latents z hold NaN or infinity \(1 of 4 values\)"):
+        controller.act(torch.tensor([[0.0, float("nan"), 0.0, 0.0]]), torch.zeros(1, 3))
+    with pytest.raises(ValueError, match="memory state h hold NaN"):
+        controller(torch.zeros(1, 4), torch.full((1, 3), float("inf")))
+    flat = controller.get_flat()
+    flat[3] = np.nan
+    with pytest.raises(ValueError, match="the controller's parameters hold NaN"):
+        controller.set_flat(flat)
+    assert controller.act(torch.zeros(2, 4), torch.zeros(2, 3)).shape == (2,)
+    vision = VAEVision(VAE(8))
+    with pytest.raises(ValueError, match="the latents to decode hold NaN"):
+        vision.decode(np.full((1, 8), np.nan, np.float32))
+    with pytest.raises(ValueError, match="uint8 frames"):
+        vision(np.full((1, 64, 64, 3), np.nan, np.float32))

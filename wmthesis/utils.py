@@ -95,6 +95,14 @@ def check_choice(kind: str, value, valid) -> None:
         raise ValueError(f"unknown {kind} {value!r}; valid: {', '.join(map(str, valid))}")
 
 
+def check_finite(name: str, values) -> None:
+    """ValueError naming ``name`` where ``values`` (a numpy array or torch tensor) hold NaN or
+    infinity: a model refuses them at its door rather than answering with NaN or action 0."""
+    array = values.detach().cpu().numpy() if hasattr(values, "detach") else np.asarray(values)
+    if array.dtype.kind in "fc" and not np.isfinite(array).all():
+        raise ValueError(f"{name} hold NaN or infinity ({int((~np.isfinite(array)).sum())} of {array.size} values)")
+
+
 def data_dir(*parts: str) -> Path:
     """Where run-time artifacts go: ``$WMTHESIS_DATA`` if set, else the checkout's ``data/``.
 

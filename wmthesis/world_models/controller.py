@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from wmthesis.core import Callback, Mind
+from wmthesis.utils import check_finite
 
 
 class Controller(nn.Module):
@@ -30,6 +31,10 @@ class Controller(nn.Module):
         self.linear = nn.Linear(latent_size + hidden_size, n_actions)
 
     def forward(self, z: torch.Tensor, h: torch.Tensor | None = None) -> torch.Tensor:
+        """Scores; ValueError for NaN or infinite latents or memory state (not action 0)."""
+        check_finite("the controller's latents z", z)
+        if h is not None:
+            check_finite("the controller's memory state h", h)
         return self.linear(features(z, h))
 
     def act(self, z: torch.Tensor, h: torch.Tensor | None = None) -> torch.Tensor:
@@ -49,6 +54,7 @@ class Controller(nn.Module):
         params = torch.as_tensor(np.asarray(params), dtype=torch.float32)
         if params.shape != (self.num_parameters,):
             raise ValueError(f"expected {self.num_parameters} parameters, got shape {tuple(params.shape)}")
+        check_finite("the controller's parameters", params)
         nn.utils.vector_to_parameters(params, self.parameters())
         return self
 

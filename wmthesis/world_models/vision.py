@@ -21,6 +21,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from wmthesis.utils import check_finite
+
 
 class Encoder(nn.Module):
     """(B, 3, 64, 64) float in [0, 1] -> features (B, 1024)."""
@@ -148,6 +150,7 @@ class VAEVision:
         z = torch.as_tensor(np.asarray(z, np.float32) if not isinstance(z, torch.Tensor) else z).float()
         if z.ndim != 2 or z.shape[-1] != self.latent_size:
             raise ValueError(f"latents must be (N, {self.latent_size}), got {tuple(z.shape)}")
+        check_finite("the latents to decode", z)
         device = next(self.vae.encoder.parameters()).device
         return input_to_frames(self.vae.decode(z.to(device))).cpu().numpy()
 
