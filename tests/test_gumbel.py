@@ -118,6 +118,7 @@ def test_the_configs_root_chooses_the_search():
 
 @pytest.mark.parametrize("changes, says", [
     (dict(root="gumble"), "unknown root 'gumble'; valid: puct, gumbel"),
+    (dict(tie_break="random"), "unknown tie_break 'random'; valid: first, q, prior"),
     (dict(root="gumbel", simulations=1), "at least 2 simulations, got 1"),
     (dict(root="gumbel", simulations=2.5), "an integer budget of at least 2 simulations, got 2.5"),
     (dict(root="gumbel", considered=1), "considers an integer number of actions, at least 2, got 1"),

@@ -362,7 +362,7 @@ def parser() -> argparse.ArgumentParser:
     budget.add_argument("--variant", help="with --validation: the boxing-wm-alphazero variant searched (default: "
                                           "the default)")
     budget.add_argument("--search", help="with --validation: the MCTS root's settings, e.g. root=gumbel,c_scale=0.03 "
-                                         "(root, considered, gumbel_scale, c_scale, c_visit; default: the profile's)")
+                                         "(root, tie_break, considered, gumbel_scale, c_scale, c_visit; default: the profile's)")
     budget.set_defaults(run=cmd_budget_curve)
 
     player = commands.add_parser("play", help="a trained agent plays, with no training")

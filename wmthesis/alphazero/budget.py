@@ -44,12 +44,12 @@ def search_settings(profile: str | None, text: str | None = None) -> dict:
         if len(pair) != 2 or pair[0].strip() not in SEARCH_FIELDS:
             raise ValueError(f"search setting {'='.join(pair)!r} is not NAME=VALUE of {', '.join(SEARCH_FIELDS)}")
         name, value = pair[0].strip(), str(pair[1]).strip()
-        settings[name] = value if name == "root" else int(value) if name == "considered" else float(value)
+        settings[name] = value if name in ("root", "tie_break") else int(value) if name == "considered" else float(value)
     AlphaZeroConfig(simulations=2, **settings)  # refuses an unknown root or a setting it cannot run with
     return settings
 
 
-SEARCH_FIELDS = ("root", "considered", "gumbel_scale", "c_scale", "c_visit")
+SEARCH_FIELDS = ("root", "tie_break", "considered", "gumbel_scale", "c_scale", "c_visit")
 
 
 def search_tag(search: dict) -> str:

@@ -58,7 +58,7 @@ class AlphaZeroConfig:
     noise_ratio: float = 0.25
     normalize_q: bool = False
     reuse_tree: bool = True
-    tie_break: str = "first"             # equal visit counts: "first" action (argmax), or higher root "q"
+    tie_break: str = "first"             # equal visit counts: "first" action (argmax), higher root "q" or "prior"
     warmup: int = 12
     replay_games: int = 1000
     train_every: int = 10
@@ -89,8 +89,10 @@ class AlphaZeroConfig:
     memory_games: int = 0                # own-memory variant: the memory also learns this many expert bouts
 
     def __post_init__(self):
-        """Refuse a search that cannot run, before anything plays: an unknown root, a Gumbel root
-        without an integer budget of 2 simulations or more, or fewer than 2 actions considered."""
+        """Refuse a search that cannot run, before anything plays: an unknown root or tie break, a
+        Gumbel root without an integer budget of 2 simulations or more, or fewer than 2 actions considered."""
+        if self.tie_break not in TIE_BREAKS:
+            raise ValueError(f"unknown tie_break {self.tie_break!r}; valid: {', '.join(TIE_BREAKS)}")
         if self.root not in (None, *ROOTS):
             raise ValueError(f"unknown root {self.root!r}; valid: {', '.join(ROOTS)} (None: the thesis's puct)")
         if self.root == "gumbel":
@@ -104,6 +106,7 @@ class AlphaZeroConfig:
                                  f"{self.gumbel_scale!r}, {self.c_scale!r}, {self.c_visit!r}")
 
 
+TIE_BREAKS = ("first", "q", "prior")  # equal visit counts go to: the first action, the higher Q, the higher prior
 ROOTS = ("puct", "gumbel")  # the thesis's PUCT root, Gumbel MuZero's (wmthesis.alphazero.gumbel)
 
-__all__ = ["AlphaZeroConfig", "ROOTS"]
+__all__ = ["AlphaZeroConfig", "ROOTS", "TIE_BREAKS"]

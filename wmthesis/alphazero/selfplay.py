@@ -132,7 +132,9 @@ class AlphaZeroMind(Mind, Callback):
         record["q"].append(info["q"])
         if self.keep_frames:
             record["frames"].append(np.asarray(state))
-        scores = counts + tie_breaker(info["q"]) if self.config.tie_break == "q" and "improved_policy" not in info else counts
+        scores = counts
+        if "improved_policy" not in info and self.config.tie_break != "first":  # below one visit: counts keep their order
+            scores = counts + (tie_breaker(info["q"]) if self.config.tie_break == "q" else 0.5 * info["priors"])
         if not train_mode and self.config.decision_beta is not None:
             scores = prior_and_q(info["priors"], info["q"], info["root_value"], self.config.decision_beta)
         return (scores, info) if debug_mode else scores
