@@ -657,29 +657,39 @@ def test_profiles_keep_the_thesis_values():
 # ----------------------------------------------------------------------------- the experiment
 @pytest.mark.slow
 def test_smoke_experiment_writes_metrics_with_finite_scores():
+    from wmthesis.alphazero.variants import VARIANTS
     from wmthesis.experiments import reproduce
 
-    metrics = reproduce("boxing-wm-alphazero", "smoke", progress=False)
-    assert set(metrics["variants"]) == {"unchanged", "improved", "learned-reward", "imitation", "own-reward",
-                                        "own-memory"}
-    for name in ("AlphaZero unchanged", "AlphaZero improved", "AlphaZero learned-reward", "AlphaZero imitation",
-                 "AlphaZero imitation: policy head alone, no search", "AlphaZero imitation: before self-play (search)",
-                 "AlphaZero own-reward", "AlphaZero own-reward: policy head alone, no search", "random"):
-        score = metrics["scores"][name]
-        assert np.isfinite(score["mean"]) and score["episodes"] == 2
+    default = reproduce("boxing-wm-alphazero", "smoke", progress=False)  # no variant: the default, as everywhere
+    assert default["variants"] == [VARIANTS.default.name] == ["own-memory"]
+    by_variant = {name: reproduce("boxing-wm-alphazero", "smoke", variant=name, progress=False)
+                  for name in ("unchanged", "improved", "learned-reward", "imitation", "own-reward")}
+    by_variant["own-memory"] = default
+    assert {m["variants"][0] for m in by_variant.values()} == set(VARIANTS)
+    names = {"unchanged": ["AlphaZero unchanged"], "improved": ["AlphaZero improved"],
+             "learned-reward": ["AlphaZero learned-reward"],
+             "imitation": ["AlphaZero imitation", "AlphaZero imitation: policy head alone, no search",
+                           "AlphaZero imitation: before self-play (search)"],
+             "own-reward": ["AlphaZero own-reward", "AlphaZero own-reward: policy head alone, no search"],
+             "own-memory": ["AlphaZero own-memory"]}
+    for variant, metrics in by_variant.items():
+        for name in [*names[variant], "random"]:
+            score = metrics["scores"][name]
+            assert np.isfinite(score["mean"]) and score["episodes"] == 2
+        assert metrics["runs"][variant]["games"] == 4 and len(metrics["runs"][variant]["rounds"]) == 2
+        assert Path(metrics["files"]["figures"][0]).parent.name == variant
+    metrics = by_variant["learned-reward"]
     written = json.loads(Path(metrics["files"]["figures"][0]).with_name("metrics.json").read_text())
     assert written["scores"] == json.loads(json.dumps(metrics["scores"]))
     assert all(Path(f).stat().st_size > 1000 for f in metrics["files"]["figures"])
     assert len(metrics["diagnosis"]["reward_error"]["reward_mse"]) == 5
     assert len(metrics["runs"]["learned-reward"]["reward_fits"]) == 3
-    assert len(metrics["runs"]["own-reward"]["reward_fits"]) == 4  # and once more on the expert's games
-    for name in ("unchanged", "improved", "learned-reward", "imitation", "own-reward", "own-memory"):
-        assert metrics["runs"][name]["games"] == 4 and len(metrics["runs"][name]["rounds"]) == 2
+    assert len(by_variant["own-reward"]["runs"]["own-reward"]["reward_fits"]) == 4  # and once more on the expert's games
     _the_own_memory_is_searched_and_shipped()
-    expert = metrics["runs"]["imitation"]["expert"]
+    expert = by_variant["imitation"]["runs"]["imitation"]["expert"]
     assert expert["games"] == 8 and expert["steps"] == 8 * 20 and 0 <= expert["agreement"] <= 1
     again = reproduce("boxing-wm-alphazero", "smoke", progress=False)  # cached: evaluates nothing again
-    assert again["scores"] == metrics["scores"]
+    assert again["scores"] == default["scores"]
 
 
 def _the_own_memory_is_searched_and_shipped():

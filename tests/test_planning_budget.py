@@ -61,7 +61,7 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     assert tuple(table[0]) == COLUMNS == ("planner", "game", "budget", "seed", "score", "no_search_score",
                                           "ms_per_action", "search", "changed", "return_changed", "return_kept")
     for row in mcts[1:]:  # where the search moved the head's action, read from its games
-        assert 0 <= row["changed"] <= 1 and row["search"] == "puct"
+        assert 0 <= row["changed"] <= 1 and row["search"] == "puct tie_break=prior"
         assert (row["return_changed"] is not None) == (row["changed"] > 0)
     assert [(r["planner"], r["game"], int(r["budget"])) for r in table] == \
         [("cem", "boxing", r["budget"]) for r in cem] + [("mcts", "boxing", b) for b in (0, *sizes.mcts_budgets)] + \

@@ -31,14 +31,16 @@ class BudgetCurveConfig:
     :data:`~wmthesis.config.OVERRIDES`): ``sokoban_budgets``, nodes a search may expand, on the
     first ``sokoban_levels`` Boxoban medium report levels; ``mcts_budgets``, simulations an action;
     ``mcts_search``, the root it searches with (``(name, value)`` pairs of
-    :class:`~wmthesis.alphazero.config.AlphaZeroConfig` fields; none: the agent's own);
+    :class:`~wmthesis.alphazero.config.AlphaZeroConfig` fields in place of the agent's own: the
+    PUCT root acting on the most visited action, equal counts going to the higher prior, chosen on
+    validation bouts, ``docs/findings/planning-budget.md``);
     ``cem_budgets``, CEM with the value's (H, J, I), H x J x I imagined steps an action (the value
     alone, H = 1, is the row without search); Boxing's curves on ``boxing_bouts`` evaluation bouts a
     seed, the same for every budget."""
     sokoban_budgets: tuple = (1_000, 5_000, 20_000, 40_000, 160_000)
     sokoban_levels: int = 1000
     mcts_budgets: tuple = (2, 4, 8, 16, 64, 256)
-    mcts_search: tuple = ()
+    mcts_search: tuple = (("tie_break", "prior"),)
     boxing_bouts: int = 10
     cem_budgets: tuple = ((3, 1000, 10), (6, 1000, 10), (12, 1000, 10))
 

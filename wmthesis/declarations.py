@@ -51,8 +51,8 @@ class Declaration:
     :mod:`wmthesis.scores`), ``levers`` (``"module:function"`` that makes its :class:`~wmthesis.variants.Levers`,
     measured on validation splits by ``validate``; None: it has none), ``frozen_model`` (the
     ``metrics.json`` key of the thesis CEM's bouts on the frozen model that its variants mean to
-    share, by which the summary pairs them; None: variants pair by seed) and ``every_variant``
-    (a run without a variant runs all its variants, not its default)."""
+    share, by which the summary pairs them; None: variants pair by seed). A run without a variant
+    runs its default."""
     name: str
     section: str
     recipe: str
@@ -62,7 +62,6 @@ class Declaration:
     score: str = "wmthesis.scores:variant_score"
     levers: str | None = None
     frozen_model: str | None = None
-    every_variant: bool = False
 
     def registry(self):
         """Its :class:`~wmthesis.variants.Variants`, or None."""
@@ -76,7 +75,7 @@ DECLARATIONS = (
                 agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.world_models.trained:load_trained", "boxing")),
     Declaration("boxing-wm-alphazero", "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
-                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",), score="wmthesis.scores:alphazero_scores", every_variant=True,
+                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",), score="wmthesis.scores:alphazero_scores",
                 agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.alphazero.trained:load_trained", "boxing")),
     Declaration("planet-sokoban", "5.5.1", "wmthesis.experiments.planet:planet_sokoban",

@@ -120,10 +120,7 @@ def _wanted_variants(run: SweepRun) -> set:
         return {run.variant}
     if run.experiment in DEFAULT_RESULTS:
         return {DEFAULT_RESULTS[run.experiment]}
-    declaration = DECLARED[run.experiment]
-    if declaration.every_variant:
-        return set(variants_of(run.experiment))
-    return set() if declaration.score == NO_SCORE else {None}
+    return set() if DECLARED[run.experiment].score == NO_SCORE else {None}
 
 
 def _run_task(runner: Callable, run: SweepRun, profile: str, threads: int, *prerequisites) -> tuple[dict, str]:

@@ -28,6 +28,7 @@ from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOB
                                                        SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
                                                        sokoban_world_models)
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
+from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.search_run import planet_boxing_search
@@ -46,7 +47,7 @@ NO_VARIANTS = tuple(name for name in EXPERIMENTS if name not in VARIANTS)
 # experiment's own folders), for the experiments whose default has a name in its metrics.
 DEFAULT_RESULTS = {**{name: registry.default.name for name, registry in PLANET_REGISTRIES.items()},
                    "planet-boxing-value": BOXING_VALUE_VARIANTS.folder_name(None), "planet-freeway-value": None,
-                   "boxing-wm": BOXING_WM.folder_name(None)}
+                   "boxing-wm": BOXING_WM.folder_name(None), "boxing-wm-alphazero": ALPHAZERO_VARIANTS.default.name}
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,

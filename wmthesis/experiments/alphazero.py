@@ -41,9 +41,9 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
 
     Reuses the boxing-wm pipeline's random rollouts, vision and latents (the same artifacts
     under ``data/<profile>/boxing-wm/seed<seed>/``, cached), trains a deterministic memory in
-    its own folder ``data/<profile>/boxing-wm-alphazero/seed<seed>/``, then self-play for each
-    variant of :data:`~wmthesis.alphazero.variants.VARIANTS` (``variant=None``: all of them, side
-    by side; one name: that one only), each resumable from its checkpoint. Every variant, the
+    its own folder ``data/<profile>/boxing-wm-alphazero/seed<seed>/``, then self-play for the
+    ``variant`` of :data:`~wmthesis.alphazero.variants.VARIANTS` (None: the default), resumable
+    from its checkpoint. The variant, the
     boxing-wm controller (when its run exists) and random play then play the same greedy
     evaluation games (same no-op starts). Diagnosis: the memory's reward error along the search
     depth, whether a linear value on ``[z h]`` predicts the random rollouts' returns at all,
@@ -56,17 +56,17 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     is also evaluated by its policy head alone, without search, and with its heads as they
     were before self-play.
 
-    Results under ``data/results/boxing-wm-alphazero/<profile>-seed<seed>/`` (one variant: in
-    its subfolder): figures, a rerun recording of an evaluation game, ``metrics.json``. Returns
-    the metrics; ``score`` is the last variant's (``imitation`` when all run);
+    Results under ``data/results/boxing-wm-alphazero/<profile>-seed<seed>/<variant>/``: figures,
+    a rerun recording of an evaluation game, ``metrics.json``. Returns the metrics (``score``: the
+    variant's);
     ``against_random``: each agent's mean minus random play's, with its standard error.
     """
-    variants = tuple(VARIANTS) if variant is None else (VARIANTS.check(variant).name,)
+    variants = (VARIANTS.check(variant).name,)
     profile = profile_name(profile)
     started = time.time()
     wm = work_folder(profile, "boxing-wm", seed)
     work = hold(work_folder(profile, "boxing-wm-alphazero", seed))
-    out = results_folder("boxing-wm-alphazero", profile, seed, variant)
+    out = results_folder("boxing-wm-alphazero", profile, seed, variants[0])
     collect_cfg = for_profile(CollectConfig, profile)
     store = collect("boxing", collect_cfg.episodes, wm / "random.h5", workers=collect_cfg.workers, seed=seed,
                     preprocessing="world_models", max_steps=collect_cfg.max_steps, progress=progress)
