@@ -212,3 +212,34 @@ def test_cems_budget_counts_every_imagined_path_of_a_planner_with_particles(tmp_
     rows = planning_budget.cem_curve("smoke", 0, progress=False, budgets=((2, 16, 2), (3, 10, 1)))
     assert [r["budget"] for r in rows] == [0, 2 * 16 * 2 * 4, 3 * 10 * 1 * 4]
     assert [(p.horizon, p.candidates, p.particles) for p in played.values()] == [(1, None, 4), (2, 16, 4), (3, 10, 4)]
+
+
+def test_where_mcts_moved_its_head_is_tabled_per_budget_over_seeds():
+    from wmthesis.budget_curves import changes_markdown
+
+    base = dict(planner="mcts", game="boxing", no_search_score=10.0, ms_per_action=1.0)
+    rows = [dict(base, budget=0, seed=0, score=10.0, changed=None, return_changed=None, return_kept=None),
+            dict(base, budget=4, seed=0, score=14.0, changed=0.1, return_changed=0.3, return_kept=0.1),
+            dict(base, budget=4, seed=1, score=8.0, changed=0.3, return_changed=None, return_kept=0.2),
+            dict(base, planner="cem", budget=600, seed=0, score=1.0)]
+    lines = changes_markdown(rows).splitlines()
+    assert len(lines) == 3 and lines[2] == "| 4 | 2 | 20.0% | +0.300 | +0.150 | +1.0 |"
+    assert changes_markdown(rows[3:]) == ""
+
+
+def test_a_kept_value_signal_is_read_only_for_the_models_and_measurement_it_was_made_on(tmp_path, monkeypatch):
+    import pytest
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    from wmthesis.planet.imagination import SIGNAL_BOUTS, SIGNAL_DEPTHS, SIGNAL_VERSION, seed_value_signal, signal_models
+    from wmthesis.runs import results_folder, write_json
+
+    kept = {"version": SIGNAL_VERSION, "models": signal_models("quick", 7), "depths": list(SIGNAL_DEPTHS),
+            "bouts": SIGNAL_BOUTS, "correlation": {str(d): 0.1 * d for d in SIGNAL_DEPTHS}}
+    path = write_json(results_folder("planning-budget", "quick", 7) / "value_signal.json", kept)
+    assert seed_value_signal("quick", 7) == {d: 0.1 * d for d in SIGNAL_DEPTHS}
+    for changed in ({"models": {"planet-boxing-agent": "another model", "planet-boxing-value": None}},
+                    {"version": SIGNAL_VERSION + 1}):
+        write_json(path, {**kept, **changed})
+        with pytest.raises(FileNotFoundError, match="no fitted value for seed 7"):  # measured again: nothing to measure here
+            seed_value_signal("quick", 7)

@@ -166,6 +166,23 @@ def budget_markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def changes_markdown(rows: list[dict]) -> str:
+    """Where MCTS moved its policy head's action, per budget over its seeds (:data:`CHANGES`): the
+    share of steps, and the real return over the next steps where it did and where it did not,
+    as markdown (an empty string without MCTS rows)."""
+    mcts = [r for r in rows if r["planner"] == "mcts" and r["budget"] != NO_SEARCH and r.get("changed") is not None]
+    if not mcts:
+        return ""
+    mean = lambda key, mine: np.mean([r[key] for r in mine if r[key] is not None])  # noqa: E731
+    lines = ["| simulations | seeds | steps where the search moved the head's action | next-10-step return there | "
+             "elsewhere | score gain |", "|---|---|---|---|---|---|"]
+    for budget in sorted({r["budget"] for r in mcts}):
+        mine = [r for r in mcts if r["budget"] == budget]
+        lines.append(f"| {budget:,} | {len(mine)} | {100 * mean('changed', mine):.1f}% | {mean('return_changed', mine):+.3f} | "
+                     f"{mean('return_kept', mine):+.3f} | {np.mean([r['score'] - r['no_search_score'] for r in mine]):+.1f} |")
+    return "\n".join(lines)
+
+
 def read_budget_rows(profile: str, folder: Path | None = None) -> list[dict]:
     """The rows :func:`write_budget_table` wrote for ``profile`` in ``folder`` (default
     ``data/results``), numbers as numbers; none before the first seed is measured."""
@@ -199,4 +216,4 @@ def write_budget_table(profile: str) -> str:
     return text.getvalue()
 
 
-__all__ = ["BudgetCurveConfig", "COLUMNS", "CHANGES", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "row_line", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
+__all__ = ["BudgetCurveConfig", "COLUMNS", "CHANGES", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "changes_markdown", "row_line", "read_budget_rows", "write_budget_table", "plot_budget_curves"]

@@ -73,15 +73,29 @@ def value_signal(model: RSSM, value: nn.Module, episodes: list[dict], bits: int,
     return {d: float(np.corrcoef(np.concatenate(q[d]), np.concatenate(sums[d]))[0, 1]) for d in depths}
 
 
+SIGNAL_VERSION = 1  # raise it when the measurement changes: kept signals are then measured again
+
+
+def signal_models(profile: str, seed: int) -> dict:
+    """The SHA-256 of the shipped files a seed's signal measures: the PlaNet agent and its value
+    (None where a file is missing)."""
+    from wmthesis.agents import agent_file
+
+    return {name: run_store.file_sha256(path) if (path := agent_file(name, None, profile, seed)).is_file() else None
+            for name in ("planet-boxing-agent", "planet-boxing-value")}
+
+
 def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_DEPTHS,
                       bouts: int = SIGNAL_BOUTS) -> dict[int, float]:
     """:func:`value_signal` of ``seed``'s default Boxing value on its frozen PlaNet model, on the
     last ``bouts`` bouts of the value run's store (all of it where it holds fewer); kept in the seed's ``planning-budget`` results
-    (``value_signal.json``) and read from there when it holds these depths and bouts, so a fresh
-    clone reads the committed measurement."""
+    (``value_signal.json``) and read from there when it holds these depths and bouts, was measured
+    on the agent files that ship now (their SHA-256) and by this :data:`SIGNAL_VERSION` of the
+    measurement, so a fresh clone reads the committed measurement and a changed model measures again."""
     path = run_store.results_folder("planning-budget", profile, seed) / "value_signal.json"
-    kept = run_store.read_json(path)
-    if kept and kept.get("depths") == list(depths) and kept.get("bouts") == bouts and "correlation" in kept:
+    kept, models = run_store.read_json(path), signal_models(profile, seed)
+    if kept and kept.get("depths") == list(depths) and kept.get("bouts") == bouts and "correlation" in kept \
+            and kept.get("models") == models and kept.get("version") == SIGNAL_VERSION:
         return {int(depth): value for depth, value in kept["correlation"].items()}
     value_run = value_folder(profile, seed)
     if not (value_run / STORE).is_file():
@@ -92,7 +106,8 @@ def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_
         episodes = [store.episode(index) for index in range(max(0, len(store) - bouts), len(store))]
     signal = value_signal(model, value, episodes, planet.bits, depths=tuple(depths), seed=seed,
                           reward_steps=for_profile(LatentValueConfig, profile).reward_steps)
-    run_store.write_json(path, {"depths": list(depths), "bouts": bouts, "episodes": len(episodes),
+    run_store.write_json(path, {"version": SIGNAL_VERSION, "models": models, "depths": list(depths), "bouts": bouts,
+                                "episodes": len(episodes),
                                 "steps": int(sum(len(e["actions"]) for e in episodes)),
                                 "correlation": {str(depth): value for depth, value in signal.items()}})
     return signal
@@ -117,4 +132,5 @@ def plot_value_signal(signals: dict[int, dict[int, float]]):
     return fig
 
 
-__all__ = ["imagined_features", "value_signal", "seed_value_signal", "plot_value_signal", "SIGNAL_DEPTHS", "SIGNAL_BOUTS"]
+__all__ = ["imagined_features", "value_signal", "seed_value_signal", "signal_models", "plot_value_signal", "SIGNAL_DEPTHS",
+           "SIGNAL_BOUTS", "SIGNAL_VERSION"]
