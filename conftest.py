@@ -1,10 +1,13 @@
 """Test-wide settings: notebooks run in the smoke profile, artifacts go to a temporary folder
-(one per worker process when the tests run in parallel)."""
+(one per worker process when the tests run in parallel), removed when the run ends."""
 import os
+import shutil
 import tempfile
 
 os.environ.setdefault("WMTHESIS_PROFILE", "smoke")
-os.environ.setdefault("WMTHESIS_DATA", tempfile.mkdtemp(prefix="wmthesis-test-data-"))
+CREATED = None  # the data folder this run made (not one the caller named): removed at the end
+if "WMTHESIS_DATA" not in os.environ:
+    CREATED = os.environ["WMTHESIS_DATA"] = tempfile.mkdtemp(prefix="wmthesis-test-data-")
 if os.environ.get("PYTEST_XDIST_WORKER"):  # each worker process (pytest -n) gets a data folder of its own
     os.environ["WMTHESIS_DATA"] = os.path.join(os.environ["WMTHESIS_DATA"], os.environ["PYTEST_XDIST_WORKER"])
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -21,3 +24,9 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def pytest_unconfigure(config):
+    """The run's own data folder (every worker's inside it) goes once the run ends."""
+    if CREATED is not None and not os.environ.get("PYTEST_XDIST_WORKER"):
+        shutil.rmtree(CREATED, ignore_errors=True)
