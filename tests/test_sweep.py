@@ -430,3 +430,24 @@ def test_ctrl_c_stops_the_driver_and_its_runs_at_once(local_ray, capsys):
     assert "interrupted: 0 runs kept, 1 stopped" in captured.out + captured.err
     assert finished(SweepRun("planet-freeway", None, 11), "smoke") is None
     assert ray.is_initialized()  # the fixture's Ray, not the sweep's own, stays up for the other tests
+
+
+def test_a_port_that_answers_but_is_no_ray_cluster_is_one_line_within_the_timeout():
+    """A listening socket that is no Ray: the join is given up in a child process after the
+    timeout, naming the address (ray.init would retry for minutes)."""
+    import socket
+    import time
+
+    import pytest
+
+    from wmthesis.sweep import check_address, check_joinable
+
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        address = f"127.0.0.1:{server.getsockname()[1]}"
+        check_address(address)  # the port answers
+        started = time.perf_counter()
+        with pytest.raises(ValueError, match=f"--address '{address}': no Ray cluster could be joined there") as raised:
+            check_joinable(address, timeout=8)
+        assert time.perf_counter() - started < 20 and "\n" not in str(raised.value)

@@ -152,6 +152,25 @@ def check_address(address: str, timeout: float = 5.0) -> None:
         raise ValueError(f"--address {address!r}: no Ray cluster answers there ({error})") from None
 
 
+JOIN_TIMEOUT_S = 30.0
+
+
+def check_joinable(address: str, timeout: float = JOIN_TIMEOUT_S) -> None:
+    """Fail within ``timeout`` seconds, with one line naming ``address``, when a Ray driver cannot
+    join the cluster there (tried in a child process: a port that answers but is no joinable Ray
+    leaves ``ray.init`` retrying for minutes, printing a warning every few seconds)."""
+    import subprocess
+
+    probe = f"import ray; ray.init(address={address!r}, log_to_driver=False); ray.shutdown()"
+    try:
+        done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise ValueError(f"--address {address!r}: no Ray cluster could be joined there within {timeout:.0f} s") from None
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["no message"])[-1]
+        raise ValueError(f"--address {address!r}: no Ray cluster could be joined there ({last})")
+
+
 class RayStartFailed(RuntimeError):
     """A Ray of this machine's own did not start (on a busy machine its processes can miss
     Ray's startup deadlines)."""
@@ -182,6 +201,7 @@ def start_ray(address: str | None, cpus: int | None = None, attempts: int = 3, w
                 time.sleep(wait_s)
     else:
         check_address(address)
+        check_joinable(address)
         try:
             ray.init(address=address, log_to_driver=False)
         except ConnectionError as error:
@@ -263,5 +283,5 @@ def _collect(ray, ref, run: SweepRun, started: float) -> dict:
             "since_start": round(time.time() - started, 1)}
 
 
-__all__ = ["SweepRun", "variants_of", "parse_seeds", "parse_runs", "finished", "check_address",
+__all__ = ["SweepRun", "variants_of", "parse_seeds", "parse_runs", "finished", "check_address", "check_joinable",
            "start_ray", "RayStartFailed", "sweep"]
