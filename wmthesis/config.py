@@ -69,6 +69,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                                     round_updates=5, batch_size=32, value_channels=8, value_updates=5,
                                     budget=300, eval_levels=4),
         "SokobanEvaluationConfig": dict(report_levels=2, reference_levels=2, validation_levels=2),
+        "DiagnosisConfig": dict(depth=5),
         "BudgetCurveConfig": dict(sokoban_budgets=(50, 300), sokoban_levels=4, mcts_budgets=(2, 4), boxing_bouts=2,
                                   cem_budgets=((2, 16, 2), (3, 16, 2))),
     },

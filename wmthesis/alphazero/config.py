@@ -106,7 +106,14 @@ class AlphaZeroConfig:
                                  f"{self.gumbel_scale!r}, {self.c_scale!r}, {self.c_visit!r}")
 
 
+@dataclass(frozen=True)
+class DiagnosisConfig:
+    """The diagnosis of a run (``boxing-wm-alphazero``'s recipe): the memory's reward error measured
+    along the first ``depth`` steps of the search's paths."""
+    depth: int = 10
+
+
 TIE_BREAKS = ("first", "q", "prior")  # equal visit counts go to: the first action, the higher Q, the higher prior
 ROOTS = ("puct", "gumbel")  # the thesis's PUCT root, Gumbel MuZero's (wmthesis.alphazero.gumbel)
 
-__all__ = ["AlphaZeroConfig", "ROOTS", "TIE_BREAKS"]
+__all__ = ["AlphaZeroConfig", "DiagnosisConfig", "ROOTS", "TIE_BREAKS"]

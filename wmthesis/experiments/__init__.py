@@ -16,7 +16,7 @@ from typing import Callable
 
 from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.declarations import DECLARATIONS, resolve
-from wmthesis.experiments.alphazero import ALPHAZERO_DIAGNOSIS_DEPTH, RECORDING_STEPS, boxing_wm_alphazero
+from wmthesis.experiments.alphazero import RECORDING_STEPS, boxing_wm_alphazero
 from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,
                                          planet_variants)
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
@@ -118,7 +118,7 @@ __all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "reproduce", "reproduce
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES",
-           "boxing_wm_alphazero", "ALPHAZERO_DIAGNOSIS_DEPTH", "RECORDING_STEPS",
+           "boxing_wm_alphazero", "RECORDING_STEPS",
            "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "planet_boxing_value",
            "planet_freeway_value",
            "PLANET_GAMES", "ATARI_CHANGES",

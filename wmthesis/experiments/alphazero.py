@@ -10,7 +10,7 @@ import numpy as np
 
 from wmthesis.alphazero import diagnosis
 from wmthesis.alphazero.agent import agent_name, save_agent
-from wmthesis.alphazero.config import AlphaZeroConfig
+from wmthesis.alphazero.config import AlphaZeroConfig, DiagnosisConfig
 from wmthesis.alphazero.evaluation import (RECORDING_STEPS, boxing_baselines, controller_minds, evaluation_games,
                                            policy_head_returns, score_figure)
 from wmthesis.alphazero.expert_memory import train_expert_memory
@@ -31,7 +31,6 @@ from wmthesis.world_models.config import MemoryConfig, VisionConfig
 from wmthesis.world_models.train import LatentStore, encode_store, train_memory, train_vision
 from wmthesis.world_models.vision import VAEVision
 
-ALPHAZERO_DIAGNOSIS_DEPTH = {"smoke": 5, "quick": 10, "thesis": 10}
 
 
 @releasing_holds
@@ -103,7 +102,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
 
     mdp = LatentMDP(memories[variants[-1]])  # the diagnosis reads the last variant's games in its own memory
     all_games = [game for name in variants if memories[name] is memories[variants[-1]] for game in games[name]]
-    depth = ALPHAZERO_DIAGNOSIS_DEPTH[profile]
+    depth = for_profile(DiagnosisConfig, profile).depth
     reward_error = diagnosis.reward_error_by_depth(mdp, all_games, depth)
     value_fit = diagnosis.value_predictability(mdp, LatentStore(latents), cfg.gamma, cfg.n_step)
     action_fit = diagnosis.action_predictability(mdp, LatentStore(latents), seed=seed)
