@@ -5,7 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from wmthesis.experiments import PLANET_EVAL_EPISODES, reproduce
+from wmthesis.config import for_profile
+from wmthesis.experiments import reproduce
+from wmthesis.planet.config import PlanetEvaluationConfig
 
 
 def test_a_wrong_variant_fails_listing_the_valid_ones():
@@ -24,7 +26,7 @@ def test_smoke_sokoban_writes_its_results_and_resumes(tmp_path, monkeypatch):
     out = tmp_path / "results" / "planet-sokoban" / "smoke-seed1" / "unchanged"
     assert json.loads((out / "metrics.json").read_text()) == json.loads(json.dumps(metrics, default=float))
     assert metrics["variant"] == "unchanged" and metrics["profile"] == "smoke"
-    assert metrics["score"]["episodes"] == PLANET_EVAL_EPISODES["smoke"]
+    assert metrics["score"]["episodes"] == for_profile(PlanetEvaluationConfig, "smoke").episodes
     open_loop = metrics["open_loop"]
     assert len(open_loop["mse"]) == open_loop["horizon"]
     assert open_loop["error_at_cutoff"] == open_loop["mse"][open_loop["cutoff"] - 1] >= 0

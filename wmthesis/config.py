@@ -70,6 +70,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                                     budget=300, eval_levels=4),
         "SokobanEvaluationConfig": dict(report_levels=2, reference_levels=2, validation_levels=2),
         "DiagnosisConfig": dict(depth=5),
+        "PlanetEvaluationConfig": dict(episodes=2, sokoban_open_loop=(4, 8, 4), atari_open_loop=(4, 8, 4)),
         "BudgetCurveConfig": dict(sokoban_budgets=(50, 300), sokoban_levels=4, mcts_budgets=(2, 4), boxing_bouts=2,
                                   cem_budgets=((2, 16, 2), (3, 16, 2))),
     },
@@ -97,6 +98,7 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         # fewer reference levels keep the run in its time (on 500 they take about 20 CPU-minutes)
         "SokobanEvaluationConfig": dict(report_levels=500, reference_levels=100, validation_levels=200),
         # CEM: quick's J and I are its PlaNet's; no H12 (its bouts cost more than the rest; its 12th step weighs 2%)
+        "PlanetEvaluationConfig": dict(episodes=3),
         "BudgetCurveConfig": dict(sokoban_levels=500, cem_budgets=((2, 100, 3), (3, 100, 3), (6, 100, 3))),
     },
     "thesis": {},

@@ -17,8 +17,7 @@ from typing import Callable
 from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.declarations import DECLARATIONS, resolve
 from wmthesis.experiments.alphazero import RECORDING_STEPS, boxing_wm_alphazero
-from wmthesis.experiments.planet import (PLANET_EVAL_EPISODES, PLANET_GAMES, PLANET_OPEN_LOOP, planet_experiment,
-                                         planet_variants)
+from wmthesis.experiments.planet import PLANET_GAMES, planet_experiment, planet_variants
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
 from wmthesis.experiments.planet_boxing_value import planet_boxing_value
 from wmthesis.experiments.planet_freeway_value import planet_freeway_value
@@ -122,4 +121,4 @@ __all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "reproduce", "reproduce
            "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "planet_boxing_value",
            "planet_freeway_value",
            "PLANET_GAMES", "ATARI_CHANGES",
-           "SOKOBAN_CHANGES", "PLANET_EVAL_EPISODES", "PLANET_OPEN_LOOP"]
+           "SOKOBAN_CHANGES"]

@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from wmthesis.config import profile_name
+from wmthesis.config import for_profile, profile_name
 from wmthesis.data import EpisodeStore
 from wmthesis.envs import ATARI_GAMES
 from wmthesis.metrics import error_at, horizon_errors, score_summary
 from wmthesis.planet.agent import play_greedy
 from wmthesis.planet.agent_file import AGENT_NAME, save_agent
+from wmthesis.planet.config import PlanetEvaluationConfig
 from wmthesis.planet.figures import horizon_error_figure, learning_curve_figure, open_loop_figure
 from wmthesis.planet.prediction import open_loop
 from wmthesis.planet.profiles import planet_config
@@ -31,16 +32,6 @@ from wmthesis.viz import record_frames, save_figure
 PLANET_GAMES = {name: (ENVIRONMENTS[name], tuple(registry), registry.default.name) for name, registry in REGISTRIES.items()}
 
 
-# Greedy evaluation episodes after training (not in the thesis, which reported 5 runs' tests).
-PLANET_EVAL_EPISODES = {"smoke": 2, "quick": 3, "thesis": 10}
-
-# Open-loop evaluation, (context, predicted steps, cut-off horizon) per profile and game kind:
-# the error at the cut-off horizon is the number reported in metrics.json.
-PLANET_OPEN_LOOP = {
-    "smoke": {"sokoban": (4, 8, 4), "atari": (4, 8, 4)},
-    "quick": {"sokoban": (5, 15, 10), "atari": (5, 30, 15)},
-    "thesis": {"sokoban": (5, 15, 10), "atari": (5, 30, 15)},
-}
 
 
 def planet_variants(name: str) -> tuple[str, ...]:
@@ -75,7 +66,8 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
 
     run = train_planet(env_name, config, work, seed=seed, variant=variant, progress=progress)
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
-    n_eval = PLANET_EVAL_EPISODES[profile]
+    scoring = for_profile(PlanetEvaluationConfig, profile)
+    n_eval = scoring.episodes
     cached = read_json(out / "metrics.json")
     if (same_training(cached, run) and cached.get("env_steps") == run["env_steps"]
             and cached["score"]["episodes"] == n_eval
@@ -86,7 +78,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     model, trained_config, meta = load_planet(work)
     returns = _planet_evaluate(model, trained_config, env_name, work, seed, n_eval, run["updates"])
     save_agent(work / AGENT_NAME, env_name, work, _evaluation_bouts(seed, n_eval), git_commit())  # for `play`
-    context, horizon, cutoff = PLANET_OPEN_LOOP[profile]["atari" if env_name in ATARI_GAMES else "sokoban"]
+    context, horizon, cutoff = scoring.open_loop(env_name in ATARI_GAMES)
     with EpisodeStore(work / "episodes.h5") as store:
         random_returns = [float(store.episode(i)["rewards"].sum()) for i in range(trained_config.seed_episodes)]
         rollout = _planet_open_loop(model, store, context + horizon, context, trained_config, seed)

@@ -175,4 +175,19 @@ class SearchConfig:
     grace_period: int = 300
 
 
-__all__ = ["PlaNetConfig", "LatentValueConfig", "ValuePlannerConfig", "SearchConfig"]
+@dataclass(frozen=True)
+class PlanetEvaluationConfig:
+    """How a PlaNet run is scored after training (not in the thesis, which reported 5 runs'
+    tests): ``episodes`` greedy episodes, and the open loop as (context, predicted steps, cut-off
+    horizon) for Sokoban and for Atari games; the error at the cut-off horizon is the number its
+    ``metrics.json`` reports."""
+    episodes: int = 10
+    sokoban_open_loop: tuple = (5, 15, 10)
+    atari_open_loop: tuple = (5, 30, 15)
+
+    def open_loop(self, atari: bool) -> tuple:
+        """(context, predicted steps, cut-off horizon) of an Atari game or of Sokoban."""
+        return self.atari_open_loop if atari else self.sokoban_open_loop
+
+
+__all__ = ["PlaNetConfig", "LatentValueConfig", "ValuePlannerConfig", "SearchConfig", "PlanetEvaluationConfig"]
