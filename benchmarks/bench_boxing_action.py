@@ -1,14 +1,15 @@
-"""One Boxing action of a planning agent on one CPU thread, at each search budget (issue 57).
+"""One Boxing action of a planning agent on one CPU thread, at each search budget.
 
-    python benchmarks/bench_boxing_action.py [--steps 300] [--budgets 0 16 64 256] [--agent PATH] [--out PATH]
+    python benchmarks/bench_boxing_action.py [--steps 300] [--budgets 0 2 4 8 16 64 256] [--agent PATH] [--out PATH]
 
 Plays the shipped World Models + AlphaZero agent (``data/quick/boxing-wm-alphazero/seed0/
 agent-own-memory.pt``, the default's, or ``--agent``) greedily in real Boxing for the first ``--steps`` steps of
 one bout per budget, torch on one thread, and reports the wall milliseconds per action: the
 frame's encoding, the search (budget 0: the policy head alone, no search) and the game's step
-together, as a user playing the agent waits for them. The same no-op start for every budget.
-The target (issue 57): at most 50 ms an action at the budget to recommend: 256 simulations, the
-best of the default's on seed 0's validation bouts (``docs/findings/planning-budget.md``). Writes ``benchmarks/results/boxing_action.json``.
+together, as a user playing the agent waits for them, with the budget curve's root
+(``BudgetCurveConfig.mcts_search``). The same no-op start for every budget. The target: at most
+50 ms an action at the budget to recommend, :data:`RECOMMENDED` (the best on the validation bouts,
+``docs/findings/planning-budget.md``). Writes ``benchmarks/results/boxing_action.json``.
 """
 from __future__ import annotations
 
@@ -24,14 +25,14 @@ from _results import machine_meta, print_table, write_results  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).resolve().parent / "results" / "boxing_action.json"
 AGENT = ROOT / "data" / "quick" / "boxing-wm-alphazero" / "seed0" / "agent-own-memory.pt"
-RECOMMENDED = 256  # simulations: the budget to recommend (own-memory's best on validation bouts)
+RECOMMENDED = 64  # simulations: the budget to recommend (the curve's root's best on validation bouts)
 TARGET_MS = 50.0
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--budgets", type=int, nargs="+", default=[0, 16, 64, 256])
+    parser.add_argument("--budgets", type=int, nargs="+", default=[0, 2, 4, 8, 16, 64, 256])
     parser.add_argument("--agent", type=Path, default=AGENT)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
@@ -41,6 +42,7 @@ def main(argv=None) -> None:
     import torch
 
     from wmthesis.alphazero.agent import load_agent
+    from wmthesis.alphazero.budget import search_settings
     from wmthesis.alphazero.evaluation import evaluation_seeds
     from wmthesis.alphazero.imitation import PolicyHeadMind
     from wmthesis.alphazero.replay import game_seeds
@@ -58,7 +60,7 @@ def main(argv=None) -> None:
             if budget == 0:
                 mind = PolicyHeadMind(agent.vision, agent.mdp, agent.heads)
             else:
-                mind = agent.mind(simulations=budget)
+                mind = agent.mind(simulations=budget, **search_settings("quick"))
                 mind.new_search(search_seed)
             start = time.perf_counter()
             history = loop(env, mind, policy="deterministic", callbacks=[mind], max_steps=args.steps, seed=env_seed,
