@@ -42,7 +42,7 @@ def main(argv=None) -> None:
     import torch
 
     from wmthesis.alphazero.agent import load_agent
-    from wmthesis.alphazero.budget import search_settings
+    from wmthesis.alphazero.config import search_settings
     from wmthesis.alphazero.evaluation import evaluation_seeds
     from wmthesis.alphazero.imitation import PolicyHeadMind
     from wmthesis.alphazero.replay import game_seeds

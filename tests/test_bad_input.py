@@ -270,15 +270,26 @@ def test_a_store_that_cannot_be_created_or_read_says_which_and_what_to_do(tmp_pa
         EpisodeStore(store)
 
 
-def test_the_command_line_checks_its_arguments_before_torch_ray_or_ale_py_load():
+@pytest.mark.parametrize("argv, says", [
+    (["reproduce", "boxing-wm", "--seed", "abc"], "is not an integer"),
+    (["reproduce", "boxing-wm", "--variant", "nope"], "unknown variant 'nope'"),
+    (["reproduce", "planning-budget", "--variant", "x"], "has no variants"),
+    (["validate", "boxing-wm", "bogus"], "unknown lever 'bogus'"),
+    (["validate", "boxing-wm", "population-16", "--seeds", "0-1000"], "more than 100 seeds"),
+    (["sweep", "boxing-wm", "--seeds", "0-1000000"], "more than 100 seeds"),
+    (["sweep", "boxing-wm:nope", "--seeds", "0"], "unknown variant 'nope'"),
+    (["budget-curve", "mcts", "--validation", "--search", "root=chess"], "unknown root 'chess'"),
+    (["play", "boxing-wm", "--variant", "nope"], "unknown variant 'nope'"),
+])
+def test_the_command_line_checks_its_arguments_before_torch_ray_or_ale_py_load(argv, says):
     import subprocess
     import sys
 
     code = ("import sys\nfrom wmthesis.__main__ import main\n"
-            "try:\n    main(['reproduce', 'boxing-wm', '--seed', 'abc'])\nexcept SystemExit as e:\n    code = e.code\n"
+            f"try:\n    code = main({argv!r})\nexcept SystemExit as e:\n    code = e.code\n"
             "print(code, sorted(m for m in ('torch', 'ray', 'ale_py', 'gymnasium') if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
-    assert out == ["2", "[]"]
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["2", "[]"] and says in done.stderr, (done.stdout, done.stderr)
 
 
 def test_ctrl_c_in_any_command_is_one_line_and_exit_status_130(monkeypatch, capsys):

@@ -49,7 +49,8 @@ from pathlib import Path
 from wmthesis.config import (ATARI_ENVIRONMENTS, PLANNERS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, check_storage,
                              for_profile)
 from wmthesis.runs import DiskFull, FolderHeld, check_writable, write_json
-from wmthesis.utils import data_dir
+from wmthesis.declarations import check_run
+from wmthesis.utils import data_dir, parse_seeds
 
 
 def at_least(minimum: int):
@@ -123,6 +124,7 @@ def cmd_view(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
+    check_run(args.experiment, args.variant)  # before torch loads
     import matplotlib
 
     matplotlib.use("Agg")
@@ -186,13 +188,14 @@ def cmd_budget_curve(args) -> int:
         raise ValueError(f"--validation plays MCTS's validation bouts; {args.planner} chooses on its own validation "
                          "(sokoban-search: `validate`; cem: planet-boxing-value's validation bouts)")
     budgets = None if args.budgets is None else {args.planner: parse_budgets(args.planner, args.budgets)}
+    from wmthesis.alphazero.config import search_settings, search_tag
+
+    search = None if args.search is None else search_settings(args.profile, args.search)
     import matplotlib
 
     matplotlib.use("Agg")
-    from wmthesis.alphazero.budget import search_settings, search_tag
     from wmthesis.experiments.planning_budget import mcts_validation, planning_budget
 
-    search = None if args.search is None else search_settings(args.profile, args.search)
     if args.validation:
         metrics = mcts_validation(args.profile, args.seed, budgets=(budgets or {}).get("mcts"), variant=args.variant,
                                   search=search)
@@ -218,11 +221,12 @@ def cmd_play(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from wmthesis.sweep import parse_seeds
-    from wmthesis.validation import check_levers, lever_lines, validate
+    from wmthesis.validation import check_levers
 
-    check_levers(args.experiment, args.levers)
+    check_levers(args.experiment, args.levers)  # before torch loads
     seeds = parse_seeds(args.seeds)
+    from wmthesis.validation import lever_lines, validate
+
     results = validate(args.experiment, args.levers, profile=args.profile, seeds=seeds, variant=args.variant,
                        count=args.count, workers=args.workers)
     for seed, levers in results.items():
@@ -262,14 +266,17 @@ def cmd_search(args) -> int:
 
 
 def cmd_sweep(args) -> int:
+    seeds = parse_seeds(args.seeds)  # names and seeds refused before torch or Ray load
+    for spec in args.runs:
+        check_run(*(spec.partition(":")[::2]))
     import matplotlib
 
     matplotlib.use("Agg")
     from wmthesis.config import profile_name
     from wmthesis.summary import markdown_table, write_summary
-    from wmthesis.sweep import RayStartFailed, check_address, parse_runs, parse_seeds, sweep
+    from wmthesis.sweep import RayStartFailed, check_address, parse_runs, sweep
 
-    runs = parse_runs(args.runs, parse_seeds(args.seeds))
+    runs = parse_runs(args.runs, seeds)
     if args.address is not None:
         check_address(args.address)
     profile = profile_name(args.profile)

@@ -120,4 +120,20 @@ EXPERIMENTS = tuple(DECLARED)
 AGENTS = tuple(d.name for d in DECLARATIONS if d.agent is not None)
 BUILDS_ON = {d.name: d.builds_on for d in DECLARATIONS if d.builds_on}
 
-__all__ = ["NO_SCORE", "Declaration", "AgentFile", "DECLARATIONS", "DECLARED", "EXPERIMENTS", "AGENTS", "BUILDS_ON", "resolve"]
+
+
+def check_run(experiment: str, variant: str | None = None) -> None:
+    """Refuse an unknown experiment, an unknown variant, or a variant for an experiment that has
+    none (ValueError in one line, listing the valid ones): light, before torch loads."""
+    if experiment not in DECLARED:
+        raise ValueError(f"unknown experiment {experiment!r}; valid: {', '.join(EXPERIMENTS)}")
+    registry = DECLARED[experiment].registry()
+    if registry is None:
+        if variant:
+            raise ValueError(f"experiment {experiment!r} has no variants, got {variant!r}")
+    elif variant:
+        registry.check(variant)
+
+
+__all__ = ["NO_SCORE", "Declaration", "AgentFile", "DECLARATIONS", "DECLARED", "EXPERIMENTS", "AGENTS", "BUILDS_ON", "resolve",
+           "check_run"]

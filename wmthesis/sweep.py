@@ -33,7 +33,7 @@ from wmthesis.declarations import BUILDS_ON, DECLARED, NO_SCORE
 from wmthesis.experiments import DEFAULT_RESULTS, EXPERIMENTS, VARIANTS, reproduce
 from wmthesis.runs import atomic_path
 from wmthesis.summary import run_scores
-from wmthesis.utils import check_choice, data_dir
+from wmthesis.utils import MAX_SEED, MAX_SEEDS, check_choice, data_dir, parse_seeds
 
 # Experiment -> the experiment whose artifacts it reuses for the same seed (run first).
 
@@ -57,29 +57,6 @@ def variants_of(experiment: str) -> tuple[str, ...]:
     """The variants ``experiment`` accepts (empty: it has none)."""
     check_choice("experiment", experiment, EXPERIMENTS)
     return tuple(VARIANTS.get(experiment, ()))
-
-
-MAX_SEED = 2**31 - 1  # seeds are 31-bit: every generator and store of the package takes them
-MAX_SEEDS = 100  # seeds one command takes: a longer range is almost surely a typo
-
-
-def parse_seeds(text: str, most: int = MAX_SEEDS) -> list[int]:
-    """``"0-4"`` -> [0, 1, 2, 3, 4]; ``"0,2,7"`` and ``"3"`` as written; a bad range, a seed above
-    :data:`MAX_SEED` or more than ``most`` seeds raises ValueError (before anything is counted out)."""
-    seeds: set[int] = set()
-    for part in text.split(","):
-        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
-        if match is None:
-            raise ValueError(f"--seeds {text!r}: {part!r} is not a seed or a range (e.g. 0-4 or 0,2,7)")
-        low, high = int(match[1]), int(match[2] if match[2] is not None else match[1])
-        if high < low:
-            raise ValueError(f"--seeds {text!r}: the range {low}-{high} is empty (write it low-high)")
-        if high > MAX_SEED:
-            raise ValueError(f"--seeds {text!r}: seeds are at most {MAX_SEED:,} (31 bits), got {high:,}")
-        if len(seeds) + high - low + 1 > most:
-            raise ValueError(f"--seeds {text!r}: more than {most} seeds; name at most {most} in one command")
-        seeds.update(range(low, high + 1))
-    return sorted(seeds)
 
 
 def parse_runs(specs: list[str], seeds: list[int]) -> list[SweepRun]:

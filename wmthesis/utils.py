@@ -9,6 +9,7 @@ import multiprocessing
 import os
 import pickle
 import random
+import re
 import sys
 import time
 from contextlib import contextmanager, nullcontext
@@ -101,6 +102,29 @@ def check_finite(name: str, values) -> None:
     array = values.detach().cpu().numpy() if hasattr(values, "detach") else np.asarray(values)
     if array.dtype.kind in "fc" and not np.isfinite(array).all():
         raise ValueError(f"{name} hold NaN or infinity ({int((~np.isfinite(array)).sum())} of {array.size} values)")
+
+
+MAX_SEED = 2**31 - 1  # seeds are 31-bit: every generator and store of the package takes them
+MAX_SEEDS = 100  # seeds one command takes: a longer range is almost surely a typo
+
+
+def parse_seeds(text: str, most: int = MAX_SEEDS) -> list[int]:
+    """``"0-4"`` -> [0, 1, 2, 3, 4]; ``"0,2,7"`` and ``"3"`` as written; a bad range, a seed above
+    :data:`MAX_SEED` or more than ``most`` seeds raises ValueError (before anything is counted out)."""
+    seeds: set[int] = set()
+    for part in text.split(","):
+        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if match is None:
+            raise ValueError(f"--seeds {text!r}: {part!r} is not a seed or a range (e.g. 0-4 or 0,2,7)")
+        low, high = int(match[1]), int(match[2] if match[2] is not None else match[1])
+        if high < low:
+            raise ValueError(f"--seeds {text!r}: the range {low}-{high} is empty (write it low-high)")
+        if high > MAX_SEED:
+            raise ValueError(f"--seeds {text!r}: seeds are at most {MAX_SEED:,} (31 bits), got {high:,}")
+        if len(seeds) + high - low + 1 > most:
+            raise ValueError(f"--seeds {text!r}: more than {most} seeds; name at most {most} in one command")
+        seeds.update(range(low, high + 1))
+    return sorted(seeds)
 
 
 def data_dir(*parts: str) -> Path:

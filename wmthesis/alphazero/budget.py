@@ -21,41 +21,13 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from wmthesis.alphazero.config import AlphaZeroConfig
 from wmthesis.alphazero.evaluation import bout_seeds, cached_games, greedy_returns, save_games
 from wmthesis.alphazero.imitation import PolicyHeadMind
 from wmthesis.alphazero.variants import VARIANTS
 from wmthesis.alphazero.selfplay import play
-from wmthesis.budget_curves import BudgetCurveConfig
-from wmthesis.config import for_profile
 from wmthesis.runs import built_on, file_sha256, read_json, write_json
 
 STEPS_AHEAD = 10  # a step's real return in :func:`search_changes`: its reward and the next 9
-
-
-def search_settings(profile: str | None, text: str | None = None) -> dict:
-    """The search's root settings: ``text`` (``"root=gumbel,c_scale=0.03"``: fields of
-    :class:`~wmthesis.alphazero.config.AlphaZeroConfig`), or the profile's ``mcts_search``;
-    ValueError in one line for a field that is not the root's or a value it refuses."""
-    pairs = for_profile(BudgetCurveConfig, profile).mcts_search if text is None else \
-        [item.split("=", 1) for item in text.split(",") if item.strip()]
-    settings = {}
-    for pair in pairs:
-        if len(pair) != 2 or pair[0].strip() not in SEARCH_FIELDS:
-            raise ValueError(f"search setting {'='.join(pair)!r} is not NAME=VALUE of {', '.join(SEARCH_FIELDS)}")
-        name, value = pair[0].strip(), str(pair[1]).strip()
-        settings[name] = value if name in ("root", "tie_break") else int(value) if name == "considered" else float(value)
-    AlphaZeroConfig(simulations=2, **settings)  # refuses an unknown root or a setting it cannot run with
-    return settings
-
-
-SEARCH_FIELDS = ("root", "tie_break", "considered", "gumbel_scale", "c_scale", "c_visit")
-
-
-def search_tag(search: dict) -> str:
-    """A search's settings in a row: ``"puct"`` (the agent's own) or ``"gumbel c_scale=0.03"``."""
-    rest = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in search.items() if k != "root")
-    return " ".join(filter(None, [search.get("root", "puct"), rest]))
 
 
 def alphazero_agent(profile: str, seed: int, variant: str | None, progress: bool):
@@ -156,5 +128,5 @@ def search_changes(heads, games: list, steps: int = STEPS_AHEAD) -> dict:
     return {"changed": float(changed.mean()), "return_changed": mean(ahead[changed]), "return_kept": mean(ahead[~changed])}
 
 
-__all__ = ["alphazero_agent", "STEPS_AHEAD", "SEARCH_FIELDS", "search_settings", "search_tag", "search_key", "head_games", "searched_games", "head_actions", "steps_ahead_returns",
+__all__ = ["alphazero_agent", "STEPS_AHEAD", "search_key", "head_games", "searched_games", "head_actions", "steps_ahead_returns",
            "search_changes"]

@@ -116,4 +116,32 @@ class DiagnosisConfig:
 TIE_BREAKS = ("first", "q", "prior")  # equal visit counts go to: the first action, the higher Q, the higher prior
 ROOTS = ("puct", "gumbel")  # the thesis's PUCT root, Gumbel MuZero's (wmthesis.alphazero.gumbel)
 
-__all__ = ["AlphaZeroConfig", "DiagnosisConfig", "ROOTS", "TIE_BREAKS"]
+def search_settings(profile: str | None, text: str | None = None) -> dict:
+    """The search's root settings: ``text`` (``"root=gumbel,c_scale=0.03"``: fields of
+    :class:`AlphaZeroConfig`), or the profile's ``mcts_search``;
+    ValueError in one line for a field that is not the root's or a value it refuses."""
+    from wmthesis.budget_curves import BudgetCurveConfig  # light, as this module is: the command line checks first
+    from wmthesis.config import for_profile
+
+    pairs = for_profile(BudgetCurveConfig, profile).mcts_search if text is None else \
+        [item.split("=", 1) for item in text.split(",") if item.strip()]
+    settings = {}
+    for pair in pairs:
+        if len(pair) != 2 or pair[0].strip() not in SEARCH_FIELDS:
+            raise ValueError(f"search setting {'='.join(pair)!r} is not NAME=VALUE of {', '.join(SEARCH_FIELDS)}")
+        name, value = pair[0].strip(), str(pair[1]).strip()
+        settings[name] = value if name in ("root", "tie_break") else int(value) if name == "considered" else float(value)
+    AlphaZeroConfig(simulations=2, **settings)  # refuses an unknown root or a setting it cannot run with
+    return settings
+
+
+SEARCH_FIELDS = ("root", "tie_break", "considered", "gumbel_scale", "c_scale", "c_visit")
+
+
+def search_tag(search: dict) -> str:
+    """A search's settings in a row: ``"puct"`` (the agent's own) or ``"gumbel c_scale=0.03"``."""
+    rest = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in search.items() if k != "root")
+    return " ".join(filter(None, [search.get("root", "puct"), rest]))
+
+
+__all__ = ["AlphaZeroConfig", "DiagnosisConfig", "ROOTS", "TIE_BREAKS", "SEARCH_FIELDS", "search_settings", "search_tag"]

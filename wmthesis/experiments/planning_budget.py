@@ -16,8 +16,8 @@ import time
 
 import numpy as np
 
-from wmthesis.alphazero.budget import (alphazero_agent, head_games, search_changes, search_settings, search_tag,
-                                      searched_games)
+from wmthesis.alphazero.budget import alphazero_agent, head_games, search_changes, searched_games
+from wmthesis.alphazero.config import search_settings, search_tag
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
 from wmthesis.budget_curves import BudgetCurveConfig, PLANNERS, check_planners, plot_budget_curves, write_budget_table
 from wmthesis.config import for_profile, profile_name
