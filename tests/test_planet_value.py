@@ -481,7 +481,8 @@ def test_a_seeds_value_signal_is_kept_and_read_back_and_a_missing_value_run_says
     with pytest.raises(FileNotFoundError, match="reproduce planet-boxing-value --profile smoke --seed 917"):
         imagination.seed_value_signal("smoke", seed)
     path = run_store.results_folder("planning-budget", "smoke", seed) / "value_signal.json"
-    run_store.write_json(path, {"depths": [0, 1], "bouts": 20, "steps": 100, "correlation": {"0": 0.3, "1": 0.1}})
+    run_store.write_json(path, {"version": imagination.SIGNAL_VERSION, "models": imagination.signal_models("smoke", seed),
+                                "depths": [0, 1], "bouts": 20, "steps": 100, "correlation": {"0": 0.3, "1": 0.1}})
     monkeypatch.setattr(imagination, "planner_model", lambda *a: pytest.fail("the kept signal is measured again"))
     assert imagination.seed_value_signal("smoke", seed, depths=(0, 1)) == {0: 0.3, 1: 0.1}
     with pytest.raises(FileNotFoundError):  # other depths: measured anew, and there is no run to measure

@@ -221,12 +221,10 @@ def cmd_play(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from wmthesis.validation import check_levers
+    from wmthesis.validation import check_levers, lever_lines, validate  # light: torch loads when a lever runs
 
-    check_levers(args.experiment, args.levers)  # before torch loads
+    check_levers(args.experiment, args.levers)
     seeds = parse_seeds(args.seeds)
-    from wmthesis.validation import lever_lines, validate
-
     results = validate(args.experiment, args.levers, profile=args.profile, seeds=seeds, variant=args.variant,
                        count=args.count, workers=args.workers)
     for seed, levers in results.items():
@@ -437,15 +435,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         return args.run(args)
-    except DiskFull as error:  # nothing partial is left behind: the run resumes once there is space
-        print(f"error: {error.strerror}", file=sys.stderr)
-        return 1
     except (ValueError, TypeError, OSError, FolderHeld) as error:  # bad input: a clear message, no traceback
-        if isinstance(error, OSError) and error.errno == errno.ENOSPC:
-            print(f"error: no space left on {error.filename or 'the disk'}: {error}", file=sys.stderr)
-            return 1
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        full = isinstance(error, OSError) and error.errno == errno.ENOSPC  # nothing half-written is left behind
+        print(f"error: {error.strerror if isinstance(error, DiskFull) else error}", file=sys.stderr)
+        return 1 if full else 2
     except KeyboardInterrupt:  # every step a run finished is on disk: running it again resumes after it
         print(f"{args.command} interrupted: what it finished is kept; run the same command again to resume",
               file=sys.stderr)
