@@ -173,13 +173,17 @@ def changes_markdown(rows: list[dict]) -> str:
     mcts = [r for r in rows if r["planner"] == "mcts" and r["budget"] != NO_SEARCH and r.get("changed") is not None]
     if not mcts:
         return ""
-    mean = lambda key, mine: np.mean([r[key] for r in mine if r[key] is not None])  # noqa: E731
+    def mean(key: str, mine: list) -> float | None:
+        values = [r[key] for r in mine if r[key] is not None]
+        return float(np.mean(values)) if values else None
+
+    signed = lambda x: "none" if x is None else f"{x:+.3f}"  # noqa: E731
     lines = ["| simulations | seeds | steps where the search moved the head's action | next-10-step return there | "
              "elsewhere | score gain |", "|---|---|---|---|---|---|"]
     for budget in sorted({r["budget"] for r in mcts}):
         mine = [r for r in mcts if r["budget"] == budget]
-        lines.append(f"| {budget:,} | {len(mine)} | {100 * mean('changed', mine):.1f}% | {mean('return_changed', mine):+.3f} | "
-                     f"{mean('return_kept', mine):+.3f} | {np.mean([r['score'] - r['no_search_score'] for r in mine]):+.1f} |")
+        lines.append(f"| {budget:,} | {len(mine)} | {100 * mean('changed', mine):.1f}% | {signed(mean('return_changed', mine))} | "
+                     f"{signed(mean('return_kept', mine))} | {np.mean([r['score'] - r['no_search_score'] for r in mine]):+.1f} |")
     return "\n".join(lines)
 
 
