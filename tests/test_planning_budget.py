@@ -75,7 +75,6 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     assert again["rows"] == rows and [p.stat().st_mtime_ns for p in saved] == stamps
 
     # a budget cut off after its first game plays only the rest; one planner's new budgets keep the others' rows
-    import wmthesis.alphazero.budget as budget_games
     import wmthesis.alphazero.evaluation as evaluation
     from wmthesis.__main__ import main
     from wmthesis.alphazero.config import AlphaZeroConfig
@@ -89,8 +88,8 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
     games = read_pickle(last)
     evaluation.save_games(last.with_name(last.stem + ".partial.pkl"), games["key"], games["games"][:1])
     last.unlink()
-    played, real_play = [], budget_games.play
-    monkeypatch.setattr(budget_games, "play", lambda *a, **k: played.append(a[3]) or real_play(*a, **k))
+    played, real_play = [], evaluation.play
+    monkeypatch.setattr(evaluation, "play", lambda *a, **k: played.append(a[3]) or real_play(*a, **k))
     assert main(["budget-curve", "mcts", "--budgets", f"{curve_sizes('smoke').mcts_budgets[-1]},3", "--profile", "smoke"]) == 0
     assert played == [*range(1, sizes.boxing_bouts), *range(sizes.boxing_bouts)]  # the cut budget's rest, then 3's
     after = {(r["planner"], r["budget"]): r for r in read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0"

@@ -19,12 +19,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
-from wmthesis.alphazero.evaluation import bout_seeds, cached_games, greedy_returns, save_games
+from wmthesis.alphazero.evaluation import bout_seeds, cached_games, greedy_returns, resumed_games
 from wmthesis.alphazero.imitation import PolicyHeadMind
 from wmthesis.alphazero.variants import VARIANTS
-from wmthesis.alphazero.selfplay import play
 from wmthesis.runs import built_on, file_sha256, read_json, write_json
 
 STEPS_AHEAD = 10  # a step's real return in :func:`search_changes`: its reward and the next 9
@@ -82,22 +80,11 @@ def searched_games(agent, simulations: int, split: str, bouts: int, folder: Path
     :class:`~wmthesis.alphazero.replay.Game` saved as it ends in ``folder``."""
     key = search_key(agent, split, bouts, simulations=int(simulations), **root)
     path = _cache_path(folder, split, key).with_suffix(".pkl")
-    partial = path.with_name(path.stem + ".partial.pkl")
     done = cached_games(path, key)
     if done is not None:
         return done
-    games = cached_games(partial, key) or []
-    mind, env = agent.loaded.mind(int(simulations), **root), agent.env()
-    try:
-        for k, game_seed in tqdm(list(enumerate(key["seeds"]))[len(games):], desc=f"{simulations} simulations",
-                                 unit="bout", disable=not progress):
-            games.append(play(env, mind, game_seed, k, train_mode=False, max_steps=key["max_steps"]))
-            save_games(partial, key, games)
-    finally:
-        env.close()
-    save_games(path, key, games)
-    partial.unlink(missing_ok=True)
-    return games
+    return resumed_games(path, key, agent.loaded.mind(int(simulations), **root), agent.env(), progress=progress,
+                         desc=f"{simulations} simulations")
 
 
 @torch.inference_mode()

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Callable
 
 import matplotlib.pyplot as plt
+from tqdm.auto import tqdm
 
 from wmthesis.alphazero.expert_memory import memory_folder
 from wmthesis.alphazero.heads import Evaluator
@@ -129,13 +130,20 @@ def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained
         return cached
     heads = run.pretrained_heads() if pretrained else run.heads
     mind = AlphaZeroMind(vision, run.mdp(memory), Evaluator(heads), cfg)
-    env = boxing_env(cfg.noop_max)
-    partial = path.with_name(path.stem + ".partial.pkl")  # the games played so far: a cut-off run resumes game by game
+    return resumed_games(path, key, mind, boxing_env(cfg.noop_max), keep_frames=True)
+
+
+def resumed_games(path: Path, key: dict, mind, env, keep_frames: bool = False, progress: bool = False,
+                  desc: str = "bouts") -> list:
+    """One greedy game of ``mind`` in ``env`` per seed of ``key["seeds"]`` (of ``key["max_steps"]``),
+    each saved as it ends (``*.partial.pkl``: a cut-off run plays only the rest), then all in
+    ``path`` under ``key``; ``keep_frames``: the first game keeps its first frames. Closes ``env``."""
+    partial = path.with_name(path.stem + ".partial.pkl")
     games = cached_games(partial, key) or []
     try:
-        for k, game_seed in list(enumerate(key["seeds"]))[len(games):]:
-            mind.keep_frames = k == 0
-            game = play(env, mind, game_seed, k, train_mode=False, max_steps=cfg.eval_max_steps)
+        for k, game_seed in tqdm(list(enumerate(key["seeds"]))[len(games):], desc=desc, unit="bout", disable=not progress):
+            mind.keep_frames = keep_frames and k == 0
+            game = play(env, mind, game_seed, k, train_mode=False, max_steps=key["max_steps"])
             if game.frames is not None:
                 game.frames = game.frames[:RECORDING_STEPS]
             games.append(game)
