@@ -638,7 +638,7 @@ def test_cached_evaluation_games_are_replayed_when_the_decision_rule_changes(tmp
     run = SimpleNamespace(games=4, heads=AlphaZeroHeads(L, H, A), mdp=lambda memory: LatentMDP(memory))
     for beta in (None, None, 5.0, 5.0, None):
         config = tiny_config(eval_episodes=2, decision_beta=beta)
-        games = evaluation.evaluation_games(run, vision, small_memory(), config, tmp_path, 0, simulations=8)
+        games = evaluation.evaluation_games(run, vision, small_memory(), config, tmp_path, 0)
         assert [g.score for g in games] == [0.0, 1.0]
     assert played == [None, None, 5.0, 5.0]  # each rule played once, then read from its cache
 

@@ -14,14 +14,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from wmthesis.alphazero.evaluation import bout_seeds, cached_games, greedy_returns, resumed_games
-from wmthesis.alphazero.imitation import PolicyHeadMind
+from wmthesis.alphazero.evaluation import bout_seeds, cached_games, head_returns, resumed_games
 from wmthesis.alphazero.variants import VARIANTS
 from wmthesis.runs import built_on, file_sha256, read_json, write_json
 
@@ -61,13 +59,7 @@ def head_games(agent, split: str, bouts: int, folder: Path) -> dict:
     cached = read_json(path)
     if cached is not None and cached["key"] == key:
         return cached
-    mind, env, steps = PolicyHeadMind(agent.vision, agent.memory, agent.heads), agent.env(), []
-    start = time.perf_counter()
-    try:
-        returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=key["max_steps"], steps=steps)
-    finally:
-        env.close()
-    result = {"key": key, "returns": returns, "ms_per_action": 1000 * (time.perf_counter() - start) / max(1, sum(steps))}
+    result = {"key": key, **head_returns(agent.vision, agent.memory, agent.heads, agent.env(), key)}
     write_json(path, result)
     return result
 
@@ -75,7 +67,7 @@ def head_games(agent, split: str, bouts: int, folder: Path) -> dict:
 def searched_games(agent, simulations: int, split: str, bouts: int, folder: Path, progress: bool = False,
                    **root) -> list:
     """``bouts`` greedy games of ``split`` with the agent's search at ``simulations`` an action
-    and ``root`` (``root="gumbel"``, ``considered``, ``gumbel_scale``, ``c_scale``: fields of
+    and ``root`` (:data:`~wmthesis.alphazero.config.SEARCH_FIELDS` of
     :class:`~wmthesis.alphazero.config.AlphaZeroConfig` in place of the agent's own); each
     :class:`~wmthesis.alphazero.replay.Game` saved as it ends in ``folder``."""
     key = search_key(agent, split, bouts, simulations=int(simulations), **root)

@@ -3,7 +3,6 @@ no-op starts for each, greedy play, returns; the trained heads with and without 
 play and the World Models controller on them, each cached; the scores as a figure."""
 from __future__ import annotations
 
-import dataclasses
 import pickle
 import time
 from pathlib import Path
@@ -100,30 +99,19 @@ def bout_seeds(split: str, seed: int, episodes: int, noop_max: int) -> list[int]
     return validation_seeds(seed, min(episodes, max(noop_max, 1) - reserved), noop_max, reserved)
 
 
-def _cache_name(split: str, name: str) -> str:
-    """The cache file ``name`` of the evaluation games, for ``split``'s games (``validation-...``)."""
-    return name if split == "evaluation" else f"{split}-{name.removeprefix('evaluation-')}"
-
-
-def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False,
-                     simulations: int | None = None, split: str = "evaluation") -> list:
+def evaluation_games(run, vision, memory, cfg, work: Path, seed: int, pretrained: bool = False) -> list:
     """``cfg.eval_episodes`` greedy games of the trained heads (the first keeps its frames);
     cached in ``evaluation.pkl`` for the run's number of games. ``pretrained``: the heads
-    after imitation, before self-play (``evaluation-pretrained.pkl``); ``simulations``: the
-    search's budget in place of ``cfg.simulations`` (``evaluation-S-simulations-N.pkl`` for N games);
-    ``split="validation"``: validation games instead (:func:`bout_seeds`; ``validation-...``), to
-    choose on. A search deciding by ``decision_beta`` B keeps its games apart (``...-beta-B.pkl``). Each
-    game is saved as it ends (``*.partial.pkl``): a cut-off evaluation plays only the rest."""
-    if simulations is not None:
-        cfg = dataclasses.replace(cfg, simulations=int(simulations))
-    name = ("evaluation-pretrained.pkl" if pretrained else "evaluation.pkl" if simulations is None
-            else f"evaluation-{simulations}-simulations-{cfg.eval_episodes}.pkl")
+    after imitation, before self-play (``evaluation-pretrained.pkl``). A search deciding by
+    ``decision_beta`` B keeps its games apart (``...-beta-B.pkl``). Each game is saved as it ends
+    (``*.partial.pkl``): a cut-off evaluation plays only the rest. (Other budgets and roots, and
+    validation games: :mod:`wmthesis.alphazero.budget`.)"""
+    name = "evaluation-pretrained.pkl" if pretrained else "evaluation.pkl"
     if cfg.decision_beta is not None:
         name = name.replace(".pkl", f"-beta-{cfg.decision_beta:g}.pkl")
-    path = work / _cache_name(split, name)
+    path = work / name
     key = {"games": 0 if pretrained else run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": bout_seeds(split, seed, cfg.eval_episodes, cfg.noop_max),
-           **({} if simulations is None else {"simulations": cfg.simulations}),
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max),
            **({} if cfg.decision_beta is None else {"decision_beta": cfg.decision_beta})}
     cached = cached_games(path, key)  # a missing or corrupt cache is played again
     if cached is not None:
@@ -170,27 +158,32 @@ def save_games(path: Path, key: dict, games: list) -> None:
         pickle.dump({"key": key, "games": games}, f)
 
 
-def policy_head_games(run, vision, memory, cfg, work: Path, seed: int, split: str = "evaluation") -> dict:
-    """The trained policy head played greedily without search on ``cfg.eval_episodes`` games of
-    ``split`` (:func:`bout_seeds`): ``returns`` and ``ms_per_action`` (the head's thinking, the game's
-    stepping and the vision's encoding together); cached in ``policy-head-N.json`` for N games
-    (``validation-policy-head-N.json``)."""
+def policy_head_games(run, vision, memory, cfg, work: Path, seed: int) -> dict:
+    """The trained policy head played greedily without search on ``cfg.eval_episodes`` evaluation
+    games: ``returns`` and ``ms_per_action`` (:func:`head_returns`); cached in ``policy-head-N.json``
+    for N games."""
     key = {"games": run.games, "episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps,
-           "seeds": bout_seeds(split, seed, cfg.eval_episodes, cfg.noop_max)}
-    path = work / _cache_name(split, f"policy-head-{cfg.eval_episodes}.json")
+           "seeds": evaluation_seeds(seed, cfg.eval_episodes, cfg.noop_max)}
+    path = work / f"policy-head-{cfg.eval_episodes}.json"
     cached = read_json(path)
     if cached is not None and cached["key"] == key:
         return cached
-    mind, env, steps = PolicyHeadMind(vision, run.mdp(memory), run.heads), boxing_env(cfg.noop_max), []
-    start = time.perf_counter()
-    try:
-        returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=cfg.eval_max_steps,
-                                 steps=steps)
-    finally:
-        env.close()
-    result = {"key": key, "returns": returns, "ms_per_action": 1000 * (time.perf_counter() - start) / max(1, sum(steps))}
+    result = {"key": key, **head_returns(vision, run.mdp(memory), run.heads, boxing_env(cfg.noop_max), key)}
     write_json(path, result)
     return result
+
+
+def head_returns(vision, mdp, heads, env, key: dict) -> dict:
+    """The policy head alone (no search) in one greedy game per seed of ``key["seeds"]`` (of
+    ``key["max_steps"]``): ``returns`` and ``ms_per_action`` (the encoding, the head and the
+    emulator together). Closes ``env``."""
+    mind, steps = PolicyHeadMind(vision, mdp, heads), []
+    start = time.perf_counter()
+    try:
+        returns = greedy_returns(env, lambda agent_seed: mind, key["seeds"], max_steps=key["max_steps"], steps=steps)
+    finally:
+        env.close()
+    return {"returns": returns, "ms_per_action": 1000 * (time.perf_counter() - start) / max(1, sum(steps))}
 
 
 def trained_run(wm: Path, work: Path, variant: str):

@@ -116,7 +116,7 @@ def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = 
     """MCTS in the World Models memory on Boxing, on the loaded agent of ``variant`` (default: the
     default; trained first where it is not there): its policy head alone (budget 0), then its search
     under each number of simulations of ``budgets`` (default the profile's ``mcts_budgets``) with the
-    root ``search`` (default the profile's ``mcts_search``: :func:`~wmthesis.alphazero.budget.search_settings`), on the same
+    root ``search`` (default the profile's ``mcts_search``: :func:`~wmthesis.alphazero.config.search_settings`), on the same
     ``boxing_bouts`` bouts of ``split`` (``"validation"``: games none of the evaluation bouts plays,
     to choose on). Each searched row adds where the search moved the head's action
     (:func:`~wmthesis.alphazero.budget.search_changes`)."""
