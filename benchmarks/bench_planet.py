@@ -11,10 +11,10 @@ Rows (a randomly initialised RSSM of the thesis sizes, 18 actions as in Boxing):
   over the bare forward pass (target <= 1.2).
 - ``agent step``: :class:`~wmthesis.planet.agent.PlanetMind` ``plan``: encode one frame,
   update the belief, then the CEM; and beside it the latent value agent's step
-  (:class:`~wmthesis.planet.value.ValueMind`: encode, update, one transition per action and the
+  (:class:`~wmthesis.value.latent_value.ValueMind`: encode, update, one transition per action and the
   value head; beyond the thesis), with its speed-up over the CEM step, and the same with the
   mean of 3 rounds' values (``agent_rounds`` 3: three times the heads), over the one value; and the CEM whose
-  candidates end in that value (:class:`~wmthesis.planet.value_planner.ValuePlanetMind`: the
+  candidates end in that value (:class:`~wmthesis.value.planner.ValuePlanetMind`: the
   same J, K and I, the horizon of the profile's ``ValuePlannerConfig``), with its time over the
   plain CEM step (``vs_cem``), its first step seeded by the value as evaluated (one more value
   call per step); the same from the thesis's zero mean, without that call; and with every
@@ -50,7 +50,9 @@ import torch.nn.functional as F
 
 sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # _results, wmthesis
 
-from wmthesis.planet.config import LatentValueConfig, PlaNetConfig, ValuePlannerConfig
+from wmthesis.planet.config import PlaNetConfig
+
+from wmthesis.value.config import LatentValueConfig, ValuePlannerConfig
 from wmthesis.config import for_profile  # noqa: E402
 from wmthesis.planet.profiles import planet_config  # noqa: E402
 from wmthesis.planet.cem import cem_plan  # noqa: E402
@@ -58,8 +60,8 @@ from wmthesis.planet.explore import build_disagreement  # noqa: E402
 from wmthesis.planet.rssm import planet_loss  # noqa: E402
 from wmthesis.planet.agent import PlanetMind
 from wmthesis.planet.train import batch_loss, build_model, make_optimizer  # noqa: E402
-from wmthesis.planet.value import LatentValue, ValueMind, round_ensemble  # noqa: E402
-from wmthesis.planet.value_planner import ValuePlanetMind  # noqa: E402
+from wmthesis.value.latent_value import LatentValue, ValueMind, round_ensemble  # noqa: E402
+from wmthesis.value.planner import ValuePlanetMind  # noqa: E402
 from wmthesis.training import gradient_step  # noqa: E402
 from _results import machine_meta, print_table, write_results  # noqa: E402
 

@@ -172,8 +172,8 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
 
     from wmthesis.experiments.planet_boxing_value import validate_agents
     from wmthesis.planet.train import load_planet, make_planet_env
-    from wmthesis.planet.value_rounds import load_value
-    from wmthesis.planet.value_play import play_value, validation_seeds
+    from wmthesis.value.rounds import load_value
+    from wmthesis.value.play import play_value, validation_seeds
 
     agents = validate_agents("smoke", 0, "scored-rounds", ("round chosen on validation", "mean of the last 3"), 1,
                              progress=False)
@@ -214,8 +214,8 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert lean["best_round"] is None and "validation" not in lean["curve"][-1]
     # lean-value-rewards-0.7: lean's value from a copy (no round fitted again) under the planner chosen
     # on validation bouts; its CEM bout is that planner's with lean's own value
-    from wmthesis.planet.config import ValuePlannerConfig
-    from wmthesis.planet.value_bouts import value_planner_bout
+    from wmthesis.value.config import ValuePlannerConfig
+    from wmthesis.value.bouts import value_planner_bout
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "lean-value-rewards-0.7"]) == 0
     rewarded = json.loads((results / "lean-value-rewards-0.7" / "metrics.json").read_text())
@@ -228,9 +228,9 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert rewarded["value_planner"]["returns"][0] == bout["return"]
     # own-rewards: lean's value, CEM's imagined rewards from the reward head refit on the run's bouts;
     # the head is refit once in its folder, its bouts and its shipped agent plan with it
-    from wmthesis.planet.agent_file import load_agent
     import torch
-    from wmthesis.planet.own_rewards import OWN_REWARDS
+    from wmthesis.value.own_rewards import OWN_REWARDS
+    from wmthesis.value.shipped import load_value_agent
 
     assert main(["reproduce", "planet-boxing-value", "--profile", "smoke", "--variant", "own-rewards"]) == 0
     own = json.loads((results / "own-rewards" / "metrics.json").read_text())
@@ -242,12 +242,12 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     bout = value_planner_bout(tmp_path / "data/smoke/planet-boxing-agent/seed0", folder,
                               ValuePlannerConfig(**own["value_planner"]["config"]), *own["bouts"][0])
     assert own["value_planner"]["returns"][0] == bout["return"]
-    shipped = load_agent(folder / "agent.pt").model.reward_net.state_dict()
+    shipped = load_value_agent(folder / "agent.pt").model.reward_net.state_dict()
     assert all(torch.equal(shipped[k], v) for k, v in head["state"].items())
     # the planner's levers on the lean value's validation bouts, cached in its folder
-    from wmthesis.planet import value_bouts
+    from wmthesis.value import bouts as value_bouts
     from wmthesis.experiments.planet_boxing_value import validate_planners
-    from wmthesis.planet.value_runs import slug
+    from wmthesis.value.comparison import slug
 
     levers = ("value seeds CEM", "the value's rewards, discount 0.7")
     finished = [results / "lean" / "metrics.json", tmp_path / "data/smoke/planet-boxing-value/lean-seed0/agent.pt"]
@@ -266,7 +266,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     assert sorted(p.name for p in own.iterdir()) == sorted(slug(lever) for lever in levers)
     # the command line's validate: the same levers, one more played and saved where validate_planners finds it
     from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
-    from wmthesis.planet.value_tables import planner_lever_rows
+    from wmthesis.value.tables import planner_lever_rows
 
     capsys.readouterr()
     assert main(["validate", "planet-boxing-value", *levers, "H1: the value agent", "--variant", "lean",

@@ -201,16 +201,41 @@ def test_no_branch_on_an_experiments_name_outside_the_declarations():
     assert branches == []
 
 
-def test_profile_sized_tables_outside_the_config_modules_only_shrink():
+def test_each_profiles_sizes_are_written_in_the_config_modules_alone():
     """Each profile's sizes belong in a config dataclass, overridden per profile in one place
-    (wmthesis.config.OVERRIDES); the tables keyed by profile that remain elsewhere may only go."""
-    profiles = {"smoke", "quick", "thesis"}
-    tables = []
+    (wmthesis.config.OVERRIDES; PlaNet's per-game sizes in planet/profiles.py): no table keyed by
+    profile and no test of a profile's name elsewhere."""
+    from wmthesis.config import PROFILES
+
+    tables, branches = [], []
     for path in PACKAGE.rglob("*.py"):
         if path.name in ("config.py", "profiles.py"):
             continue
         for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Dict) and node.keys and all(isinstance(k, ast.Constant) and k.value in profiles
+            where = f"{path.relative_to(PACKAGE)}:{getattr(node, 'lineno', 0)}"
+            if isinstance(node, ast.Dict) and node.keys and all(isinstance(k, ast.Constant) and k.value in PROFILES
                                                                   for k in node.keys):
-                tables.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
-    assert len(tables) <= 9, tables
+                tables.append(where)
+            if isinstance(node, ast.Compare) and any(isinstance(n, ast.Constant) and n.value in PROFILES
+                                                     for n in [node.left, *node.comparators]):
+                branches.append(where)
+    assert tables == [] and branches == []
+
+
+# The wings a wing may import, as the thesis builds them on one another: PlaNet's encoder and
+# decoder are World Models' VAE networks (thesis 4.4.1), the AlphaZero coupling plans in the World
+# Models memory (4.3), and the learned value is fitted on PlaNet's frozen model.
+WINGS_BUILT_ON = {"world_models": set(), "sokoban_search": set(), "planet": {"world_models"},
+                  "alphazero": {"world_models"}, "value": {"planet"}}
+
+
+def test_a_wing_imports_only_the_wings_it_builds_on():
+    crossing = []
+    for wing, allowed in WINGS_BUILT_ON.items():
+        for path in (PACKAGE / wing).rglob("*.py"):
+            for node in _imports(path):
+                other = node.module.split(".")[1] if node.module.count(".") else None
+                if other in WINGS_BUILT_ON and other != wing and other not in allowed:
+                    crossing.append(f"{wing}/{path.name} imports {node.module}")
+    assert crossing == []
+    assert set(WINGS_BUILT_ON) == {p.name for p in PACKAGE.iterdir() if (p / "config.py").is_file()}

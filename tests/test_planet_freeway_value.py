@@ -11,9 +11,11 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
 def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_episodes(tmp_path, monkeypatch):
     from wmthesis.experiments import reproduce
-    from wmthesis.experiments.planet_freeway_value import EPISODES, FREEWAY_VALUE
+    from wmthesis.config import for_profile
+    from wmthesis.experiments.planet_freeway_value import FREEWAY_VALUE
+    from wmthesis.value.config import ValueEvaluationConfig
     from wmthesis.summary import run_scores
-    from wmthesis.planet.value_play import evaluation_seeds
+    from wmthesis.value.play import evaluation_seeds
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     metrics = reproduce("planet-freeway-value", "smoke", 0, progress=False)
@@ -26,7 +28,7 @@ def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_epi
     config = metrics["config"]
     assert config["random_bouts"] == first and {k: config[k] for k in FREEWAY_VALUE} == FREEWAY_VALUE
     assert metrics["value_planner"]["config"]["discount"] == FREEWAY_VALUE["discount"]  # discounted as its targets
-    bouts = [list(evaluation_seeds(0, k)) for k in range(EPISODES["smoke"])]
+    bouts = [list(evaluation_seeds(0, k)) for k in range(for_profile(ValueEvaluationConfig, "smoke").freeway_episodes)]
     assert metrics["bouts"] == bouts and len(metrics["value_planner"]["returns"]) == len(bouts)
     assert metrics["random"]["episodes"] == metrics["planet"]["episodes"] == len(bouts)
     assert set(run_scores(metrics)) == {None, "cem-with-value"}
@@ -116,18 +118,18 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
 def test_open_loop_check_scores_the_frozen_model_on_moving_pixels_against_both_baselines(tmp_path, monkeypatch):
     import json
 
-    from wmthesis.planet.study import STUDY
+    from wmthesis.planet.study import study_sizes
     from wmthesis.experiments.planet_freeway_value import open_loop_check
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     check = open_loop_check("smoke", 0, progress=False)
-    horizon = STUDY["smoke"]["horizon"]
+    horizon = study_sizes("smoke")["horizon"]
     assert all(len(check["errors"][name]) == horizon for name in ("model", "repeat last", "mean frame"))
     assert check["free_nats"] == 3.0 and check["kl_scale"] == 8e-3  # freeway-tuned's model
     assert check["below_mean_frame"] == [h for h in range(1, horizon + 1)
                                          if check["errors"]["model"][h - 1] < check["errors"]["mean frame"][h - 1]]
     assert check["diagnostics"]["kl"] >= 0
-    assert all(len(check["filtered"][name]) == STUDY["smoke"]["context"] for name in ("model", "mean frame"))
+    assert all(len(check["filtered"][name]) == study_sizes("smoke")["context"] for name in ("model", "mean frame"))
     saved = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "open_loop_check.json"
     stamp = saved.stat().st_mtime_ns
     assert open_loop_check("smoke", 0, progress=False)["errors"] == check["errors"] and saved.stat().st_mtime_ns == stamp
@@ -188,7 +190,7 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     assert longer["baselines"] == adam["baselines"]
     # the planner levers on validation episodes, played once, in the folder of the run that fitted the value
     from wmthesis.experiments.planet_freeway_value import validate_planners
-    from wmthesis.planet.value_play import validation_seeds
+    from wmthesis.value.play import validation_seeds
 
     with pytest.raises(ValueError, match="unknown Freeway planner lever 'H99'; valid: H3, H12"):
         validate_planners("smoke", 0, levers=("H99",), progress=False, variant="freeway-adam")
@@ -204,7 +206,7 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
 
 def test_levers_and_their_validation_bouts_are_checked_before_anything_plays(tmp_path, monkeypatch):
     from wmthesis.experiments.planet_freeway_value import validate_planners
-    from wmthesis.planet.value_runs import checked_levers
+    from wmthesis.value.comparison import checked_levers
 
     choices = {"a": {}, "b": {}}
     assert checked_levers("lever", None, choices, None, 5) == (("a", "b"), 5)
@@ -219,15 +221,17 @@ def test_levers_and_their_validation_bouts_are_checked_before_anything_plays(tmp
 
 def test_lookahead_ceiling_plays_each_horizon_once_on_the_evaluation_episodes(tmp_path, monkeypatch):
     from wmthesis.planet.bouts import play_bout
-    from wmthesis.experiments.planet_freeway_value import GAME, LOOKAHEAD_EPISODES, UP, lookahead_ceiling
+    from wmthesis.config import for_profile
+    from wmthesis.experiments.planet_freeway_value import GAME, UP, lookahead_ceiling
+    from wmthesis.value.config import ValueEvaluationConfig
     from wmthesis.planet.profiles import planet_config
-    from wmthesis.planet.value_play import evaluation_seeds
+    from wmthesis.value.play import evaluation_seeds
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     with pytest.raises(ValueError, match=r"lookahead horizons must be positive integers, got \(3, 0\)"):
         lookahead_ceiling("smoke", 0, horizons=(3, 0), progress=False)
     scores = lookahead_ceiling("smoke", 0, horizons=(1, 3), progress=False)
-    assert list(scores) == [1, 3] and all(len(s["returns"]) == LOOKAHEAD_EPISODES["smoke"] for s in scores.values())
+    assert list(scores) == [1, 3] and all(len(s["returns"]) == for_profile(ValueEvaluationConfig, "smoke").lookahead_episodes for s in scores.values())
     up = play_bout(GAME, planet_config(GAME, "smoke"), None, *evaluation_seeds(0, 0), UP)
     assert scores[1]["returns"] == [up["return"]] and scores[1]["first_returns"] == [up["first"]]  # horizon 1 is UP
     saved = tmp_path / "results" / "planet-freeway-value" / "smoke-seed0" / "lookahead-bouts.json"
@@ -239,11 +243,12 @@ def test_lookahead_ceiling_plays_each_horizon_once_on_the_evaluation_episodes(tm
 def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_own_episode(tmp_path, monkeypatch):
     from wmthesis.envs.freeway import play_lookahead
     from wmthesis.experiments.planet_freeway_value import GAME, UP, when_to_wait
-    from wmthesis.planet.value_runs import PLAN_STEPS
+    from wmthesis.config import for_profile
+    from wmthesis.value.config import ValueEvaluationConfig
     from wmthesis.planet.profiles import planet_config
     from wmthesis.planet.train import make_planet_env
-    from wmthesis.planet.value_play import evaluation_seeds
-    from wmthesis.planet.value_planner import PLANNERS
+    from wmthesis.value.play import evaluation_seeds
+    from wmthesis.value.planner import PLANNERS
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     with pytest.raises(ValueError, match=r"lookahead horizons must be positive integers, got \(0,\)"):
@@ -251,7 +256,7 @@ def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_ow
     assert not (tmp_path / "smoke").exists()  # refused before any model or value was trained
     found = when_to_wait("smoke", 0, variant=None, horizon=3, progress=False)
     env = make_planet_env(GAME, planet_config(GAME, "smoke"))
-    lookahead = play_lookahead(env, 3, evaluation_seeds(0, 0)[0])["actions"][:PLAN_STEPS["smoke"]]
+    lookahead = play_lookahead(env, 3, evaluation_seeds(0, 0)[0])["actions"][:for_profile(ValueEvaluationConfig, "smoke").plan_steps]
     assert found["choices"]["lookahead"] == lookahead.tolist() and found["steps"] == len(lookahead)
     assert found["waits"] == int((lookahead != UP).sum())
     assert set(found["planners"]) == set(PLANNERS)

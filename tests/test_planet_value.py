@@ -12,12 +12,12 @@ import torch
 from wmthesis.config import for_profile
 from wmthesis.data import EpisodeStore
 from wmthesis.rollouts import play_random_episode
-from wmthesis.planet.config import LatentValueConfig
+from wmthesis.value.config import LatentValueConfig
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.value import (LatentValue, ValueMind, after_action, best_values, episode_features, fit_value,
+from wmthesis.value.latent_value import (LatentValue, ValueMind, after_action, best_values, episode_features, fit_value,
                                    reward_sums, round_ensemble, td_targets)
-from wmthesis.planet.value_play import bout_pool, evaluation_seeds, play_value, play_values, validation_seeds
-from wmthesis.planet.value_rounds import as_shipped, best_round, load_value, round_values, train_value
+from wmthesis.value.play import bout_pool, evaluation_seeds, play_value, play_values, validation_seeds
+from wmthesis.value.rounds import as_shipped, best_round, load_value, round_values, train_value
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
@@ -225,7 +225,7 @@ def test_a_td_value_looks_past_its_rewards_where_the_sum_of_three_cannot(tmp_pat
 
 
 def test_a_variant_that_adds_rounds_starts_from_a_copy_and_matches_a_run_from_scratch(tmp_path):
-    from wmthesis.planet.value_runs import start_from
+    from wmthesis.value.comparison import start_from
 
     model, env = frozen_rssm(), DelayedPunch()
     config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=2, batch_size=8, lr=0.03, rounds=1,
@@ -245,7 +245,7 @@ def test_a_variant_that_adds_rounds_starts_from_a_copy_and_matches_a_run_from_sc
 
 
 def test_the_discounted_sum_target_discounts_each_reward_and_the_plain_sum_does_not(tmp_path):
-    from wmthesis.planet.value_rounds import value_dataset
+    from wmthesis.value.rounds import value_dataset
 
     model, env = frozen_rssm(), DelayedPunch()
     with EpisodeStore(tmp_path / "episodes.h5", "a", preprocessing="planet", seed=0,
@@ -266,7 +266,7 @@ def test_the_discounted_sum_target_discounts_each_reward_and_the_plain_sum_does_
 
 
 def test_a_log_value_fits_the_logarithm_and_gives_q_on_the_scale_of_rewards(tmp_path):
-    from wmthesis.planet.value import log_scaled
+    from wmthesis.value.latent_value import log_scaled
 
     torch.manual_seed(0)
     plain, logged = LatentValue(6, 8, heads=2), LatentValue(6, 8, heads=2, log=True)
@@ -326,7 +326,7 @@ def test_a_round_ensemble_is_the_mean_of_the_rounds_values():
 
 
 def test_the_agent_can_be_the_mean_of_the_last_rounds_values_played_once(tmp_path, monkeypatch):
-    import wmthesis.planet.value_rounds as value_module
+    import wmthesis.value.rounds as value_module
 
     model, env = frozen_rssm(), DelayedPunch()
     config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=3, batch_size=8, lr=0.03, rounds=3,
@@ -380,7 +380,7 @@ def test_bouts_in_a_pool_of_processes_are_the_bouts_played_here_stored_in_order(
 
 
 def test_a_lean_run_fits_the_same_rounds_without_their_bouts_and_scores_only_its_agent(tmp_path, monkeypatch):
-    import wmthesis.planet.value_rounds as value_module
+    import wmthesis.value.rounds as value_module
 
     model, env = frozen_rssm(), DelayedPunch()
     config = LatentValueConfig(hidden_size=8, random_bouts=2, fit_updates=3, batch_size=8, lr=0.03, rounds=3,
@@ -423,7 +423,7 @@ def test_the_value_curve_is_drawn_from_a_run_s_metrics_alone():
     """A value run's figure comes from its metrics as ``metrics.json`` holds them (what a fresh
     clone has): the scored rounds as the line, the agent as the mean of its rounds, and the
     baselines, CEM with the value and the references as labelled lines at their scores."""
-    from wmthesis.planet.value_runs import value_curve_figure
+    from wmthesis.value.comparison import value_curve_figure
 
     full = lambda mean: {"full": {"mean": mean}}  # noqa: E731
     metrics = {"env": "boxing", "agent_rounds": [2, 3], "value": {"mean": 7.0, "std": 1.0},
@@ -443,7 +443,7 @@ def test_the_value_curve_is_drawn_from_a_run_s_metrics_alone():
 
 
 def test_imagined_features_follow_the_actions_taken_from_each_posterior_and_their_signal_is_a_correlation():
-    from wmthesis.planet.imagination import imagined_features, value_signal
+    from wmthesis.value.signal import imagined_features, value_signal
 
     model, value = frozen_rssm(), LatentValue(20, 16, heads=2).eval()
     beliefs, states, actions = torch.randn(5, 16), torch.randn(5, 4), torch.tensor([0, 2, 1, 1, 0])
@@ -475,7 +475,7 @@ def test_a_seeds_value_signal_is_kept_and_read_back_and_a_missing_value_run_says
 
     matplotlib.use("Agg")
     from wmthesis import runs as run_store
-    from wmthesis.planet import imagination
+    from wmthesis.value import signal as imagination
 
     seed = 917  # no run of this seed exists in the tests' data
     with pytest.raises(FileNotFoundError, match="reproduce planet-boxing-value --profile smoke --seed 917"):

@@ -8,8 +8,8 @@ import torch
 
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.agent import PlanetMind
-from wmthesis.planet.value import LatentValue, after_action
-from wmthesis.planet.value_planner import ValuePlanetMind, value_returns
+from wmthesis.value.latent_value import LatentValue, after_action
+from wmthesis.value.planner import ValuePlanetMind, value_returns
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 SIZES = dict(horizon=4, candidates=64, top_k=8, iterations=3)
@@ -74,9 +74,10 @@ def test_the_return_by_hand_imagined_rewards_then_the_discounted_value():
 
 
 def test_plan_choices_follow_one_belief_and_one_step_with_the_value_is_the_value_agent():
-    from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
-    from wmthesis.planet.value import ValueMind
-    from wmthesis.planet.value_planner import PLANNERS, plan_choices
+    from wmthesis.planet.config import PlaNetConfig
+    from wmthesis.value.config import ValuePlannerConfig
+    from wmthesis.value.latent_value import ValueMind
+    from wmthesis.value.planner import PLANNERS, plan_choices
 
     model, value = model_and_value()
     planet = PlaNetConfig(horizon=3, candidates=200, top_k=20, iterations=3)
@@ -95,7 +96,7 @@ def test_plan_choices_follow_one_belief_and_one_step_with_the_value_is_the_value
 
 
 def test_the_planners_over_seeds_each_seed_then_the_mean_and_its_t_interval():
-    from wmthesis.planet.value_tables import planner_rows
+    from wmthesis.value.tables import planner_rows
 
     def metrics(x):
         return {"random": {"mean": 0.0}, "planet": {"mean": x - 5}, "value": {"mean": x + 1},
@@ -168,7 +169,7 @@ def test_the_values_rewards_score_every_imagined_step_by_hand_and_one_step_is_th
 
 
 def test_pessimism_scores_imagined_steps_by_the_heads_mean_less_their_spread_and_leaves_the_first_step():
-    from wmthesis.planet.value_planner import pessimistic_q
+    from wmthesis.value.planner import pessimistic_q
 
     model, value = model_and_value()
     belief, state, actions = torch.randn(1, 16), torch.randn(1, 4), TWO_PLANS
@@ -196,7 +197,7 @@ def test_pessimism_scores_imagined_steps_by_the_heads_mean_less_their_spread_and
 
 
 def test_shared_imagined_states_give_candidates_of_the_same_actions_the_same_return():
-    from wmthesis.planet.value_planner import imagined_state
+    from wmthesis.value.planner import imagined_state
 
     model, value = model_and_value()
     belief, state = torch.randn(1, 16), torch.randn(1, 4)
@@ -242,7 +243,7 @@ def test_particles_average_each_candidates_paths_and_shrink_the_noise_of_its_ret
 
 def test_the_value_seeds_cems_first_step_with_the_z_scores_of_q():
     from wmthesis.planet.cem import cem_belief
-    from wmthesis.planet.value_planner import value_scores
+    from wmthesis.value.planner import value_scores
 
     model, value = model_and_value()
     belief, state = torch.randn(1, 16), torch.randn(1, 4)
@@ -284,8 +285,8 @@ def test_a_seeded_planner_over_one_step_is_still_the_value_agent():
 def test_a_planner_cache_from_before_a_field_was_added_reads_as_what_it_did(tmp_path):
     import json
 
-    from wmthesis.planet.config import ValuePlannerConfig
-    from wmthesis.planet.value_bouts import cached_plan
+    from wmthesis.value.config import ValuePlannerConfig
+    from wmthesis.value.bouts import cached_plan
 
     path = tmp_path / "value_planner.json"
     path.write_text(json.dumps({"key": {"round": 2, "planner": {"horizon": 3, "discount": 1.0}}, "scores": {"x": 1}}))
@@ -302,7 +303,7 @@ def test_a_planner_cache_from_before_a_field_was_added_reads_as_what_it_did(tmp_
 def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_rest(tmp_path):
     import json
 
-    from wmthesis.planet.config import ValuePlannerConfig
+    from wmthesis.value.config import ValuePlannerConfig
     from wmthesis.runs import played_bouts
 
     path = tmp_path / "scores-bouts.json"
@@ -317,7 +318,7 @@ def test_planner_bouts_are_saved_as_they_end_and_a_cut_off_run_plays_only_the_re
 
 
 def test_a_planner_variant_copies_a_run_fitted_with_its_own_value_config():
-    from wmthesis.planet.value_variants import VALUE_VARIANTS
+    from wmthesis.value.variants import VALUE_VARIANTS
 
     planners = [name for name, v in VALUE_VARIANTS.items() if set(v.changes) == {"planner"}]
     assert planners == ["lean-value-rewards-0.7", "own-rewards"]
@@ -345,9 +346,9 @@ def test_groups_of_bouts_play_in_one_pool_each_saved_in_its_own_file(tmp_path):
 
 
 def test_the_planner_levers_table_is_paired_against_the_first_lever():
-    from wmthesis.planet.config import ValuePlannerConfig
+    from wmthesis.value.config import ValuePlannerConfig
     from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
-    from wmthesis.planet.value_tables import planner_lever_rows
+    from wmthesis.value.tables import planner_lever_rows
     from wmthesis.metrics import score_summary
 
     def scores(returns, first):
@@ -365,7 +366,7 @@ def test_the_planner_levers_table_is_paired_against_the_first_lever():
 
 
 def test_the_agent_rules_table_names_each_rules_rounds_and_pairs_them():
-    from wmthesis.planet.value_tables import agent_rows
+    from wmthesis.value.tables import agent_rows
     from wmthesis.metrics import score_summary
 
     def scores(rounds, returns):
@@ -380,8 +381,8 @@ def test_the_agent_rules_table_names_each_rules_rounds_and_pairs_them():
 def test_the_reward_head_refit_on_a_run_s_own_bouts_learns_them_once_and_is_what_the_planner_plans_with(tmp_path, monkeypatch):
     import gymnasium as gym
     from wmthesis.data import EpisodeStore
-    from wmthesis.planet import own_rewards
-    from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+    from wmthesis.value import own_rewards
+    from wmthesis.value.config import LatentValueConfig, ValuePlannerConfig
     from wmthesis.rollouts import play_random_episode
 
     class PunchNow(gym.Env):  # action 1 of 3 pays at once: the features after it tell it apart

@@ -195,7 +195,7 @@ def test_cems_budget_counts_every_imagined_path_of_a_planner_with_particles(tmp_
     import dataclasses
     import importlib
 
-    from wmthesis.planet.config import ValuePlannerConfig
+    from wmthesis.value.config import ValuePlannerConfig
 
     planning_budget = importlib.import_module("wmthesis.experiments.planning_budget")  # the module, not its recipe
     played = {}
@@ -230,7 +230,7 @@ def test_a_kept_value_signal_is_read_only_for_the_models_and_measurement_it_was_
     import pytest
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
-    from wmthesis.planet.imagination import SIGNAL_BOUTS, SIGNAL_DEPTHS, SIGNAL_VERSION, seed_value_signal, signal_models
+    from wmthesis.value.signal import SIGNAL_BOUTS, SIGNAL_DEPTHS, SIGNAL_VERSION, seed_value_signal, signal_models
     from wmthesis.runs import results_folder, write_json
 
     kept = {"version": SIGNAL_VERSION, "models": signal_models("quick", 7), "depths": list(SIGNAL_DEPTHS),

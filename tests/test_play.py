@@ -111,6 +111,7 @@ def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
     from wmthesis.experiments import reproduce
     from wmthesis.planet.agent_file import load_agent
+    from wmthesis.value.shipped import load_value_agent
 
     metrics = reproduce("planet-boxing-value", "smoke", 0, progress=False)
     saved_metrics = tmp_path / "results" / "planet-boxing-value" / "smoke-seed0" / "lean-value-rewards-0.7" / "metrics.json"
@@ -123,7 +124,9 @@ def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path
     assert [p["return"] for p in result["plays"]] == metrics["value_planner"]["returns"][:2]
     assert result["variant"] == "lean-value-rewards-0.7" and (tmp_path / "bouts.rrd").stat().st_size > 0
     path = tmp_path / "smoke" / "planet-boxing-value" / "lean-value-rewards-0.7-seed0" / "agent.pt"
-    agent = load_agent(path)
+    agent = load_value_agent(path)
+    with pytest.raises(ValueError, match="is a learned value's agent: wmthesis.value.shipped.load_value_agent reads it"):
+        load_agent(path)  # PlaNet's own reader refuses it, naming the one that reads it
     assert agent.info["bouts"] == metrics["bouts"] and agent.planner.discount == 0.7
     assert not any(k.startswith("decoder.") for k in torch.load(path, weights_only=False)["model"])  # left behind
     cem = reproduce("planet-boxing-agent", "smoke", 0, progress=False)  # the model's own agent (made first, cached)
@@ -135,7 +138,7 @@ def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path
     base = tmp_path / "smoke" / "planet-boxing-agent" / "seed0" / "agent.pt"
     base.write_bytes(base.read_bytes() + b"changed")
     with pytest.raises(ValueError, match="not the file it was fitted on"):
-        load_agent(path)
+        load_value_agent(path)
 
 
 def test_a_fresh_clone_fits_a_value_on_the_planet_agent_that_ships(tmp_path, monkeypatch):
@@ -144,7 +147,7 @@ def test_a_fresh_clone_fits_a_value_on_the_planet_agent_that_ships(tmp_path, mon
     import wmthesis.runs as run_store
     from wmthesis.experiments import reproduce
     from wmthesis.planet.train import load_planet
-    from wmthesis.planet.value_runs import frozen_agent
+    from wmthesis.value.comparison import frozen_agent
 
     monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path / "trained"))
     metrics = reproduce("planet-boxing-agent", "smoke", 0, progress=False)

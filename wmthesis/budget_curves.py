@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.config import PLANNERS
+from wmthesis.config import DEFAULT_PROFILE, PLANNERS
 from wmthesis.metrics import aggregate
 from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir
@@ -187,11 +187,16 @@ def changes_markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def table_name(profile: str) -> str:
+    """The CSV of ``profile``'s curves: ``planning_budget.csv`` for the default profile,
+    ``planning_budget-PROFILE.csv`` for the others."""
+    return "planning_budget.csv" if profile == DEFAULT_PROFILE else f"planning_budget-{profile}.csv"
+
+
 def read_budget_rows(profile: str, folder: Path | None = None) -> list[dict]:
     """The rows :func:`write_budget_table` wrote for ``profile`` in ``folder`` (default
     ``data/results``), numbers as numbers; none before the first seed is measured."""
-    name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
-    path = (data_dir("results") if folder is None else Path(folder)) / name
+    path = (data_dir("results") if folder is None else Path(folder)) / table_name(profile)
     if not path.is_file():  # no seed measured yet in this profile
         return []
     with open(path) as f:
@@ -214,10 +219,9 @@ def write_budget_table(profile: str) -> str:
     writer.writeheader()
     writer.writerows({**r, **{k: round(r[k], 3) for k in ("score", "no_search_score", "ms_per_action")},
                       **{k: round(r[k], 4) for k in CHANGES if r.get(k) is not None}} for r in rows)
-    name = "planning_budget.csv" if profile == "quick" else f"planning_budget-{profile}.csv"
-    with atomic_path(results / name) as tmp:
+    with atomic_path(results / table_name(profile)) as tmp:
         tmp.write_text(text.getvalue())
     return text.getvalue()
 
 
-__all__ = ["BudgetCurveConfig", "COLUMNS", "CHANGES", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "changes_markdown", "row_line", "read_budget_rows", "write_budget_table", "plot_budget_curves"]
+__all__ = ["BudgetCurveConfig", "COLUMNS", "CHANGES", "NO_SEARCH", "PLANNERS", "check_planners", "parse_budgets", "budget_table", "budget_markdown", "changes_markdown", "row_line", "table_name", "read_budget_rows", "write_budget_table", "plot_budget_curves"]

@@ -60,6 +60,8 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         "LatentValueConfig": dict(hidden_size=16, random_bouts=2, fit_updates=5, batch_size=16, rounds=1,
                                   bouts_per_round=1, validation_bouts=1, test_bouts=2),
         "ValuePlannerConfig": dict(horizon=2),
+        "ValueEvaluationConfig": dict(plan_steps=5, lever_bouts=1, freeway_episodes=2, freeway_lever_episodes=1,
+                                      lookahead_episodes=1),
         "SearchConfig": dict(trials=2, workers=1, env_steps=48, open_loop_sequences=2, open_loop_length=10,
                              held_out_episodes=1,
                              heartbeat_interval=1, grace_period=3),
@@ -70,7 +72,10 @@ OVERRIDES: dict[str, dict[str, dict]] = {
                                     budget=300, eval_levels=4),
         "SokobanEvaluationConfig": dict(report_levels=2, reference_levels=2, validation_levels=2),
         "DiagnosisConfig": dict(depth=5),
-        "PlanetEvaluationConfig": dict(episodes=2, sokoban_open_loop=(4, 8, 4), atari_open_loop=(4, 8, 4)),
+        "BoxingEvaluationConfig": dict(bouts=2, context=10, horizon=10),
+        "SokobanWorldModelsConfig": dict(sequence_length=None, levels=4, episodes=2, context=10, horizon=10, cutoff=5),
+        "PlanetEvaluationConfig": dict(episodes=2, sokoban_open_loop=(4, 8, 4), atari_open_loop=(4, 8, 4), study_held_out=2,
+                                       study_sequences=4, study_context=4, study_horizon=4, agent_bouts=2, figure_sequences=1),
         "BudgetCurveConfig": dict(sokoban_budgets=(50, 300), sokoban_levels=4, mcts_budgets=(2, 4), boxing_bouts=2,
                                   cem_budgets=((2, 16, 2), (3, 16, 2))),
     },
@@ -81,6 +86,10 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         # Fitness over full bouts: scores over the first 400 steps did not carry over to full bouts.
         "ControllerConfig": dict(population=16, episodes=2, generations=45, dream_max_steps=400, eval_every=15,
                                  eval_episodes=3),
+        # Sokoban: an episode is 120 steps (a Boxing bout ~1,780), so the store holds 400 random
+        # episodes, 48,000 frames and as many new levels (Boxing's quick: 20 bouts, ~36,000 frames);
+        # the rest is the profile's, as for Boxing (about 25 minutes end to end on two idle cores).
+        "SokobanWorldModelsConfig": dict(collect_episodes=400, sequence_length=None, levels=50, episodes=40),
         "PlaNetConfig": dict(batch_size=12, chunk_length=24, update_steps=100, env_steps=20_000,
                              candidates=100, top_k=10, iterations=3, test_interval=3, test_episodes=1),
         # Trials measured by their models alone: the profile's PlaNet on the game's random seed
@@ -98,11 +107,14 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         # fewer reference levels keep the run in its time (on 500 they take about 20 CPU-minutes)
         "SokobanEvaluationConfig": dict(report_levels=500, reference_levels=100, validation_levels=200),
         # CEM: quick's J and I are its PlaNet's; no H12 (its bouts cost more than the rest; its 12th step weighs 2%)
-        "PlanetEvaluationConfig": dict(episodes=3),
+        "PlanetEvaluationConfig": dict(episodes=3, study_held_out=3, study_sequences=48),
+        "ValueEvaluationConfig": dict(plan_steps=300, freeway_lever_episodes=5, lookahead_episodes=2),
         "BudgetCurveConfig": dict(sokoban_levels=500, cem_budgets=((2, 100, 3), (3, 100, 3), (6, 100, 3))),
     },
     "thesis": {},
 }
+
+SIZES_KEPT = ("smoke",)  # profiles whose sizes a variant's changes do not replace (:func:`for_variant`)
 
 
 STORAGE_SCHEMES = ("sqlite", "postgresql", "mysql")  # the databases optuna's RDB storage speaks
@@ -121,6 +133,13 @@ def profile_name(name: str | None = None) -> str:
     name = name or os.environ.get("WMTHESIS_PROFILE") or DEFAULT_PROFILE
     check_choice("profile", name, PROFILES)
     return name
+
+
+def for_variant(cls, profile: str | None, variant_changes: dict, **changes):
+    """An instance of `cls` for `profile` with a variant's changes on top, then `changes`; a profile
+    of :data:`SIZES_KEPT` keeps the fields it sets (a smoke run stays small whatever the variant)."""
+    kept = OVERRIDES[profile_name(profile)].get(cls.__name__, {}) if profile_name(profile) in SIZES_KEPT else {}
+    return for_profile(cls, profile, **{**{k: v for k, v in variant_changes.items() if k not in kept}, **changes})
 
 
 def for_profile(cls, profile: str | None = None, **changes):

@@ -56,8 +56,9 @@ def seed_everything(seed: int) -> np.random.Generator:
     return np.random.default_rng(seed)
 
 
-# Classes that checkpoints pickled under the package's earlier layout (one folder per kind:
-# models/, agents/, planning/; configs in one module), and where they live now; read_pickle finds them there.
+# Classes that checkpoints pickled under the package's earlier layouts (one folder per kind:
+# models/, agents/, planning/; configs in one module; the learned value inside planet/), and
+# where they live now; read_pickle finds them there.
 MOVED_CLASSES = {
     ("wmthesis.agents.alphazero", "Game"): "wmthesis.alphazero.replay",
     ("wmthesis.agents.controller_training", "SeededNormal"): "wmthesis.world_models.evolution",
@@ -65,8 +66,10 @@ MOVED_CLASSES = {
     ("wmthesis.config", "MemoryConfig"): "wmthesis.world_models.config",
     ("wmthesis.config", "ControllerConfig"): "wmthesis.world_models.config",
     ("wmthesis.config", "PlaNetConfig"): "wmthesis.planet.config",
-    ("wmthesis.config", "LatentValueConfig"): "wmthesis.planet.config",
-    ("wmthesis.config", "ValuePlannerConfig"): "wmthesis.planet.config",
+    ("wmthesis.config", "LatentValueConfig"): "wmthesis.value.config",
+    ("wmthesis.config", "ValuePlannerConfig"): "wmthesis.value.config",
+    ("wmthesis.planet.config", "LatentValueConfig"): "wmthesis.value.config",
+    ("wmthesis.planet.config", "ValuePlannerConfig"): "wmthesis.value.config",
     ("wmthesis.config", "SearchConfig"): "wmthesis.planet.config",
     ("wmthesis.config", "AlphaZeroConfig"): "wmthesis.alphazero.config",
     ("wmthesis.config", "SokobanSearchConfig"): "wmthesis.sokoban_search.config",

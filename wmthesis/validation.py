@@ -58,7 +58,7 @@ def planner_levers(module: str) -> Levers:
     every seed's validation bouts in one pool of ``workers`` processes."""
     import importlib
 
-    from wmthesis.planet.value_tables import planner_lever_rows
+    from wmthesis.value.tables import planner_lever_rows
 
     recipe = importlib.import_module(module)
 

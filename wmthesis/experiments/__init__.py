@@ -23,15 +23,15 @@ from wmthesis.experiments.planet_boxing_value import planet_boxing_value
 from wmthesis.experiments.planet_freeway_value import planet_freeway_value
 from wmthesis.experiments.planning_budget import planning_budget
 from wmthesis.experiments.sokoban_search import sokoban_search
-from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CHANGES, SOKOBAN_WM_CONTROLLERS,
-                                                       SOKOBAN_WM_EVAL, SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
+from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CONTROLLERS,
+                                                       SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
                                                        sokoban_world_models)
 from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.search_run import planet_boxing_search
-from wmthesis.planet.value_variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS
+from wmthesis.value.variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.runs import read_json, register_runner, results_folder
 from wmthesis.utils import check_choice, worker_init
@@ -115,7 +115,7 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
 
 __all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "reproduce", "reproduce_all", "seed_runs", "sokoban_search", 
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
-           "SOKOBAN_WM_CHANGES", "SOKOBAN_WM_EVAL", "SOKOBAN_FRAME_SIZE",
+           "SOKOBAN_FRAME_SIZE",
            "boxing_world_models", "boxing_dream", "DREAM_CHANGES",
            "boxing_wm_alphazero", "RECORDING_STEPS",
            "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "planet_boxing_value",

@@ -85,7 +85,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     title = {"planet-sokoban": "Fig. 58", "planet-boxing": "Fig. 59/510", "planet-freeway": "Fig. 511"}[name]
     label = f"{env_name}, {variant}"
     figures = [
-        save_figure(open_loop_figure(rollout, sequences=1 if profile == "smoke" else 3,
+        save_figure(open_loop_figure(rollout, sequences=scoring.figure_sequences,
                                columns=min(context + horizon, 20),
                                title=f"{title}: {label}, open-loop after {context} context frames"),
               out / "open_loop.png"),

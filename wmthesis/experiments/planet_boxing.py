@@ -14,15 +14,15 @@ import dataclasses
 import time
 from pathlib import Path
 
-from wmthesis.config import profile_name
+from wmthesis.config import for_profile, profile_name
 from wmthesis.data import EpisodeStore
 from wmthesis.metrics import score_difference
 from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.bouts import FIRST_STEPS, bout_scores, play_bout
-from wmthesis.planet.config import PlaNetConfig
+from wmthesis.planet.config import PlaNetConfig, PlanetEvaluationConfig
 from wmthesis.planet.figures import learning_curve_figure, study_error_figure, study_label, study_pictures_figure
 from wmthesis.planet.profiles import planet_config
-from wmthesis.planet.study import STUDY, STUDY_VARIANTS, held_out_store, scene, score_run, summarise
+from wmthesis.planet.study import study_sizes, STUDY_VARIANTS, held_out_store, scene, score_run, summarise
 from wmthesis.planet.train import load_planet, same_training, train_planet, with_variant
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human, published, random_play
 from wmthesis.runs import (hold, played_bouts, read_json, releasing_holds, results_folder, run_header, work_folder,
@@ -34,8 +34,6 @@ from wmthesis.viz import record_frames, save_figure
 
 GAME = "boxing"
 TUNED = "free-nats"
-# The agent's evaluation bouts per profile (its budget is the config's ``env_steps``, seed bouts included).
-AGENT = {"smoke": dict(bouts=2), "quick": dict(bouts=10), "thesis": dict(bouts=10)}
 
 
 def boxing_config(profile: str, variant: str | None = None, study: bool = True) -> PlaNetConfig:
@@ -60,7 +58,7 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, variant: str 
     no_variant("planet-boxing-study", variant)
     profile = profile_name(profile)
     started = time.time()
-    sizes = STUDY[profile]
+    sizes = study_sizes(profile)
     work = hold(data_dir(profile, "planet-boxing-study"))
     out = results_folder("planet-boxing-study", profile, seed)
     seeds = [seed + k for k in range(sizes["seeds"])]
@@ -115,7 +113,7 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str 
     ``curve`` and ``files``."""
     no_variant("planet-boxing-agent", variant)
     profile = profile_name(profile)
-    sizes = AGENT[profile]
+    bouts_scored = for_profile(PlanetEvaluationConfig, profile).agent_bouts
     study = work_folder(profile, "planet-boxing-study", seed, TUNED)
     _train_study_run(study, boxing_config(profile, TUNED), seed)
     work = hold(work_folder(profile, "planet-boxing-agent", seed))
@@ -124,9 +122,9 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str 
     run = train_planet(GAME, config, work, seed=seed, progress=progress, start_from=study)
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
     cached = read_json(out / "metrics.json")
-    if same_training(cached, run) and len(cached["agent"]["returns"]) == sizes["bouts"]:
+    if same_training(cached, run) and len(cached["agent"]["returns"]) == bouts_scored:
         return cached
-    bouts = [tuple(int(v) for v in derive_seeds(seed, 3, k, n=2)) for k in range(sizes["bouts"])]
+    bouts = [tuple(int(v) for v in derive_seeds(seed, 3, k, n=2)) for k in range(bouts_scored)]
     key = {"updates": run["updates"], "seconds": run["seconds"], "bouts": [list(b) for b in bouts]}  # this training's
     plays = played_bouts(work / "evaluation-bouts.json", key,
                          progress, [(play_bout, GAME, config, who, env_seed, mind_seed)
@@ -154,4 +152,4 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str 
 
 
 __all__ = ["planet_boxing_study", "planet_boxing_agent", "boxing_config", 
-           "AGENT", "GAME"]
+           "GAME"]

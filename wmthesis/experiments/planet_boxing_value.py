@@ -1,7 +1,7 @@
 """Beyond the thesis on PlaNet's Boxing model: the model of
 ``planet-boxing-agent`` (:mod:`~wmthesis.experiments.planet_boxing`) frozen, a latent action value
-fitted on it (:mod:`~wmthesis.planet.value`, notebook 09), and CEM with that value at the end of
-its horizon (:mod:`~wmthesis.planet.value_planner`, notebook 10), each beside the thesis's CEM on
+fitted on it (:mod:`~wmthesis.value.latent_value`, notebook 09), and CEM with that value at the end of
+its horizon (:mod:`~wmthesis.value.planner`, notebook 10), each beside the thesis's CEM on
 the same bouts.
 """
 from __future__ import annotations
@@ -12,13 +12,13 @@ import time
 from wmthesis import runs as run_store
 from wmthesis.config import for_profile, profile_name
 from wmthesis.planet.bouts import bout_scores
-from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+from wmthesis.value.config import LatentValueConfig, ValueEvaluationConfig, ValuePlannerConfig
 from wmthesis.planet.train import load_planet
-from wmthesis.planet.value_bouts import value_bout
-from wmthesis.planet.value_play import validation_seeds
-from wmthesis.planet.value_rounds import agent_rounds, round_values
-from wmthesis.planet.value_variants import GAME, VALUE_VARIANTS, results_folder, value_folder
-from wmthesis.planet.value_runs import (PLAN_STEPS, checked_levers, compare_plans, fit_and_compare, frozen_agent,
+from wmthesis.value.bouts import value_bout
+from wmthesis.value.play import validation_seeds
+from wmthesis.value.rounds import agent_rounds, round_values
+from wmthesis.value.variants import GAME, VALUE_VARIANTS, results_folder, value_folder
+from wmthesis.value.comparison import (checked_levers, compare_plans, fit_and_compare, frozen_agent,
                                         lever_scores, slug, start_from)
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
 from wmthesis.runs import hold, played_bouts, releasing_holds
@@ -30,11 +30,11 @@ REFERENCES = {"human": human(GAME), "thesis PlaNet (around 30)": THESIS_PLANET_B
 def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str | None = None,
                         progress: bool = True) -> dict:
     """The PlaNet agent's model (``planet-boxing-agent``'s run, made first if need be) frozen,
-    and a latent action value (:mod:`~wmthesis.planet.value`) fitted on random bouts and then on
+    and a latent action value (:mod:`~wmthesis.value.latent_value`) fitted on random bouts and then on
     its own; after each round, greedy bouts on the agent's evaluation bouts. The round chosen on
-    validation bouts of its own (:func:`~wmthesis.planet.value_rounds.best_round`) compares with random
+    validation bouts of its own (:func:`~wmthesis.value.rounds.best_round`) compares with random
     play and with the CEM planner on the evaluation bouts, and so does CEM with that value at the
-    end of its horizon (:mod:`~wmthesis.planet.value_planner`). Returns the metrics:
+    end of its horizon (:mod:`~wmthesis.value.planner`). Returns the metrics:
     ``value`` and ``random`` (scores over full bouts), ``difference``
     (:func:`~wmthesis.metrics.score_difference`), ``planet`` (the CEM agent's), ``value_planner``
     (CEM with the value: full bouts and their first 500 steps), the ``curve`` (one entry per
@@ -60,13 +60,13 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
 
 def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool = True,
                        variant: str | None = None) -> dict:
-    """Where the value changes the plan on Boxing (:func:`~wmthesis.planet.value_runs.compare_plans`
+    """Where the value changes the plan on Boxing (:func:`~wmthesis.value.comparison.compare_plans`
     on the run of :func:`planet_boxing_value` with ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_boxing_value(profile, seed, variant, progress)
     return compare_plans(GAME, run_store.work_folder(profile, "planet-boxing-agent", seed), value_folder(profile, seed, variant),
                          results_folder(profile, seed, variant),
-                         metrics, PLAN_STEPS[profile], seed)
+                         metrics, for_profile(ValueEvaluationConfig, profile).plan_steps, seed)
 
 
 # Levers on CEM with the value, each measured on the value's validation bouts (never on the
@@ -80,7 +80,6 @@ PLANNER_LEVERS = {"value seeds CEM": {}, "the value's rewards, discount 0.7": di
                   "the value's rewards, discount 0.7, 4 particles of 25": dict(rewards="value", discount=0.7, candidates=25, particles=4),
                   "H1: the value agent": dict(horizon=1), "the reward head refit on own bouts": dict(reward_head="own"),
                   "the reward head refit on own bouts, H6": dict(reward_head="own", horizon=6)}
-LEVER_BOUTS = {"smoke": 1, "quick": 10, "thesis": 10}  # validation bouts per lever
 
 
 def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
@@ -88,8 +87,8 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
                       executor=None, metrics: dict | None = None) -> dict[str, dict]:
     """CEM with the value agent of ``variant``'s run (:func:`planet_boxing_value`, run first if
     need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on
-    ``bouts`` (the profile's :data:`LEVER_BOUTS` by default) of the value's validation bouts
-    (:func:`~wmthesis.planet.value_play.validation_seeds`: apart from the evaluation bouts), each
+    ``bouts`` (the profile's ``ValueEvaluationConfig.lever_bouts`` by default) of the value's validation bouts
+    (:func:`~wmthesis.value.play.validation_seeds`: apart from the evaluation bouts), each
     lever cached in the value's folder (a variant that changes the planner alone plays on the
     value it copied, in its own folder: a copy made, or a value fitted from scratch where there was
     none to copy, plays as that run played). All levers' bouts are played in one pool,
@@ -99,7 +98,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     Returns lever -> the
     planner's ``config`` and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
     profile = profile_name(profile)
-    levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, LEVER_BOUTS[profile])
+    levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, for_profile(ValueEvaluationConfig, profile).lever_bouts)
     metrics = planet_boxing_value(profile, seed, variant, progress) if metrics is None else metrics
     planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
     work = value_folder(profile, seed, variant)  # the run's value: fitted there, or copied from the run it builds on
@@ -117,14 +116,14 @@ AGENT_RULES = {"round chosen on validation": 0, "last round": 1, "mean of the la
 def validate_agents(profile: str | None = None, seed: int = 0, variant: str | None = "rounds-10",
                     rules: tuple[str, ...] | None = None, bouts: int | None = None, progress: bool = True) -> dict[str, dict]:
     """The value agent of ``variant``'s run (:func:`planet_boxing_value`, run first if need be;
-    its rounds' values refitted once if they were not kept, :func:`~wmthesis.planet.value_rounds.round_values`)
+    its rounds' values refitted once if they were not kept, :func:`~wmthesis.value.rounds.round_values`)
     under each of ``rules`` (names in :data:`AGENT_RULES`; all by default) on ``bouts`` (the
-    profile's :data:`LEVER_BOUTS` by default) greedy validation bouts that follow those that chose
-    its round (:func:`~wmthesis.planet.value_play.validation_seeds` from ``validation_bouts`` on: apart
+    profile's ``ValueEvaluationConfig.lever_bouts`` by default) greedy validation bouts that follow those that chose
+    its round (:func:`~wmthesis.value.play.validation_seeds` from ``validation_bouts`` on: apart
     from the choice among rounds and from the evaluation bouts). Each bout is saved as it ends.
     Returns rule -> its ``rounds`` and their ``full`` and ``first``-500-step scores."""
     profile = profile_name(profile)
-    rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, LEVER_BOUTS[profile])
+    rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, for_profile(ValueEvaluationConfig, profile).lever_bouts)
     metrics = planet_boxing_value(profile, seed, variant, progress)
     planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
     work = value_folder(profile, seed, variant)
@@ -141,5 +140,5 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     return results
 
 
-__all__ = ["planet_boxing_value", "REFERENCES", "value_plan_choices", "validate_planners", "PLANNER_LEVERS", "LEVER_BOUTS",
+__all__ = ["planet_boxing_value", "REFERENCES", "value_plan_choices", "validate_planners", "PLANNER_LEVERS",
            "AGENT_RULES", "validate_agents"]

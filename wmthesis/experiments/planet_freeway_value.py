@@ -3,7 +3,7 @@ tuned variant (:func:`~wmthesis.experiments.planet.planet_experiment`, thesis 5.
 frozen, a latent action value fitted on it, and CEM with that value at the end of its horizon,
 beside the thesis's CEM, random play and pressing UP at every step (a reference that knows the
 game, as A* is for Sokoban: whatever a planner adds beyond it is dodging cars) on the same 10
-evaluation episodes (:func:`~wmthesis.planet.value_runs.fit_and_compare`).
+evaluation episodes (:func:`~wmthesis.value.comparison.fit_and_compare`).
 
 Freeway pays one point per crossing, about 90 agent steps apart, and random play hardly ever
 crosses. So the value differs from Boxing's in two ways (:data:`FREEWAY_VALUE`): its target is
@@ -31,16 +31,16 @@ from wmthesis.data import EpisodeStore
 from wmthesis.envs.freeway import play_lookahead
 from wmthesis.metrics import paired_difference
 from wmthesis.planet.bouts import bout_result, bout_scores, play_bout
-from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
+from wmthesis.value.config import LatentValueConfig, ValueEvaluationConfig, ValuePlannerConfig
 from wmthesis.planet.figures import study_error_figure
 from wmthesis.planet.profiles import planet_config
-from wmthesis.planet.study import STUDY, held_out_store, scene, score_run
+from wmthesis.planet.study import study_sizes, held_out_store, scene, score_run
 from wmthesis.planet.train import load_planet
 from wmthesis.planet.frames import make_planet_env
-from wmthesis.planet.value_planner import plan_choices
-from wmthesis.planet.value_play import evaluation_seeds, validation_seeds
-from wmthesis.planet.value_rounds import STORE, load_value
-from wmthesis.planet.value_runs import (BASELINE_LABELS, PLAN_STEPS, checked_levers, compare_plans, fit_and_compare,
+from wmthesis.value.planner import plan_choices
+from wmthesis.value.play import evaluation_seeds, validation_seeds
+from wmthesis.value.rounds import STORE, load_value
+from wmthesis.value.comparison import (BASELINE_LABELS, checked_levers, compare_plans, fit_and_compare,
                                         lever_scores, start_from)
 from wmthesis.references import human
 from wmthesis.runs import (built_on, hold, played_bouts, read_json, releasing_holds, results_folder, work_folder,
@@ -53,7 +53,6 @@ from wmthesis.viz import save_figure
 GAME, VARIANT = "freeway", "freeway-tuned"
 REFERENCES = {"human": human(GAME)}  # lines in its figures
 FREEWAY_VALUE = dict(target="discounted-sum", reward_steps=150, discount=0.97)
-EPISODES = {"smoke": 2, "quick": 10, "thesis": 10}  # evaluation episodes
 UP = 1  # Freeway's actions: NOOP, UP, DOWN
 BASELINES = ("planet", "random", "always-up")  # in the order their episodes are saved
 # What would make the planner dodge cars? Each variant is measured against UP at every step, in a
@@ -144,7 +143,7 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, variant: str
     beside random play and UP at every step. A ``variant`` of :data:`VALUE_VARIANTS` changes the
     value or the planner in a folder of its own, beside the run on the same model
     (:func:`base_variant`): its baselines are copied from that run, not played again, and one that keeps the
-    value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.planet.value_runs.fit_and_compare`."""
+    value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.value.comparison.fit_and_compare`."""
     own = VALUE_VARIANTS.check(variant).changes
     variant = VALUE_VARIANTS.folder_name(variant)
     changes = VALUE_VARIANTS.changes(variant)
@@ -163,9 +162,9 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, variant: str
     start_from(work, data, (STORE,))  # a PlaNet agent's episodes are the value's first data
     with EpisodeStore(data / STORE) as store:  # a finished run's store: it holds no more
         first = len(store)
-    config = for_profile(LatentValueConfig, profile, test_bouts=EPISODES[profile], random_bouts=first,
+    config = for_profile(LatentValueConfig, profile, test_bouts=for_profile(ValueEvaluationConfig, profile).freeway_episodes, random_bouts=first,
                          **{**FREEWAY_VALUE, **changes.get("value", {})})
-    bouts = [evaluation_seeds(seed, k) for k in range(EPISODES[profile])]
+    bouts = [evaluation_seeds(seed, k) for k in range(for_profile(ValueEvaluationConfig, profile).freeway_episodes)]
     baselines = baseline_scores(planet_run, bouts, work, progress)
     planner = for_profile(ValuePlannerConfig, profile, discount=config.discount, **changes.get("planner", {}))
     return fit_and_compare("planet-freeway-value", GAME, planet_run, work, out, config, planner, baselines, bouts,
@@ -203,7 +202,6 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
 # Which planner ends in a Freeway value, each measured on the value's validation episodes (never
 # on the evaluation episodes): CEM's horizon, and its imagined states drawn or the prior's mean.
 PLANNER_LEVERS = {"H3": {}, "H12": dict(horizon=12), "H12 from the prior's mean": dict(horizon=12, imagine="mean")}
-LEVER_EPISODES = {"smoke": 1, "quick": 5, "thesis": 10}  # validation episodes per lever
 
 
 def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
@@ -211,13 +209,13 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
                       executor=None) -> dict[str, dict]:
     """CEM with the value agent of ``variant``'s run (:func:`planet_freeway_value`, run first if
     need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default) on
-    ``bouts`` (the profile's :data:`LEVER_EPISODES` by default) of the value's validation
-    episodes (:func:`~wmthesis.planet.value_play.validation_seeds`: apart from the evaluation
+    ``bouts`` (the profile's ``ValueEvaluationConfig.freeway_lever_episodes`` by default) of the value's validation
+    episodes (:func:`~wmthesis.value.play.validation_seeds`: apart from the evaluation
     episodes), in one pool (``executor``, :func:`~wmthesis.utils.process_pool`; two at a time by default), each lever cached in the folder of the run that fitted the value
     (:func:`value_variant`: a variant that changes the planner alone shares its base's levers).
     Returns lever -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
     profile = profile_name(profile)
-    levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, bouts, LEVER_EPISODES[profile])
+    levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, bouts, for_profile(ValueEvaluationConfig, profile).freeway_lever_episodes)
     fitted = value_variant(variant)
     metrics = planet_freeway_value(profile, seed, fitted, progress)
     work, _ = value_folders(profile, seed, fitted)
@@ -248,7 +246,7 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     profile = profile_name(profile)
     planet_run = frozen_model(profile, seed, model, progress)
     _, out = value_folders(profile, seed, None if model == VARIANT else model)
-    sizes, (_, config, meta) = STUDY[profile], load_planet(planet_run)
+    sizes, (_, config, meta) = study_sizes(profile), load_planet(planet_run)
     key = {"updates": meta["updates"], "sizes": sizes, "version": CHECK_VERSION}
     cached = read_json(out / "open_loop_check.json")
     if cached is None or cached.get("key") != key:
@@ -273,7 +271,6 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
 # What would a planner with a perfect model score? Horizon 1 is UP at every step; the episodes
 # are the first of the evaluation episodes (Freeway is deterministic: the same cars on each).
 LOOKAHEAD_HORIZONS = (1, 3, 6, 12)
-LOOKAHEAD_EPISODES = {"smoke": 1, "quick": 2, "thesis": 10}
 
 
 def lookahead_bout(profile: str, horizon: int, env_seed: int) -> dict:
@@ -291,13 +288,13 @@ def lookahead_ceiling(profile: str | None = None, seed: int = 0, horizons: tuple
                       progress: bool = True) -> dict[int, dict]:
     """The ceiling of planning on Freeway: a planner whose model is the emulator itself
     (:mod:`wmthesis.envs.freeway`: "wait, then UP" plans of ``horizon`` steps, scored by crossings
-    and the chicken's height) on the first :data:`LOOKAHEAD_EPISODES` of the evaluation episodes
-    (:func:`~wmthesis.planet.value_play.evaluation_seeds`), for each of ``horizons``. Each episode is
+    and the chicken's height) on the first ``ValueEvaluationConfig.lookahead_episodes`` of the evaluation episodes
+    (:func:`~wmthesis.value.play.evaluation_seeds`), for each of ``horizons``. Each episode is
     saved as it ends in the default value's results folder (``lookahead-bouts.json``). Returns
     horizon -> ``full`` and ``first``-500-step scores with their returns."""
     profile = profile_name(profile)
     _check_horizons(horizons)
-    seeds = [evaluation_seeds(seed, k)[0] for k in range(LOOKAHEAD_EPISODES[profile])]
+    seeds = [evaluation_seeds(seed, k)[0] for k in range(for_profile(ValueEvaluationConfig, profile).lookahead_episodes)]
     _, out = value_folders(profile, seed)
     plays = played_bouts(out / "lookahead-bouts.json", {"seeds": seeds, "horizons": list(horizons)}, progress,
                          [(lookahead_bout, profile, h, s) for h in horizons for s in seeds])
@@ -313,10 +310,10 @@ def _check_horizons(horizons: tuple[int, ...]) -> None:
 
 def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None = "adam-log", horizon: int = 6,
                  progress: bool = True) -> dict:
-    """Does a learned model know when to wait? Along the first :data:`PLAN_STEPS` steps of the
+    """Does a learned model know when to wait? Along the first ``ValueEvaluationConfig.plan_steps`` steps of the
     emulator lookahead's own episode (:func:`~wmthesis.envs.freeway.play_lookahead`, ``horizon``
     steps, the first evaluation episode: it waits, NOOP, where going on would meet a car), the
-    action each planner of :func:`~wmthesis.planet.value_planner.plan_choices` takes from the
+    action each planner of :func:`~wmthesis.value.planner.plan_choices` takes from the
     same belief, filtered from the same frames: the thesis's CEM on the model of ``variant``'s
     value run (:func:`planet_freeway_value`, run first if need be), CEM with its value and the
     value alone. Cached in that run's results folder (``when_to_wait.json``). Returns ``steps``,
@@ -327,7 +324,7 @@ def when_to_wait(profile: str | None = None, seed: int = 0, variant: str | None 
     metrics = planet_freeway_value(profile, seed, variant, progress)
     work, _ = value_folders(profile, seed, value_variant(variant))
     planner = ValuePlannerConfig(**with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"]))
-    steps = PLAN_STEPS[profile]
+    steps = for_profile(ValueEvaluationConfig, profile).plan_steps
     key = {"horizon": horizon, "steps": steps, "planner": dataclasses.asdict(planner),
            "agent": metrics.get("agent_rounds", metrics["best_round"])}
     _, out = value_folders(profile, seed, variant)
@@ -365,14 +362,14 @@ def hold_back_shares(lookahead, picks) -> dict[str, float]:
 def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str | None = None,
                          progress: bool = True) -> dict:
     """Where the value changes the plan on Freeway
-    (:func:`~wmthesis.planet.value_runs.compare_plans` on a :func:`planet_freeway_value`
+    (:func:`~wmthesis.value.comparison.compare_plans` on a :func:`planet_freeway_value`
     run of ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_freeway_value(profile, seed, variant, progress)
     work, out = value_folders(profile, seed, variant)
     return compare_plans(GAME, frozen_model(profile, seed, model_variant(variant), progress), work, out, metrics,
-                         PLAN_STEPS[profile], seed)
+                         for_profile(ValueEvaluationConfig, profile).plan_steps, seed)
 
 
 __all__ = ["planet_freeway_value", "value_folders", "model_variant", "base_variant", "value_variant", "validate_planners",
-           "PLANNER_LEVERS", "LEVER_EPISODES", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "hold_back_shares", "LOOKAHEAD_HORIZONS", "LOOKAHEAD_EPISODES", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "EPISODES", "GAME", "VARIANT", "REFERENCES"]
+           "PLANNER_LEVERS", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "hold_back_shares", "LOOKAHEAD_HORIZONS", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "GAME", "VARIANT", "REFERENCES"]

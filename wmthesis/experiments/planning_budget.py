@@ -23,9 +23,9 @@ from wmthesis.budget_curves import BudgetCurveConfig, PLANNERS, check_planners, 
 from wmthesis.config import for_profile, profile_name
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
-from wmthesis.planet.config import ValuePlannerConfig
-from wmthesis.planet.value_runs import frozen_agent, lever_scores
-from wmthesis.planet.value_variants import VALUE_VARIANTS
+from wmthesis.value.config import ValuePlannerConfig
+from wmthesis.value.comparison import frozen_agent, lever_scores
+from wmthesis.value.variants import VALUE_VARIANTS
 from wmthesis.runs import (built_on, hold, read_json, releasing_holds, results_folder, run_header, run_jobs,
                            work_folder, write_json)
 from wmthesis.sokoban_search.budget import NO_SEARCH, budget_jobs, budget_plays, ms_per_action

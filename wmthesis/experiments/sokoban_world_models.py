@@ -19,7 +19,7 @@ from wmthesis.rollouts import collect
 from wmthesis.runs import (first_run_seconds, hold, jsonable, read_json, releasing_holds, results_folder, run_header,
                            work_folder, write_json)
 from wmthesis.variants import no_variant
-from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
+from wmthesis.world_models.config import ControllerConfig, MemoryConfig, SokobanWorldModelsConfig, VisionConfig
 from wmthesis.world_models.evolution import episode_seeds, evaluate_population, random_play, train_controller
 from wmthesis.world_models.figures import sokoban_figures, sokoban_recording
 from wmthesis.world_models.grid import GridVision, encode_grid_store
@@ -29,40 +29,15 @@ from wmthesis.world_models.train import encode_store, train_memory, train_vision
 from wmthesis.world_models.vision import VAEVision
 
 
-# Changes on top of the profile (per config class), as SOKOBAN_CHANGES does for PlaNet.
-# quick: a Sokoban episode is 120 steps (a Boxing bout ~1,780), so the store holds 400 random
-# episodes, 48,000 frames and as many new levels (Boxing's quick: 20 bouts, ~36,000 frames).
-# The rest is the quick profile's, as for Boxing: the VAE 1,500 updates of 64 frames, each of the
-# five memories 1,500 updates of 16 chunks of 100 steps, each of the three controllers 60
-# generations of 16 candidates x 3 levels (an episode ends at the game's own 120 steps). Measured
-# pieces on one core: ~0.3 s a VAE update, 0.03-0.06 s a memory update, 2-4 s a generation: about
-# 25 minutes end to end on two idle cores.
-# thesis: the thesis's chunks of 1,000 steps do not fit 120-step episodes; whole episodes
-# (119 transitions) are used. The thesis states no other Sokoban-specific setting.
-SOKOBAN_WM_CHANGES = {
-    "smoke": {},
-    "quick": {"CollectConfig": dict(episodes=400)},
-    "thesis": {"MemoryConfig": dict(sequence_length=119)},
-}
-
-# Evaluation per profile: ``levels`` unseen levels for the controllers and random play;
-# open-loop rollouts on up to ``episodes`` validation episodes, ``context`` real steps then
-# ``horizon`` predicted ones; numbers reported at ``cutoff`` steps ahead.
-SOKOBAN_WM_EVAL = {
-    "smoke": dict(levels=4, episodes=2, context=10, horizon=10, cutoff=5),
-    "quick": dict(levels=50, episodes=40, context=60, horizon=30, cutoff=10),
-    "thesis": dict(levels=100, episodes=100, context=60, horizon=30, cutoff=10),
-}
-
 SOKOBAN_FRAME_SIZE = 64
 
 
 def sokoban_wm_configs(profile: str | None = None, seed: int = 0) -> dict:
-    """The configs of ``sokoban-wm`` in ``profile``: the profile's, with :data:`SOKOBAN_WM_CHANGES`
-    on top. Returns ``collect``, ``vision``, ``memory`` (the variants change ``kind`` and
+    """The configs of ``sokoban-wm`` in ``profile``: the profile's, with
+    :meth:`~wmthesis.world_models.config.SokobanWorldModelsConfig.changes` on top. Returns ``collect``, ``vision``, ``memory`` (the variants change ``kind`` and
     ``auxiliary``) and ``controller`` (seeded with ``seed``)."""
     profile = profile_name(profile)
-    changes = dict(SOKOBAN_WM_CHANGES[profile])
+    changes = for_profile(SokobanWorldModelsConfig, profile).changes()
     changes["ControllerConfig"] = {**changes.get("ControllerConfig", {}), "seed": seed}
     classes = {"collect": CollectConfig, "vision": VisionConfig, "memory": MemoryConfig,
                "controller": ControllerConfig}
@@ -99,7 +74,7 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str
     work = hold(work_folder(profile, "sokoban-wm", seed))
     out = results_folder("sokoban-wm", profile, seed)
     configs = sokoban_wm_configs(profile, seed)
-    evaluation = SOKOBAN_WM_EVAL[profile]
+    evaluation = for_profile(SokobanWorldModelsConfig, profile).evaluation()
     collect_cfg = configs["collect"]
     stores = {source: collect("sokoban", collect_cfg.episodes, work / f"random-{source}.h5",
                               workers=collect_cfg.workers, seed=seed, max_steps=collect_cfg.max_steps,

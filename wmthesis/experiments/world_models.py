@@ -19,7 +19,7 @@ from wmthesis.stamp import git_commit
 from wmthesis.runs import (first_run_seconds, hold, read_json, releasing_holds, results_folder, run_header, work_folder,
                            write_json)
 from wmthesis.viz import image_rows, record_frames, save_figure
-from wmthesis.world_models.config import ControllerConfig, MemoryConfig, VisionConfig
+from wmthesis.world_models.config import BoxingEvaluationConfig, ControllerConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.agent import save_agent
 from wmthesis.world_models.evolution import evaluate_population, final_bout_seeds, train_controller
 from wmthesis.world_models.figures import plot_learning_curve
@@ -60,7 +60,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     with EpisodeStore(store) as episodes:
         episode = episodes.episode(len(episodes) - 1)  # a validation episode
         random_returns = [float(episodes.episode(i)["rewards"].sum()) for i in range(len(episodes))]
-    context, horizon = (10, 10) if profile == "smoke" else (60, 30)
+    scoring = for_profile(BoxingEvaluationConfig, profile)
+    context, horizon = scoring.context, scoring.horizon
     rollout = open_loop(vae, memory, episode["observations"], episode["actions"], context=context, horizon=horizon)
     errors = open_loop_errors(vae, memory, episode, context, horizon)
     figures = _boxing_figures(out, episode["observations"], reconstruct(vae, episode["observations"][::25][:8]),
@@ -89,11 +90,11 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
 def _final_score(run, vision, memory, cfg, profile: str) -> np.ndarray:
     """The CMA-ES mean's returns (n,) over 10 full bouts (2 short ones in smoke), the same
     seeded no-op starts for every controller and seed."""
-    n_eval = 2 if profile == "smoke" else 10
+    n_eval = for_profile(BoxingEvaluationConfig, profile).bouts
     game = make_game("boxing", n_eval, noop_max=cfg.noop_max)
     try:
         returns, _ = evaluate_population(run.mean_params[None], game, vision, memory, seeds=final_bout_seeds(n_eval),
-                                         max_steps=cfg.max_steps if profile == "smoke" else None)
+                                         max_steps=cfg.max_steps)
     finally:
         game.close()
     return returns[0]

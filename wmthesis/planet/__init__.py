@@ -6,8 +6,7 @@ for other frame sizes), ``cem`` (the planner), ``train`` (the agent, data collec
 training loop), ``prediction`` (open-loop rollouts, scored on every pixel or on the moving
 pixels against two baselines), ``study`` (the model study of 5.6.1-5.6.4), ``figures``,
 ``tuning`` (the random search over KL scale x free nats with optuna), and beyond the thesis
-``value`` (a short-horizon action value on a trained model's latent: a Boxing agent where CEM's
-imagined returns cannot see which action lands a punch), ``value_planner`` (CEM with that value
-at the end of its horizon) and ``explore`` (Plan2Explore's ensemble disagreement as a bonus while
-collecting: Freeway, where random play never crosses).
+``explore`` (Plan2Explore's ensemble disagreement as a bonus while collecting: Freeway, where
+random play never crosses). A learned value at the end of CEM's horizon is a wing of its own,
+built on this one: :mod:`wmthesis.value`.
 """

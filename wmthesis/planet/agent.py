@@ -20,7 +20,7 @@ from wmthesis.rollouts import EpisodeBuffer
 class BeliefFilter(Mind, Callback):
     """An agent's belief ``(h_t, s_t)`` under an RSSM, filtered along the episode, for
     :func:`~wmthesis.core.loop`: the part that PlaNet's planner and the latent value agent
-    (:class:`~wmthesis.planet.value.ValueMind`) share.
+    (:class:`~wmthesis.value.latent_value.ValueMind`) share.
 
     Pass a subclass as the mind AND among the callbacks: ``on_episode_start`` resets the belief
     and ``on_step_taken`` records the action taken (the policy may differ from the plan).

@@ -15,7 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from wmthesis.config import for_profile
 from wmthesis.data import EpisodeStore
+from wmthesis.planet.config import PlanetEvaluationConfig
 from wmthesis.rollouts import play_random_episode
 from wmthesis.planet.prediction import background_frame, latent_diagnostics, moving_open_loop
 from wmthesis.planet.train import load_planet
@@ -25,12 +27,11 @@ from wmthesis.planet.frames import make_planet_env
 STUDY_VARIANTS = ("unchanged", "kl-scale", "free-nats")
 BASELINES = ("repeat last", "mean frame")
 
-# Per profile: study seeds, held-out bouts, open-loop sequences, context and horizon.
-STUDY = {
-    "smoke": dict(seeds=2, held_out=2, sequences=4, context=4, horizon=4),
-    "quick": dict(seeds=2, held_out=3, sequences=48, context=5, horizon=15),
-    "thesis": dict(seeds=2, held_out=5, sequences=64, context=5, horizon=15),
-}
+
+
+def study_sizes(profile: str) -> dict:
+    """The model study's sizes in ``profile`` (:meth:`~wmthesis.planet.config.PlanetEvaluationConfig.study`)."""
+    return for_profile(PlanetEvaluationConfig, profile).study()
 
 
 def held_out_store(path, env_name: str, config, seed: int, episodes: int) -> Path:
@@ -117,4 +118,4 @@ def study_table(metrics: dict) -> str:
     return "\n".join(rows)
 
 
-__all__ = ["study_table", "STUDY", "STUDY_VARIANTS", "BASELINES", "held_out_store", "scene", "score_run", "summarise"]
+__all__ = ["study_table", "study_sizes", "STUDY_VARIANTS", "BASELINES", "held_out_store", "scene", "score_run", "summarise"]

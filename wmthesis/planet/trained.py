@@ -1,6 +1,6 @@
 """A trained PlaNet agent as :func:`wmthesis.load` gives it (thesis 4.4): the RSSM (with its
-observation decoder where one ships beside the agent), the planner (discrete CEM, or CEM ending in
-a learned value) and the value, on the game as it was scored.
+observation decoder where one ships beside the agent) and its planner, discrete CEM, on the game
+as it was scored (:mod:`wmthesis.value.trained` adds a learned value at the end of CEM's horizon).
 
     agent = wmthesis.load("planet-boxing-agent")
     agent.open_loop(frames, actions, context=5)     # reconstructions, then 10 imagined frames
@@ -36,15 +36,17 @@ def shipped_decoder(model, planet, path: Path, saved_info: dict) -> dict | None:
 
 class PlanetAgent(TrainedAgent):
     """A PlaNet experiment's agent: ``model`` (the RSSM), ``planner`` (the CEM settings it plans
-    with: its :class:`~wmthesis.planet.config.PlaNetConfig`, or the value's
-    :class:`~wmthesis.planet.config.ValuePlannerConfig`) and ``value`` (None for PlaNet's own CEM)."""
+    with, its :class:`~wmthesis.planet.config.PlaNetConfig`) and ``value`` (None: PlaNet's own CEM)."""
+
+    read = staticmethod(load_agent)  # the agent file's reader
+    play_one = staticmethod(play_agent)  # one scored bout: (loaded, env seed, mind seed, frames) -> rewards
 
     def __init__(self, path: Path, experiment: str, variant: str | None, profile: str, seed: int):
-        loaded = load_agent(path)
+        loaded = self.read(path)
         super().__init__(path, experiment, variant, profile, seed, loaded.info)
         self.loaded, self.config = loaded, loaded.planet
-        self.model, self.value, self.game = loaded.model, loaded.value, loaded.info["game"]
-        self.planner = loaded.planner if loaded.value is not None else loaded.planet
+        self.model, self.game = loaded.model, loaded.info["game"]
+        self.value, self.planner = getattr(loaded, "value", None), getattr(loaded, "planner", loaded.planet)
         saved = torch.load(path, weights_only=False, map_location="cpu")
         self.decoder_info = shipped_decoder(self.model, loaded.planet, path, saved)
         self.horizon = int(self.planner.horizon)
@@ -59,11 +61,7 @@ class PlanetAgent(TrainedAgent):
 
     def mind(self, seed: int = 0):
         """The planner as it played its scored bouts, CEM's noise from ``seed``."""
-        if self.value is None:
-            return PlanetMind.from_config(self.model, self.config, seed)
-        from wmthesis.planet.value_planner import value_planner_mind
-
-        return value_planner_mind(self.model, self.value, self.config, self.loaded.planner, seed)
+        return PlanetMind.from_config(self.model, self.config, seed)
 
     def scored_seeds(self, bouts: int) -> list[int]:
         return [int(env_seed) for env_seed, _ in self.info["bouts"][:bouts]]
@@ -87,8 +85,7 @@ class PlanetAgent(TrainedAgent):
         """What the planner chose and what the model imagines along it: the plan (the final CEM
         mean's argmax at each of its steps) rolled out from the belief on the prior's means, with
         the rewards the model predicts, decoded; CEM's final scores for the first action and its
-        elite return per iteration; the value's Q per first action where a value plans; the
-        posterior's reconstruction of the frame."""
+        elite return per iteration; the posterior's reconstruction of the frame."""
         from wmthesis.planet.prediction import planned_path
         from wmthesis.planet.rssm import frames_out
         from wmthesis.thoughts import Thought
@@ -98,10 +95,6 @@ class PlanetAgent(TrainedAgent):
         thought = Thought(imagined_rewards=rewards.cpu().numpy(), scores={"plan": plan.mean[0].cpu().numpy()},
                           series={"cem_elites": plan.elites.cpu().numpy()},
                           values={"best_return": float(plan.returns.max())})
-        if self.value is not None:
-            from wmthesis.planet.value import action_values
-
-            thought.scores["value_q"] = action_values(self.model, self.value, mind.belief, mind.state)[0].cpu().numpy()
         if self.decoder_info is not None:
             frames = frames_out(self.model.decode(torch.cat([mind.belief, beliefs]), torch.cat([mind.state, states])),
                                 self.config.bits).cpu().numpy()
@@ -129,7 +122,7 @@ class PlanetAgent(TrainedAgent):
         plays = []
         for k, (env_seed, mind_seed) in enumerate(self.info["bouts"][:bouts]):
             shown = [] if frames is not None else None
-            rewards = play_agent(self.loaded, env_seed, mind_seed, shown)
+            rewards = self.play_one(self.loaded, env_seed, mind_seed, shown)
             plays.append({"bout": k, "return": float(sum(rewards)), "steps": len(rewards)})
             if frames is not None:
                 frames.append(np.stack(shown))

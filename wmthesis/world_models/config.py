@@ -79,4 +79,44 @@ class ControllerConfig:
     eval_episodes: int = 5
 
 
-__all__ = ["VisionConfig", "MemoryConfig", "ControllerConfig"]
+@dataclass(frozen=True)
+class BoxingEvaluationConfig:
+    """How an evolved Boxing controller is scored (the thesis reports its training fitness):
+    ``bouts`` full bouts of the CMA-ES mean, the same seeded no-op starts for every controller and
+    seed; the memory's open loop on a validation episode, ``context`` real steps then ``horizon``
+    predicted."""
+
+    bouts: int = 10
+    context: int = 60
+    horizon: int = 30
+
+
+@dataclass(frozen=True)
+class SokobanWorldModelsConfig:
+    """World Models on Sokoban (thesis 5.3.1-5.3.3): what differs from the profile's configs, and
+    the evaluation. ``collect_episodes``: random rollouts (None: the profile's
+    :class:`~wmthesis.config.CollectConfig`); ``sequence_length``: the memory's chunks (None: the
+    profile's; the thesis's 1,000 steps do not fit 120-step episodes, so whole episodes, 119
+    transitions). ``levels`` unseen levels for the controllers and random play; open-loop rollouts
+    on up to ``episodes`` validation episodes, ``context`` real steps then ``horizon`` predicted
+    ones; numbers reported at ``cutoff`` steps ahead."""
+
+    collect_episodes: int | None = None
+    sequence_length: int | None = 119
+    levels: int = 100
+    episodes: int = 100
+    context: int = 60
+    horizon: int = 30
+    cutoff: int = 10
+
+    def changes(self) -> dict:
+        """The changes on top of the profile's configs, by config class name."""
+        return {**({"CollectConfig": dict(episodes=self.collect_episodes)} if self.collect_episodes else {}),
+                **({"MemoryConfig": dict(sequence_length=self.sequence_length)} if self.sequence_length else {})}
+
+    def evaluation(self) -> dict:
+        """``levels``, ``episodes``, ``context``, ``horizon`` and ``cutoff``."""
+        return dict(levels=self.levels, episodes=self.episodes, context=self.context, horizon=self.horizon,
+                    cutoff=self.cutoff)
+
+__all__ = ["VisionConfig", "MemoryConfig", "ControllerConfig", "BoxingEvaluationConfig", "SokobanWorldModelsConfig"]

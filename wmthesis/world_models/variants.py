@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from wmthesis.config import OVERRIDES, for_profile
+from wmthesis.config import for_variant
 from wmthesis.variants import Variant, Variants
 from wmthesis.world_models.config import ControllerConfig
 
@@ -38,10 +38,7 @@ VALIDATION_SEEDS = (10, 11, 12)
 def controller_config(profile: str, seed: int, variant: str | None = None) -> ControllerConfig:
     """The controller config of ``variant`` (None: the default) in ``profile``: the variant's
     changes on top of the profile's, except the sizes ``smoke`` sets (a smoke run stays small)."""
-    changes = BOXING_WM.changes(BOXING_WM.check(variant).name)
-    if profile == "smoke":
-        changes = {k: v for k, v in changes.items() if k not in OVERRIDES["smoke"]["ControllerConfig"]}
-    return for_profile(ControllerConfig, profile, seed=seed, **changes)
+    return for_variant(ControllerConfig, profile, BOXING_WM.changes(BOXING_WM.check(variant).name), seed=seed)
 
 
 def controller_folder(work: Path, variant: str | None = None) -> Path:

@@ -8,13 +8,13 @@ import time
 from pathlib import Path
 
 from wmthesis.planet.bouts import bout_result, bout_scores
-from wmthesis.planet.config import ValuePlannerConfig
-from wmthesis.planet.own_rewards import planner_model
+from wmthesis.value.config import ValuePlannerConfig
+from wmthesis.value.own_rewards import planner_model
 from wmthesis.planet.train import load_planet
 from wmthesis.planet.frames import make_planet_env
-from wmthesis.planet.value_planner import play_value_planner
-from wmthesis.planet.value_play import play_value
-from wmthesis.planet.value_rounds import load_rounds
+from wmthesis.value.planner import play_value_planner
+from wmthesis.value.play import play_value
+from wmthesis.value.rounds import load_rounds
 from wmthesis.runs import cached_for, played_groups, write_json
 from wmthesis.training import with_added_defaults
 
@@ -22,7 +22,7 @@ from wmthesis.training import with_added_defaults
 def value_planner_bout(planet_run: Path, value_run: Path, planner, env_seed: int, mind_seed: int,
                        game: str = "boxing") -> dict:
     """One full episode of ``game``, CEM with the chosen value at its end
-    (:func:`~wmthesis.planet.value_planner.play_value_planner`) on the frozen model of
+    (:func:`~wmthesis.value.planner.play_value_planner`) on the frozen model of
     ``planet_run``: its ``return``, the return of its first :data:`FIRST_STEPS` steps, its
     ``steps`` and the ``seconds`` it took (the planner's thinking, the game and the encoding)."""
     model, planet, value = planner_model(planet_run, value_run, planner)
@@ -55,7 +55,7 @@ def cached_plan(path: Path, key: dict) -> dict | None:
 def value_bout(planet_run: Path, value_run: Path, rounds: list[int], env_seed: int, mind_seed: int,
                game: str = "boxing") -> dict:
     """One full greedy episode of ``game`` of the mean of the values of ``rounds`` of the value
-    run (:func:`~wmthesis.planet.value_rounds.load_rounds`) on the frozen model of ``planet_run``: its
+    run (:func:`~wmthesis.value.rounds.load_rounds`) on the frozen model of ``planet_run``: its
     ``return``, the return of its first :data:`FIRST_STEPS` steps and its ``steps``."""
     model, planet, _ = load_planet(planet_run)
     env = make_planet_env(game, planet)

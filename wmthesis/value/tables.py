@@ -38,7 +38,7 @@ def paired_rows(results: dict[str, dict], changes: dict[str, str]) -> list[list[
 
 
 def planner_rows(by_seed: dict[int, dict], beside: dict[str, dict[int, dict]] | None = None) -> list[list[str]]:
-    """The planners over seeds (``by_seed``: seed -> a value run's metrics, :func:`~wmthesis.planet.value_runs.fit_and_compare`), one
+    """The planners over seeds (``by_seed``: seed -> a value run's metrics, :func:`~wmthesis.value.comparison.fit_and_compare`), one
     row each: every seed's mean over its bouts, then the mean over seeds with its 95% t-interval
     (:func:`~wmthesis.metrics.aggregate`). ``beside``: label -> the same seeds' runs of
     another variant, whose CEM with the value is added as rows named with the label."""

@@ -1,4 +1,4 @@
-"""The value fitted in rounds (:mod:`~wmthesis.planet.value`): on random bouts first, then each
+"""The value fitted in rounds (:mod:`~wmthesis.value.latent_value`): on random bouts first, then each
 round adds epsilon-greedy bouts of the value agent to its store and refits on all of it (a fitted-Q
 iteration on its own play), resumable from its checkpoint; the agent is the round chosen on
 validation bouts (or the mean of the last rounds' values), and the rounds' values read back."""
@@ -14,12 +14,13 @@ from tqdm import tqdm
 
 from wmthesis.data import EpisodeStore
 from wmthesis.rollouts import play_random_episode
-from wmthesis.planet.config import LatentValueConfig
+from wmthesis.value.config import LatentValueConfig
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.shipped import AGENT_NAME, load_agent
-from wmthesis.planet.value import (LatentValue, TARGETS, best_values, episode_features, fit_value, log_scaled,
+from wmthesis.planet.shipped import AGENT_NAME
+from wmthesis.value.latent_value import (LatentValue, TARGETS, best_values, episode_features, fit_value, log_scaled,
                                    reward_sums, round_ensemble, td_targets)
-from wmthesis.planet.value_play import bout_pool, evaluation_seeds, greedy_returns, play_values, validation_seeds
+from wmthesis.value.shipped import load_value_agent
+from wmthesis.value.play import bout_pool, evaluation_seeds, greedy_returns, play_values, validation_seeds
 from wmthesis.runs import atomic_path
 from wmthesis.training import with_added_defaults
 from wmthesis.utils import check_choice, derive_seeds, fingerprint
@@ -281,13 +282,13 @@ def load_value(run_dir, model: RSSM) -> LatentValue:
     """The agent of a :func:`train_value` run for ``model``: its chosen round's value
     (:func:`best_round`), or the mean of the rounds' values that made its agent (``agent_rounds``),
     as it ships (:func:`as_shipped`). Where the run's checkpoint is not here but its agent file is
-    (a fresh clone), the value that file ships (:func:`~wmthesis.planet.shipped.load_agent`:
+    (a fresh clone), the value that file ships (:func:`~wmthesis.value.shipped.load_value_agent`:
     refused unless it was fitted on the PlaNet agent file beside it)."""
 
     path, shipped = Path(run_dir) / CHECKPOINT, Path(run_dir) / AGENT_NAME
     if not path.exists() and shipped.is_file():
-        value = load_agent(shipped).value
-        if value is None or value.heads[0][0].in_features != model.belief_size + model.state_size:
+        value = load_value_agent(shipped).value
+        if value.heads[0][0].in_features != model.belief_size + model.state_size:
             raise ValueError(f"{shipped} holds no value for this model")
         return value.to(next(model.parameters()).device)
     state = _load_checked(path, model)

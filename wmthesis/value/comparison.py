@@ -1,5 +1,5 @@
 """A value run on a frozen PlaNet model, as the Boxing and Freeway value experiments make one
-(beyond the thesis): the value fitted (:mod:`~wmthesis.planet.value_rounds`), CEM with it
+(beyond the thesis): the value fitted (:mod:`~wmthesis.value.rounds`), CEM with it
 at the end of its horizon played on the evaluation bouts beside the baselines, the metrics written
 (:func:`fit_and_compare`); the planner's levers on validation bouts (:func:`lever_scores`); and
 where the value changes the plan (:func:`compare_plans`)."""
@@ -15,15 +15,16 @@ import numpy as np
 from wmthesis.data import EpisodeStore
 from wmthesis.metrics import score_difference, score_summary
 from wmthesis.planet.bouts import FIRST_STEPS
-from wmthesis.planet.config import LatentValueConfig, ValuePlannerConfig
-from wmthesis.planet.agent_file import AGENT_NAME, save_agent
+from wmthesis.value.config import LatentValueConfig, ValuePlannerConfig
+from wmthesis.planet.shipped import AGENT_NAME
 from wmthesis.planet.figures import learning_curve_figure, plan_choices_figure
-from wmthesis.planet.own_rewards import fit_for_planners
+from wmthesis.value.agent_file import save_value_agent
+from wmthesis.value.own_rewards import fit_for_planners
 from wmthesis.planet.train import CHECKPOINT as PLANET_CHECKPOINT, load_planet
 from wmthesis.planet.frames import make_planet_env
-from wmthesis.planet.value_bouts import cached_plan, value_planner_scores, value_planners_scores
-from wmthesis.planet.value_planner import PLANNERS, plan_choices
-from wmthesis.planet.value_rounds import CHECKPOINT, STORE, load_value, train_value
+from wmthesis.value.bouts import cached_plan, value_planner_scores, value_planners_scores
+from wmthesis.value.planner import PLANNERS, plan_choices
+from wmthesis.value.rounds import CHECKPOINT, STORE, load_value, train_value
 from wmthesis import runs as run_store
 from wmthesis.runs import atomic_path, first_run_seconds, read_json, run_header, unchanged_run, write_json
 from wmthesis.stamp import git_commit
@@ -102,7 +103,7 @@ BASELINE_LABELS = {"planet": "PlaNet (CEM)", "random": "random play", "always-up
 def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, out: Path, config, planner,
                     baselines: dict, bouts: list, *, profile: str, seed: int, progress: bool,
                     references: dict, variant: str | None = None, started: float | None = None) -> dict:
-    """Fit the value (``config``, :func:`~wmthesis.planet.value_rounds.train_value`) on the frozen
+    """Fit the value (``config``, :func:`~wmthesis.value.rounds.train_value`) on the frozen
     model of ``planet_run`` in ``work``; play CEM with the chosen value at its end (``planner``)
     on the evaluation ``bouts``; write and return ``out/metrics.json``: ``value`` (the chosen
     round's evaluation bouts) and ``value_first`` (their first 500 steps), ``random`` and
@@ -144,7 +145,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     earlier = unchanged_run(out / "metrics.json", metrics)
     if earlier is not None and (work / AGENT_NAME).is_file():
         return earlier  # a finished run asked again (by validate, a budget curve): its files stay as they are
-    save_agent(work / AGENT_NAME, game, planet_run, bouts, git_commit(), value_run=work, planner=planner)  # for `play`
+    save_value_agent(work / AGENT_NAME, game, planet_run, bouts, git_commit(), value_run=work, planner=planner)  # for `play`
     metrics["files"] = {"figures": [str(save_figure(value_curve_figure(metrics, references), out / "value_curve.png"))]}
     write_json(out / "metrics.json", metrics)
     return metrics
@@ -192,11 +193,8 @@ def _agent_words(agent: dict, config, unit: str) -> str:
     return f"the value of round {rounds[0]}, chosen on {len(agent['validation'])} validation {unit}"
 
 
-PLAN_STEPS = {"smoke": 5, "quick": 300, "thesis": 500}  # steps of a bout on which the planners are compared
-
-
 def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: dict, steps: int, seed: int) -> dict:
-    """Where the value changes the plan (:func:`~wmthesis.planet.value_planner.plan_choices`):
+    """Where the value changes the plan (:func:`~wmthesis.value.planner.plan_choices`):
     on the first ``steps`` steps of the value agent's last bout of its own (in ``work``), the
     action the thesis's CEM, CEM with the chosen value (the planner of ``metrics``, a
     :func:`fit_and_compare` run) and the value alone would take from the same belief; cached in
@@ -236,5 +234,5 @@ def compare_plans(game: str, planet_run: Path, work: Path, out: Path, metrics: d
             "files": [str(f) for f in files]}
 
 
-__all__ = ["PLAN_STEPS", "BASELINE_LABELS", "VALUE_EXPERIMENTS", "agent_key", "chosen_rounds", "checked_levers", "compare_plans", "fit_and_compare", "frozen_agent", "value_curve_figure",
+__all__ = ["BASELINE_LABELS", "VALUE_EXPERIMENTS", "agent_key", "chosen_rounds", "checked_levers", "compare_plans", "fit_and_compare", "frozen_agent", "value_curve_figure",
            "lever_scores", "slug", "start_from"]

@@ -1,4 +1,4 @@
-"""The value agent at play (:mod:`~wmthesis.planet.value`): greedy and epsilon-greedy bouts of a
+"""The value agent at play (:mod:`~wmthesis.value.latent_value`): greedy and epsilon-greedy bouts of a
 value on a frozen PlaNet model, alone or in a pool of processes, on the seeded evaluation and
 validation bouts (apart from each other and from training's)."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ from wmthesis.core import loop
 from wmthesis.rollouts import EpisodeBuffer
 from wmthesis.planet.rssm import RSSM
 from wmthesis.utils import derive_seeds, parallel_calls, process_pool
-from wmthesis.planet.value import LatentValue, ValueMind
+from wmthesis.value.latent_value import LatentValue, ValueMind
 
 
 def play_value(env, model: RSSM, value: LatentValue, bits: int, env_seed: int, mind_seed: int,

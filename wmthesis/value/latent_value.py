@@ -32,7 +32,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from wmthesis.envs.preprocessing import to_float
-from wmthesis.planet.config import LatentValueConfig
+from wmthesis.value.config import LatentValueConfig
 from wmthesis.planet.rssm import RSSM, one_hot_previous
 from wmthesis.planet.agent import BeliefFilter
 from wmthesis.training import gradient_step

@@ -1,6 +1,6 @@
 """How far a learned value reads a PlaNet model's imagination (beyond the thesis).
 
-CEM with the value (:mod:`~wmthesis.planet.value_planner`) scores a candidate by Q at the states
+CEM with the value (:mod:`~wmthesis.value.planner`) scores a candidate by Q at the states
 it imagines: the first step's from the real belief, every later step's from states sampled from
 the model's prior. Search pays only where Q at those imagined states still tells good from bad.
 This module measures it along recorded episodes: from each step's posterior ``(h_t, s_t)``,
@@ -23,13 +23,13 @@ from torch import nn
 from wmthesis import runs as run_store
 from wmthesis.config import for_profile
 from wmthesis.data import EpisodeStore
-from wmthesis.planet.config import LatentValueConfig
-from wmthesis.planet.own_rewards import planner_model
+from wmthesis.value.config import LatentValueConfig
+from wmthesis.value.own_rewards import planner_model
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.value import after_action, episode_features, reward_sums
-from wmthesis.planet.value_planner import imagined_state
-from wmthesis.planet.value_rounds import STORE
-from wmthesis.planet.value_variants import value_folder
+from wmthesis.value.latent_value import after_action, episode_features, reward_sums
+from wmthesis.value.planner import imagined_state
+from wmthesis.value.rounds import STORE
+from wmthesis.value.variants import value_folder
 
 SIGNAL_DEPTHS = (0, 1, 2, 3, 6)  # imagined steps: 0 the real belief; CEM's quick horizons reach 1, 2 and 5
 SIGNAL_BOUTS = 20  # the last bouts of the value run's store that the signal is measured on

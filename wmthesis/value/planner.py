@@ -2,13 +2,13 @@
 successors, TD-MPC and Dreamer, plan or act this way).
 
 The thesis's CEM scores a candidate by its imagined rewards over H steps. Here the last step's
-reward and everything after it are the learned action value of :mod:`~wmthesis.planet.value`:
+reward and everything after it are the learned action value of :mod:`~wmthesis.value.latent_value`:
 
     R(a_t .. a_{t+H-1}) = sum_{k < H-1} gamma^k r(h_{t+k+1}, s_{t+k+1})
                           + gamma^{H-1} Q(h_{t+H-1}, s_{t+H-1}, a_{t+H-1})
 
 with ``Q = value(h_{t+H}, mean of p(s_{t+H} | h_{t+H}))`` (the value's features after an action,
-:func:`~wmthesis.planet.value.after_action`). The imagined states ``s`` are sampled from the
+:func:`~wmthesis.value.latent_value.after_action`). The imagined states ``s`` are sampled from the
 prior as in the thesis's planner (``imagine="sample"``), or are the prior's mean (``"mean"``: one
 deterministic imagined path per candidate, no sampling noise in its return), or samples that share
 one noise draw across the candidates (``"shared"``: common random numbers; with the thesis's
@@ -23,7 +23,7 @@ policy in the same spirit); 0 starts from zero, the thesis's. Two ends meet the 
 - no value (``value=None``): exactly the thesis's CEM objective
   (:meth:`~wmthesis.planet.rssm.RSSM.imagined_returns`), the same random draws included;
 - H = 1: ``R(a_t) = Q(h_t, s_t, a_t)``, the value agent's own score of ``a_t``
-  (:class:`~wmthesis.planet.value.ValueMind`).
+  (:class:`~wmthesis.value.latent_value.ValueMind`).
 """
 from __future__ import annotations
 
@@ -34,10 +34,11 @@ import torch.nn.functional as F
 from wmthesis.core import loop
 from wmthesis.rollouts import EpisodeBuffer
 from wmthesis.planet.cem import cem_belief
-from wmthesis.planet.config import PlaNetConfig, ValuePlannerConfig
+from wmthesis.planet.config import PlaNetConfig
+from wmthesis.value.config import ValuePlannerConfig
 from wmthesis.planet.rssm import RSSM, Gaussian, randn_like
 from wmthesis.planet.agent import BeliefFilter, PlanetMind
-from wmthesis.planet.value import LatentValue, action_values
+from wmthesis.value.latent_value import LatentValue, action_values
 
 
 IMAGINE = ("sample", "mean", "shared")  # the imagined states: prior samples, its mean, samples with one noise for all

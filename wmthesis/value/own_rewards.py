@@ -8,7 +8,7 @@ search plans for. Here only the reward head is refit: the model's transition, an
 value's features, stay frozen, so the learned value still holds.
 
 The head is refit where CEM uses it: on the features of each taken action, ``(h_{t+1}, mean of
-p(s_{t+1} | h_{t+1}))`` (:func:`~wmthesis.planet.value.episode_features`), against the reward that
+p(s_{t+1} | h_{t+1}))`` (:func:`~wmthesis.value.latent_value.episode_features`), against the reward that
 followed, on every bout of a value run's store (its random bouts and its own), starting from the
 model's head. ``ValuePlannerConfig.reward_head="own"`` plays CEM with it.
 """
@@ -20,11 +20,12 @@ import torch
 import torch.nn.functional as F
 
 from wmthesis.data import EpisodeStore
-from wmthesis.planet.config import LatentValueConfig, PlaNetConfig, ValuePlannerConfig
+from wmthesis.planet.config import PlaNetConfig
+from wmthesis.value.config import LatentValueConfig, ValuePlannerConfig
 from wmthesis.planet.rssm import RSSM
 from wmthesis.planet.train import load_planet
-from wmthesis.planet.value import LatentValue, episode_features, fit_value
-from wmthesis.planet.value_rounds import STORE, load_value
+from wmthesis.value.latent_value import LatentValue, episode_features, fit_value
+from wmthesis.value.rounds import STORE, load_value
 from wmthesis.runs import atomic_path
 from wmthesis.utils import fingerprint
 
@@ -47,10 +48,10 @@ def reward_dataset(model: RSSM, store_path: str | Path, bits: int) -> tuple[torc
 
 def refit_reward_head(model: RSSM, features: torch.Tensor, rewards: torch.Tensor, config: LatentValueConfig,
                       seed: int) -> tuple[dict, dict]:
-    """A copy of the model's reward head fitted as the value is fitted (:func:`~wmthesis.planet.value.fit_value`:
+    """A copy of the model's reward head fitted as the value is fitted (:func:`~wmthesis.value.latent_value.fit_value`:
     ``config.fit_updates`` Adam steps of mean squared error, the value's ``batch_size`` and ``lr``)
     on ``features`` (N, H + S) and ``rewards`` (N,): the head has the shape of a one-head
-    :class:`~wmthesis.planet.value.LatentValue`. Returns its state dict and the mean squared error
+    :class:`~wmthesis.value.latent_value.LatentValue`. Returns its state dict and the mean squared error
     on the data before and after."""
     head = LatentValue(features.shape[-1], model.reward_net[0].out_features).to(features.device)
     head.heads[0].load_state_dict(model.reward_net.state_dict())
