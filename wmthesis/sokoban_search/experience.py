@@ -7,7 +7,7 @@ Groups by kind and board shape (boards of several sizes train the same networks)
 - ``to_go/HxW``: ``states`` uint8 (N, h, w), ``labels`` float32 (N,) steps to the end, from the
   levels the agent solved; ``rounds`` int16 (N,);
 - ``solutions/HxW``: ``states`` uint8 (N, h, w), ``actions`` uint8 (N,) the action the agent
-  then played, from the levels it solved; ``rounds`` int16 (N,) (files from before 2026-11-24
+  then played, from the levels it solved; ``rounds`` int16 (N,) (older files
   have none);
 - ``backed_up/HxW``: ``states`` uint8 (N, h, w) its searches expanded, ``labels`` float32 (N,)
   their backed-up steps to go (runs that keep them); ``rounds`` int16 (N,).

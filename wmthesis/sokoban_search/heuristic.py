@@ -11,17 +11,13 @@ on a larger board adds up its parts, and one network serves every board size).
 
 Symmetries: a board turned or mirrored is as far from its end as the board itself (the game has
 no favourite direction), so each training batch may be shown in one of the square's 8
-symmetries (:func:`turned`), as AlphaGo Zero showed its Go positions. On the solved levels of a
-quick run (seed 0, 20,941 labelled states, 1,500 updates), the value trained with them solved
-135, 141 and 138 of 150 unseen 10x10 levels with the true rules (budget 20,000, three seeds)
-expanding 3,800 nodes a level; without, 137, 133 and 136, expanding 4,700.
+symmetries (:func:`turned`), as AlphaGo Zero showed its Go positions (what they changed:
+``docs/findings/sokoban-search.md``).
 
 Dead ends: states along solutions are all states from which the level can still be solved. A
-search spends most of its nodes elsewhere: in the failed searches of 6 medium Boxoban validation
-levels (the grid run of a quick run, with the true rules, weight 3), 52-77% of the expanded
-states had a box pushed into a corner off its target (counted by an analysis script with the
-rules; the agent knows none), and the value put them nearer the end (a median of 15-21 steps)
-than the level's start (23-50). So the value may also learn from the searches themselves
+search spends most of its nodes elsewhere, many of them on boards with a box pushed into a corner
+off its target, which such a value never saw and may put nearer the end than the level's start
+(counted in ``docs/findings/sokoban-search.md``). So the value may also learn from the searches themselves
 (:func:`backed_up`): an expanded state is 1 step more than the best of its children, a state the
 search did not expand is its estimate; solved by Dijkstra's algorithm over the search's graph.
 What a search found below a state (a region that went nowhere) lifts its label, as a search

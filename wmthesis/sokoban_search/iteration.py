@@ -10,17 +10,12 @@ Within a round, each part of its levels is kept as it finishes (``round-N/part-P
 the round is saved): a round cut off in its play replays only the parts it had not finished.
 Each stage's record in the history holds its wall time (``wall_seconds``: play and fits).
 
-The value starts afresh each round, trained on every level solved so far. Carrying it over from
-round to round (as the model is) left it fitted to the early rounds' short solutions: with the
-true rules and the same search, the carried-over value of a quick run solved 80 of 100 unseen
-10x10 levels; fresh ones trained on the same solved levels, 86 to 92 (1,000 to 4,000 updates,
-two seeds). Beside the solved levels' states, the value learns from the last round's searches
-(``cfg.backups``: states each search expanded, with their backed-up steps to go,
-:func:`~wmthesis.sokoban_search.heuristic.backed_up`): on the same rounds' levels (quick, seed 0,
-pixels), the agent of the last two 10x10 rounds solved 96.8% and 98.8% with them, at 4,456 and
-3,113 nodes a level; 91.2% and 95.6% without, at 8,473 and 4,758 (before the fix of
-:func:`~wmthesis.sokoban_search.heuristic.backed_up` for a search's last batch; after it, 93.6% and
-94.8% at 6,025 and 5,157 nodes, and its validation solved 99 / 82 against 99 / 86).
+The value starts afresh each round, trained on every level solved so far (carried over from round
+to round, as the model is, it stays fitted to the early rounds' short solutions). Beside the solved
+levels' states, the value learns from the last round's searches (``cfg.backups``: states each
+search expanded, with their backed-up steps to go,
+:func:`~wmthesis.sokoban_search.heuristic.backed_up`). The measurements behind both choices:
+``docs/findings/sokoban-search.md``.
 """
 from __future__ import annotations
 

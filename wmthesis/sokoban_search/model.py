@@ -1,6 +1,6 @@
 """A learned Sokoban model: next board, reward and end of episode from a board and an action.
 
-The thesis's memory (an LSTM over a VAE's latent, 5.3) lost the player in 100% of its +10-step
+The thesis's memory (an LSTM over a VAE's latent, 5.3) lost the player in its +10-step
 predictions; it names the cause, too little capacity for Sokoban's combinatorics, and points at
 I2A's convolutional model. This is that model, over a *discrete* state: a grid of cells, each one
 of K codes (the board's cell types for grid inputs, 5.3.2; a code learned from pixels by
@@ -13,15 +13,13 @@ Shapes: ``state`` long (B, h, w) codes in [0, K); A actions. The network sees
 end-of-episode logit (B, A). Being convolutional with pooled heads, it runs on any board size.
 
 Seen changes. A search finds a model's rare mistakes and follows them: a board with the player
-gone is a board the value never saw, and the search of a quick run spent a third of its nodes
-below such boards on the levels it failed. So the model also keeps, from the real transitions it
+gone is a board the value never saw, and a search can spend much of its budget below such boards
+on the levels it fails. So the model also keeps, from the real transitions it
 is trained on, every change of the board's code counts it saw (on grid inputs, 7 of them: none
 for a step on the floor, a step onto a target, a push, ...), and a prediction whose change is
 not among them is not trusted: that move is blocked (the board stays as it was). This is learned
 from experience like everything else (no rule says which changes are possible) and serves any
 board of discrete codes.
-On the 28 unseen 10x10 levels that the true rules solved and the grid model did not (quick run,
-seed 0, same value and budget), the model with its seen changes solved 26.
 
 Seen ends. The end-of-episode head looks at the whole board through pooled features, and it
 can call an end too early: the search takes the first predicted end for the goal, and the
@@ -29,9 +27,8 @@ agent plays a plan whose last push does not end the level (in the cases looked a
 box into a corner, where no plan is left). So the
 model also keeps which codes the boards at the real ends of episodes show, and an end predicted
 on a board that shows a code no end ever showed (on grid inputs: a box off its target, or a
-target left open) is not trusted. Of the 73 unseen 10x10 levels that the pixel agent of a quick
-run failed, 13 failed after such a plan (none of the grid agent's 55); with seen ends its first
-search alone solved 6 of them.
+target left open) is not trusted (what seen changes and seen ends solved:
+``docs/findings/sokoban-search.md``).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The Sokoban search agent's results as tables: the issues' targets with what one run measured,
+"""The Sokoban search agent's results as tables: the targets with what one run measured,
 the Boxoban table beside the published agents, and the levers and report evaluations over seeds
 (read from the run store, ``data/results/sokoban-search/PROFILE-seedS/``)."""
 from __future__ import annotations

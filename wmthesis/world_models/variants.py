@@ -5,7 +5,7 @@ controller's folder is its own (:func:`controller_folder`).
 
 Why a variant beyond the first: with a population of 16 over D = 4,914 parameters, CMA-ES learns
 next to nothing of its covariance or step size in 45 generations (its learning rates scale as
-1/D: sigma moved 0.10 -> 0.11-0.13 on every committed seed), and since the controller is an argmax,
+1/D), and since the controller is an argmax,
 which no positive scale changes, the search is a fixed-radius random search whose early luck
 decides the seed (docs/findings/boxing-wm.md). The default, ``separable-64``, was chosen by the
 rule written there before the runs ended, on validation seeds 10-12 alone.
