@@ -1,6 +1,7 @@
 """The committed notebooks as a reader meets them: run top to bottom, on code that is in the
 history, stamped, each headline number the summary's. (Every notebook also runs in ``smoke`` in the
 suite, through nbval: ``testpaths`` in pyproject.toml.)"""
+import ast
 import json
 import re
 import subprocess
@@ -37,6 +38,36 @@ def in_history(commit: str) -> bool:
                           capture_output=True).returncode == 0
 
 
+def imported_files(path: Path) -> list[str]:
+    """The package's files that ``path``'s code cells import directly (a ``from wmthesis.x import
+    y`` names module ``wmthesis.x.y`` where one exists, else ``wmthesis.x``), relative to the root."""
+    names = set()
+    for cell in code_cells(path):
+        source = "\n".join(line for line in "".join(cell["source"]).splitlines() if not line.lstrip().startswith(("%", "!")))
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, ast.Import):
+                names |= {a.name for a in node.names if a.name.split(".")[0] == "wmthesis"}
+            elif isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "wmthesis":
+                names |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+    files = []
+    for name in names:
+        base = ROOT / Path(*name.split("."))
+        files += [str(f.relative_to(ROOT)) for f in (base.with_suffix(".py"), base / "__init__.py") if f.is_file()]
+    return sorted(files)
+
+
+def last_change(files: list[str]) -> str | None:
+    """The last commit that changed any of ``files`` (None outside a git checkout)."""
+    found = subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%H", "--", *files], capture_output=True,
+                           text=True)
+    return found.stdout.strip() or None
+
+
+def is_ancestor(older: str, newer: str) -> bool:
+    return subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", older, newer],
+                          capture_output=True).returncode == 0
+
+
 def check_notebook(path: Path) -> None:
     """Raise AssertionError unless ``path``'s code cells ran in order, without an error, and the
     last one carries a stamp of a committed, unchanged checkout in ``quick``."""
@@ -50,6 +81,9 @@ def check_notebook(path: Path) -> None:
     assert not found["changes"], f"{path.name}: run on code that differed from commit {found['commit']}"
     assert in_history(found["commit"]), f"{path.name}: its stamp's commit {found['commit']} is not in the history"
     assert found["profile"] == "quick", f"{path.name}: committed outputs are quick's, not {found['profile']}'s"
+    changed = last_change(imported_files(path))
+    assert changed is None or is_ancestor(changed, found["commit"]), \
+        f"{path.name}: run at {found['commit']}, before {changed[:7]} changed the modules it imports: re-run it"
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
@@ -199,3 +233,30 @@ def test_the_reader_check_fails_a_notebook_with_lab_talk_or_a_placeholder(tmp_pa
     (tmp_path / "x.ipynb").write_text(json.dumps(notebook))
     with pytest.raises(AssertionError, match="machine path"):
         test_a_committed_notebook_speaks_to_a_reader(tmp_path / "x.ipynb")
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_every_notebook_opens_as_a_chapter(path):
+    """Within its first cells, a box with the thesis's claim and the verdict on ours: written in its
+    opening prose, or printed by its first code cells (:func:`wmthesis.chapters.chapter_box`)."""
+    cells = json.loads(path.read_text())["cells"][:5]
+    shown = "\n".join("".join(c["source"]) if c["cell_type"] == "markdown" else output_text(c) for c in cells)
+    assert "**The thesis:**" in shown and "**Verdict:**" in shown, f"{path.name}: no opening box in its first cells"
+
+
+def test_a_chapters_verdict_sets_our_interval_against_the_thesiss_bar():
+    from wmthesis.chapters import chapter_box, verdict
+    from wmthesis.headline import CHAPTER_ROWS, HEADLINES
+
+    bar = next(h for h in HEADLINES if h.experiment == "boxing-wm")  # the thesis: above 18
+    row = lambda low, high: {"mean": (low + high) / 2, "ci_low": low, "ci_high": high}  # noqa: E731
+    assert [verdict(bar, row(*r)) for r in ((20, 30), (10, 20), (5, 15))] == \
+        ["beyond the thesis", "reproduced", "not reproduced at this budget"]
+    assert verdict(bar, {"mean": 19.0, "ci_low": None, "ci_high": None}) == "beyond the thesis"  # one seed: its score
+    assert verdict(bar, None) == "not run yet"
+    judged = next(h for h in CHAPTER_ROWS if h.notebook == "04")
+    assert verdict(judged, row(-12, -11)) == judged.judged == "reproduced"
+    box = chapter_box("04", folder=ROOT / "data" / "results")  # a chapter row opens its notebook
+    assert "**PlaNet on Sokoban-small" in box and "**Verdict:** reproduced;" in box
+    with pytest.raises(ValueError, match="holds no headline; those that do: 01, 02, 03, 04, 05, 06, 07, 08, 09, 10"):
+        chapter_box("00", folder=ROOT / "data" / "results")

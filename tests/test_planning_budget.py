@@ -242,3 +242,26 @@ def test_a_kept_value_signal_is_read_only_for_the_models_and_measurement_it_was_
         write_json(path, {**kept, **changed})
         with pytest.raises(FileNotFoundError, match="no fitted value for seed 7"):  # measured again: nothing to measure here
             seed_value_signal("quick", 7)
+
+
+def test_the_chapters_box_gives_each_curve_its_largest_budgets_gain_and_verdict():
+    from wmthesis.budget_curves import budget_box
+
+    def row(planner, budget, seed, score, base):
+        return {"planner": planner, "game": "g", "budget": budget, "seed": seed, "score": score,
+                "no_search_score": base, "ms_per_action": 1.0}
+
+    rows = [row("mcts", b, s, base + gain * (b > 0), base) for s, base in ((0, 10.0), (1, 20.0), (2, 30.0))
+            for b, gain in ((0, 0), (4, -1.0 + s), (64, 5.0 + s))]  # at 64: gains 5, 6, 7
+    rows += [row("cem", b, s, base - 2.0 * (b > 0) + s * (b > 0), base) for s, base in ((0, 1.0), (1, 2.0))
+             for b in (0, 300)]  # gains -2, -1 on 2 seeds: an interval holding 0
+    rows += [row("sokoban-search", b, 0, 50.0 + 40 * (b > 0), 50.0) for b in (0, 1000)]  # one seed: no interval
+    box = budget_box(rows, "quick").splitlines()
+    assert box[1].startswith("> **The thesis:** \"planning carries the promise")
+    # by hand: mean 6, sample std 1, t_{0.975, 2} = 4.303: half width 2.48
+    assert "mcts on g: 26.0 at budget 64, +6.0 [+3.5, +8.5] over no search on the same bouts or levels (3 seeds): " \
+           "**reproduced**" in box[2]
+    assert box[3].endswith("(2 seeds): **not shown at this budget**  ") and "-1.5 [" in box[3]
+    assert "sokoban-search on g: 90.0 at budget 1,000, +40.0 over no search" in box[4] and "not shown" in box[4]
+    hurt = [row("mcts", b, s, 10.0 - 3.0 * (b > 0) - 0.1 * s * (b > 0), 10.0) for s in (0, 1, 2) for b in (0, 8)]
+    assert budget_box(hurt).endswith("**search hurts**")

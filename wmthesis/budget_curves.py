@@ -153,6 +153,28 @@ def row_line(row: dict) -> str:
             f"{row['ms_per_action']:.1f} ms an action{changed}")
 
 
+def budget_box(rows: list[dict], profile: str = DEFAULT_PROFILE) -> str:
+    """The chapter's opening box (Markdown): the thesis's promise, and per planner and game its
+    largest budget's paired gain over no search with the 95% interval over seeds, and the
+    verdict: *reproduced* where the interval lies above 0, *search hurts* where it lies below,
+    *not shown at this budget* where it holds 0 (or one seed gives no interval)."""
+    from wmthesis.references import THESIS_PLANNING
+
+    lines = [f"> **Score against search budget** (beyond the thesis: its promise, chapter 1)  ",
+             f"> **The thesis:** \"{THESIS_PLANNING.value}\" ({THESIS_PLANNING.source})  "]
+    table = budget_table(rows)
+    for planner, game in dict.fromkeys((r["planner"], r["game"]) for r in table):
+        top = max((r for r in table if (r["planner"], r["game"]) == (planner, game)), key=lambda r: r["budget"])
+        low, high = top["gain_ci_low"], top["gain_ci_high"]
+        said = ("not shown at this budget" if low is None or low <= 0 <= high else
+                "reproduced" if low > 0 else "search hurts")
+        interval = "" if low is None else f" [{low:+.1f}, {high:+.1f}]"
+        lines.append(f"> **Ours** (`{profile}`), {planner} on {game}: {top['score']:.1f} at budget {top['budget']:,}, "
+                     f"{top['gain']:+.1f}{interval} over no search on the same bouts or levels ({top['seeds']} "
+                     f"seed{'s' * (top['seeds'] > 1)}): **{said}**  ")
+    return "\n".join(lines).rstrip()
+
+
 def budget_markdown(rows: list[dict]) -> str:
     """:func:`budget_table` of ``rows`` as markdown (an empty string without rows)."""
     if not rows:

@@ -8,7 +8,7 @@ holds it; a chapter whose thesis gave no number carries the verdict its headline
 """
 from __future__ import annotations
 
-from wmthesis.headline import HEADLINES, headline_rows
+from wmthesis.headline import CHAPTER_ROWS, HEADLINES, headline_rows
 
 
 def verdict(headline, row: dict | None) -> str:
@@ -27,13 +27,14 @@ def verdict(headline, row: dict | None) -> str:
 
 def chapter_box(notebook: str, profile: str = "quick", folder=None) -> str:
     """The opening box (Markdown) of ``notebook`` (its number, ``"02"``): one block per headline it
-    holds, read from every run's ``metrics.json`` under ``folder`` (default ``data/results``)."""
+    holds (the front door's and :data:`~wmthesis.headline.CHAPTER_ROWS`), read from every run's ``metrics.json`` under ``folder`` (default ``data/results``)."""
     from wmthesis.summary import read_runs, summarise
 
-    entries = [e for e in headline_rows(summarise(read_runs(folder)), profile) if e["headline"].notebook == notebook]
+    entries = [e for e in headline_rows(summarise(read_runs(folder)), profile, HEADLINES + CHAPTER_ROWS)
+               if e["headline"].notebook == notebook]
     if not entries:
         raise ValueError(f"notebook {notebook!r} holds no headline; those that do: "
-                         f"{', '.join(sorted({h.notebook for h in HEADLINES}))}")
+                         f"{', '.join(sorted({h.notebook for h in HEADLINES + CHAPTER_ROWS}))}")
     blocks = []
     for entry in entries:
         h, row = entry["headline"], entry["row"]

@@ -31,6 +31,12 @@ THESIS_PLANET_BOXING = Reference("thesis PlaNet", "around 30", "thesis 5.6.4 (KL
 THESIS_PLANET_BOXING_SCORE = 30.0  # "around 30", as a line in the figures
 THESIS_PLANET_FREEWAY = Reference("thesis PlaNet", 0.0, "thesis 5.6.5")
 THESIS_SOKOBAN = Reference("thesis", "0 levels solved", "thesis 5.3, 5.5")
+THESIS_PLANET_SOKOBAN = Reference("thesis PlaNet", "did not capture Sokoban dynamics: future predictions are blurred, "
+                                  "multiple agents appear", "thesis 5.5.1 (Fig. 58)")
+THESIS_PLANET_SEARCH = Reference("thesis PlaNet", "the best divergence scale around 0.03, free nats 12, chosen by eye",
+                                 "thesis 5.6.3-5.6.4")
+THESIS_PLANNING = Reference("thesis", "planning carries the promise of increasing performance just by increasing the "
+                            "computational budget for searching for good actions", "thesis, chapter 1")
 
 # The thesis judged Sokoban's World Models by eye (5.3) and reported no score.
 THESIS_SOKOBAN_WM = {
@@ -117,4 +123,5 @@ def random_play(game: str) -> float:
 
 __all__ = ["Reference", "RANDOM", "HUMAN", "ATARI_100K", "BOXOBAN", "BOXOBAN_PUBLISHED", "THINKER", "PUBLISHED",
            "THESIS_WORLD_MODELS", "THESIS_ALPHAZERO", "THESIS_PLANET_BOXING", "THESIS_PLANET_BOXING_SCORE",
-           "THESIS_PLANET_FREEWAY", "THESIS_SOKOBAN", "THESIS_SOKOBAN_WM", "published", "human", "random_play", "best_atari_100k"]
+           "THESIS_PLANET_FREEWAY", "THESIS_SOKOBAN", "THESIS_PLANET_SOKOBAN", "THESIS_PLANET_SEARCH", "THESIS_PLANNING",
+           "THESIS_SOKOBAN_WM", "published", "human", "random_play", "best_atari_100k"]
