@@ -34,9 +34,9 @@ class BudgetCurveConfig:
     :class:`~wmthesis.alphazero.config.AlphaZeroConfig` fields in place of the agent's own: the
     PUCT root acting on the most visited action, equal counts going to the higher prior, chosen on
     validation bouts, ``docs/findings/planning-budget.md``);
-    ``cem_budgets``, CEM with the value's (H, J, I), H x J x I imagined steps an action (the value
-    alone, H = 1, is the row without search); Boxing's curves on ``boxing_bouts`` evaluation bouts a
-    seed, the same for every budget."""
+    ``cem_budgets``, CEM with the value's (H, J, I), H x J x I imagined steps an action (CEM at
+    H = 1, each sampled first action scored by the value alone, is the row without search);
+    Boxing's curves on ``boxing_bouts`` evaluation bouts a seed, the same for every budget."""
     sokoban_budgets: tuple = (1_000, 5_000, 20_000, 40_000, 160_000)
     sokoban_levels: int = 1000
     mcts_budgets: tuple = (2, 4, 8, 16, 64, 256)
@@ -86,7 +86,7 @@ def _budget(planner: str, item: str):
         if 0 in numbers:
             raise ValueError(f"cem budget {item!r} has a 0: horizon, candidates and iterations are 1 or more")
         if numbers[0] == 1:
-            raise ValueError(f"cem budget {item!r}: horizon 1 is the value alone, the row without search, "
+            raise ValueError(f"cem budget {item!r}: horizon 1 is the value alone (CEM's candidates scored by Q), the row without search, "
                              "measured always")
         return tuple(numbers)
     if numbers[0] == NO_SEARCH:

@@ -5,8 +5,8 @@ search budget on a seed's trained models, the same bouts or levels for every bud
   and under each node budget of the profile's ``sokoban_budgets`` (:func:`curve_sizes`);
 - MCTS in the World Models memory (``boxing-wm-alphazero``'s default run) on Boxing: its
   policy head alone, then each number of simulations of ``mcts_budgets``;
-- CEM in PlaNet's model with the learned value (``planet-boxing-value``'s default) on Boxing: the
-  value alone, then each horizon x candidates x iterations of ``cem_budgets``.
+- CEM in PlaNet's model with the learned value (``planet-boxing-value``'s default) on Boxing: CEM
+  at horizon 1 (its candidates scored by the value alone), then each horizon x candidates x iterations of ``cem_budgets``.
 
 Writes the run's ``metrics.json`` and every seed's rows of the profile
 (:mod:`wmthesis.budget_curves`)."""
@@ -139,7 +139,8 @@ def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = 
 def cem_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = None) -> list[dict]:
     """CEM with the value on PlaNet's Boxing model: the default value run's planner with its horizon,
     candidates and iterations set by each ``(H, J, I)`` of ``budgets`` (default the profile's
-    ``cem_budgets``; budget H x J x I x its particles), and the value alone (H = 1: budget 0), on the first
+    ``cem_budgets``; budget H x J x I x its particles), and CEM at H = 1 (budget 0: each sampled first
+    action scored by the value alone, the best taken, not quite the value agent's argmax), on the first
     ``boxing_bouts`` of the value's evaluation bouts."""
     metrics, work = frozen_agent("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(None), progress)
     base = with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"])
