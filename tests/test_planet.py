@@ -345,3 +345,18 @@ def test_open_loop_evaluation_and_figures_on_a_smoke_run(tmp_path):
     assert len(figure.axes) == 2 * 2 * 12
     horizon_error_figure({"smoke": result["mse"]})
     learning_curve_figure({"smoke": meta["curve"]}, references={"random": 0.0})
+
+
+def test_the_studys_contrast_and_the_budget_beside_the_thesiss_best_boxing_setting():
+    from wmthesis.planet.bouts import budget_table
+    from wmthesis.planet.config import PlaNetConfig
+    from wmthesis.planet.study import study_contrast
+
+    entry = lambda first, last: {"model": {"1": {"mean": first}, "15": {"mean": last}}}  # noqa: E731
+    summary = {"unchanged": entry(0.03, 0.05), "free-nats": entry(0.02, 0.07)}
+    assert study_contrast({"summary": summary}) == ("lowest error at +1: free-nats's (0.0200); at +15: unchanged's "
+                                                   "(0.0500) (of unchanged, free-nats)")
+    tuned = PlaNetConfig(kl_scale=0.03, free_nats=12.0, overshooting_distance=0, frame_size=32)
+    table = budget_table(tuned, {"updates": 10, "env_steps": 20})
+    assert "| latent overshooting distance | 0 | 0 |" in table and "| frames | 32x32, 5 bits | 64x64, 5 bits |" in table
+    assert table.endswith("differs from the thesis's best Boxing setting: frame_size.")  # KL scale, free nats: 5.6.4's

@@ -118,4 +118,18 @@ def study_table(metrics: dict) -> str:
     return "\n".join(rows)
 
 
-__all__ = ["study_table", "study_sizes", "STUDY_VARIANTS", "BASELINES", "held_out_store", "scene", "score_run", "summarise"]
+def study_contrast(metrics: dict) -> str:
+    """Which configuration of the study predicts best at its first and at its last horizon, with
+    its error on the moving pixels (the seeds' mean): the thesis's contrast of Fig. 59 and 510, measured."""
+    summary = metrics["summary"]
+    horizons = list(next(iter(summary.values()))["model"])
+
+    def best(h):
+        variant = min(summary, key=lambda v: summary[v]["model"][h]["mean"])
+        return f"{variant}'s ({summary[variant]['model'][h]['mean']:.4f})"
+
+    return (f"lowest error at +{horizons[0]}: {best(horizons[0])}; at +{horizons[-1]}: {best(horizons[-1])} "
+            f"(of {', '.join(summary)})")
+
+
+__all__ = ["study_contrast", "study_table", "study_sizes", "STUDY_VARIANTS", "BASELINES", "held_out_store", "scene", "score_run", "summarise"]
