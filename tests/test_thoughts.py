@@ -66,6 +66,12 @@ def test_a_world_models_recording_shows_its_dream_aligned_with_reality(tmp_path,
         np.testing.assert_allclose(recording[f"/error/{j}"]["values"], errors, rtol=1e-9)
         assert out["errors"][j] == pytest.approx(np.mean(errors))
     assert out["errors"][8] > out["errors"][1] > 0  # imagination parts from reality the further it looks
+    seen = [horizon_errors(at(recording, "/reality", s)[None], at(recording, "/model/seen", s)[None])[0]
+            for s in recording["/model/seen"]["steps"]]
+    assert out["reconstruction"] == pytest.approx(np.mean(seen)) and 0 < out["reconstruction"] < out["errors"][8]
+    from wmthesis.play import imagination_line
+
+    assert imagination_line(out).endswith(f"; the reconstruction of the frame itself: {np.mean(seen):.4f}")
 
 
 def test_a_world_models_agent_dreams_the_same_in_a_batch_as_alone(shipped):

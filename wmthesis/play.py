@@ -65,11 +65,20 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
             kept.unlink(missing_ok=True)
     on_play(agent.score_line(recorded["plays"]))
     if recorded["errors"]:
-        on_play("imagination against reality, mean squared error in [0, 1] by steps ahead: "
-                + ", ".join(f"{j}: {e:.4f}" for j, e in recorded["errors"].items()))
+        on_play(imagination_line(recorded))
     on_play(f"recorded {recorded['steps']} steps: " + ", ".join(str(p) for p in (record, video) if p is not None)
             + (f" (open with: rerun {record})" if record else ""))
     return {**_result(agent, recorded["plays"]), "errors": recorded["errors"]}
+
+
+def imagination_line(recorded: dict) -> str:
+    """A recording's errors (:meth:`~wmthesis.thoughts.Recorder.close`) in one line: imagination
+    against reality by steps ahead, and the model's reconstruction of the frame it sees, the floor under them."""
+    line = ("imagination against reality, mean squared error in [0, 1] by steps ahead: "
+            + ", ".join(f"{j}: {e:.4f}" for j, e in recorded["errors"].items()))
+    if recorded.get("reconstruction") is not None:
+        line += f"; the reconstruction of the frame itself: {recorded['reconstruction']:.4f}"
+    return line
 
 
 def _result(agent, plays: list[dict]) -> dict:
@@ -77,4 +86,4 @@ def _result(agent, plays: list[dict]) -> dict:
             "plays": plays, "score": float(np.mean([p["return"] for p in plays]))}
 
 
-__all__ = ["PLAYABLE", "check_output", "play"]
+__all__ = ["PLAYABLE", "check_output", "imagination_line", "play"]

@@ -72,7 +72,7 @@ class Recorder:
         if left_out:
             self.stream.log("notes", rr.TextDocument(left_out), static=True)
         self.video_path, self.video = (Path(video) if video else None), None
-        self.step_index, self.pending, self.errors = 0, {}, {}
+        self.step_index, self.pending, self.errors, self.reconstructions = 0, {}, {}, []
         self.plan_drawn = self.closed = False
 
     def blueprint(self):
@@ -114,6 +114,7 @@ class Recorder:
         self.plan_drawn = drawn
         if thought.seen is not None:
             self.stream.log("model/seen", _image(thought.seen))
+            self.reconstructions.append(float(horizon_errors(np.asarray(frame)[None], np.asarray(thought.seen)[None])[0]))
         arrived = self.pending.pop(self.step_index, {})
         for j, (predicted, reward) in sorted(arrived.items()):
             if predicted is not None:
@@ -150,14 +151,16 @@ class Recorder:
 
     def close(self) -> dict:
         """Flush what was recorded (a valid recording, however the bout ended): the mean error of
-        imagination per imagined step and the steps recorded."""
+        imagination per imagined step, that of the model's reconstruction of the frame it sees (None
+        where it shows none: the floor under every imagined step's error) and the steps recorded."""
         if self.closed:  # removed on a full disk
-            return {"steps": self.step_index, "errors": {}}
+            return {"steps": self.step_index, "errors": {}, "reconstruction": None}
         self.stream.flush()
         self.stream.disconnect()
         if self.video is not None:
             self.video.release()
-        return {"steps": self.step_index, "errors": {j: float(np.mean(e)) for j, e in sorted(self.errors.items())}}
+        return {"steps": self.step_index, "errors": {j: float(np.mean(e)) for j, e in sorted(self.errors.items())},
+                "reconstruction": float(np.mean(self.reconstructions)) if self.reconstructions else None}
 
     # ---------------------------------------------------------------- helpers
     def _check_space(self, frame: np.ndarray) -> None:

@@ -100,4 +100,13 @@ def frozen_model_line(value_run: dict, agent_run: dict) -> str:
                    f"{agent_run['date']}): each number is its own model's")
 
 
-__all__ = ["frozen_model_line", "agent_rows", "planner_lever_rows", "paired_rows", "planner_rows", "value_table"]
+def other_episodes_line(value_run: dict, planet_run: dict, name: str) -> str:
+    """The thesis CEM's score on a value run's evaluation episodes beside its PlaNet run's own test
+    score (``planet_run``'s ``score``, of variant ``name``): one model, other episodes."""
+    ours, theirs = value_run["planet"], planet_run["score"]
+    return (f"PlaNet's CEM on {name}'s model scores {ours['mean']:.1f} over the value runs' {ours['episodes']} "
+            f"evaluation episodes and {theirs['mean']:.1f} over its own run's {theirs['episodes']} test episodes "
+            "above: other episodes")
+
+
+__all__ = ["frozen_model_line", "other_episodes_line", "agent_rows", "planner_lever_rows", "paired_rows", "planner_rows", "value_table"]
