@@ -2,7 +2,8 @@
 
 Sokoban's rules over random levels and random play; seeds that give the same level in any
 process; an episode store that never loses a completed episode and never samples across an
-episode boundary; planners that always return a legal action.
+episode boundary; planners that always return a legal action, and the best one where a small
+problem's answer is known.
 """
 import subprocess
 import sys
@@ -11,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from wmthesis.alphazero.mcts import MCTS
@@ -185,3 +186,48 @@ def test_mcts_returns_a_legal_action_for_any_legal_input(n_actions, simulations,
     assert counts.shape == (n_actions,) and np.isfinite(counts).all() and (counts >= 0).all()
     action = int(np.argmax(counts))
     assert 0 <= action < n_actions
+
+
+@SETTINGS
+@given(n_actions=st.integers(2, 5), horizon=st.integers(1, 4), seed=st.integers(0, 10_000))
+def test_cem_finds_the_best_first_action_of_a_random_separable_landscape(n_actions, horizon, seed):
+    """Return = sum over steps of a weight per (step, action): the best plan takes each step's
+    largest weight, so CEM's first action is the first row's argmax wherever that row has a margin."""
+    weights = torch.randn(horizon, n_actions, generator=torch.Generator().manual_seed(seed))
+    top = weights[0].sort(descending=True).values
+    assume(float(top[0] - top[1]) > 0.3)
+    action = cem_plan(lambda actions: (actions * weights).sum((1, 2)), n_actions, horizon, 300, 30, 5,
+                      torch.Generator().manual_seed(seed))
+    assert action == int(weights[0].argmax())
+
+
+class TwoStepTree:
+    """A deterministic two-step game: from the root (0), action a pays ``first[a]`` and leads to
+    state 1 + a; from there action b pays ``second[a, b]`` and ends the game (state 100 + 10 a + b)."""
+
+    def __init__(self, first: np.ndarray, second: np.ndarray):
+        self.first, self.second = first, second
+        self.action_space = gym.spaces.Discrete(len(first))
+
+    def transition(self, state, action):
+        if state == 0:
+            return 1 + action, float(self.first[action])
+        return 100 + 10 * (state - 1) + action, float(self.second[state - 1, action])
+
+    def is_terminal(self, state) -> bool:
+        return state >= 100
+
+
+@SETTINGS
+@given(n_actions=st.integers(2, 4), seed=st.integers(0, 10_000))
+def test_mcts_visits_the_best_path_of_a_random_two_step_game_most(n_actions, seed):
+    """With uniform priors and a value of 0 at every leaf, enough simulations find the first
+    action whose best continuation pays the most (undiscounted), wherever it wins by a margin."""
+    rng = np.random.default_rng(seed)
+    first, second = rng.normal(size=n_actions), rng.normal(size=(n_actions, n_actions))
+    totals = np.sort(first + second.max(1))[::-1]
+    assume(totals[0] - totals[1] > 0.3)
+    mcts = MCTS(TwoStepTree(first, second), lambda state: (np.full(n_actions, 1 / n_actions), 0.0), c=1.25,
+                n_simulations=60 * n_actions ** 2, gamma=1.0, normalize_q=True, seed=seed)
+    counts = mcts.plan(0, train_mode=False)
+    assert int(np.argmax(counts)) == int(np.argmax(first + second.max(1)))
