@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 
 NO_SCORE = "wmthesis.scores:no_score"  # the score of an experiment without a headline (a study, the curves)
+DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
 
 
 def resolve(path: str):
@@ -51,8 +52,12 @@ class Declaration:
     :mod:`wmthesis.scores`), ``levers`` (``"module:function"`` that makes its :class:`~wmthesis.variants.Levers`,
     measured on validation splits by ``validate``; None: it has none), ``frozen_model`` (the
     ``metrics.json`` key of the thesis CEM's bouts on the frozen model that its variants mean to
-    share, by which the summary pairs them; None: variants pair by seed). A run without a variant
-    runs its default."""
+    share, by which the summary pairs them; None: variants pair by seed), ``measure`` (what its
+    headline score is, in the summary's words), ``bounds`` (the range its score cannot leave: its
+    interval is clipped to it; None: none) and ``choice_seeds`` (``"module:NAME"`` of the seeds its
+    recipe was chosen on: their runs form rows of their own, never the reported ones; None: none),
+    ``published`` (``"module:NAME"`` of the :class:`~wmthesis.references.Reference` figures its
+    results are shown beside; None: none). A run without a variant runs its default."""
     name: str
     section: str
     recipe: str
@@ -62,6 +67,10 @@ class Declaration:
     score: str = "wmthesis.scores:variant_score"
     levers: str | None = None
     frozen_model: str | None = None
+    measure: str = DEFAULT_MEASURE
+    bounds: tuple[float, float] | None = None
+    choice_seeds: str | None = None
+    published: str | None = None
 
     def registry(self):
         """Its :class:`~wmthesis.variants.Variants`, or None."""
@@ -69,12 +78,16 @@ class Declaration:
 
 
 DECLARATIONS = (
-    Declaration("sokoban-wm", "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models"),
+    Declaration("sokoban-wm", "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models",
+                published="wmthesis.references:SOKOBAN_WM_FIGURES"),
     Declaration("boxing-wm", "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
+                published="wmthesis.references:BOXING_WM_FIGURES",
                 variants="wmthesis.world_models.variants:BOXING_WM", levers="wmthesis.validation:boxing_wm_levers",
+                choice_seeds="wmthesis.world_models.variants:VALIDATION_SEEDS",
                 agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.world_models.trained:load_trained", "boxing")),
     Declaration("boxing-wm-alphazero", "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
+                published="wmthesis.references:ALPHAZERO_FIGURES",
                 variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",), score="wmthesis.scores:alphazero_scores",
                 agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.alphazero.trained:load_trained", "boxing")),
@@ -83,32 +96,44 @@ DECLARATIONS = (
                 agent=AgentFile("{profile}/planet-sokoban/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "sokoban-small")),
     Declaration("planet-boxing", "5.6.1-5.6.4", "wmthesis.experiments.planet:planet_boxing",
+                published="wmthesis.references:BOXING_PLANET_FIGURES",
                 variants="wmthesis.planet.variants:PLANET_BOXING",
                 agent=AgentFile("{profile}/planet-boxing/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration("planet-freeway", "5.6.5-5.6.6", "wmthesis.experiments.planet:planet_freeway",
+                published="wmthesis.references:FREEWAY_FIGURES",
                 variants="wmthesis.planet.variants:PLANET_FREEWAY",
                 agent=AgentFile("{profile}/planet-freeway/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "freeway")),
     Declaration("planet-boxing-study", "5.6.1-5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_study",
                 score=NO_SCORE),
-    Declaration("planet-boxing-search", "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search"),
+    Declaration("planet-boxing-search", "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search",
+                measure="the best trial's open-loop error on held-out bouts x 1000 (lower is better)"),
     Declaration("planet-boxing-agent", "5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_agent",
+                published="wmthesis.references:BOXING_PLANET_FIGURES",
+                measure="full-bout score, CEM planner",
                 score="wmthesis.scores:agent_score",
                 agent=AgentFile("{profile}/planet-boxing-agent/seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration("planet-boxing-value", "beyond", "wmthesis.experiments.planet_boxing_value:planet_boxing_value",
+                published="wmthesis.references:BOXING_PLANET_FIGURES",
+                measure="full-bout score, the value's chosen round",
                 variants="wmthesis.value.variants:VALUE_VARIANTS", builds_on=("planet-boxing-agent",),
                 score="wmthesis.scores:value_scores", levers="wmthesis.validation:boxing_value_levers",
                 frozen_model="planet",
                 agent=AgentFile("{profile}/planet-boxing-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.value.trained:load_trained", "boxing")),
     Declaration("planet-freeway-value", "beyond", "wmthesis.experiments.planet_freeway_value:planet_freeway_value",
+                published="wmthesis.references:FREEWAY_FIGURES",
+                measure="full-episode score, the value's chosen round",
                 variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=("planet-freeway",),
                 score="wmthesis.scores:value_scores", levers="wmthesis.validation:freeway_value_levers",
                 agent=AgentFile("{profile}/planet-freeway-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.value.trained:load_trained", "freeway")),
     Declaration("sokoban-search", "beyond (ch. 1)", "wmthesis.experiments.sokoban_search:sokoban_search",
+                published="wmthesis.references:SOKOBAN_SEARCH_FIGURES",
+                measure="% of unseen 10x10 levels solved from pixels (generated; boxoban-*: Boxoban valid 005-009)",
+                bounds=(0.0, 100.0),
                 score="wmthesis.scores:sokoban_scores", levers="wmthesis.validation:sokoban_levers",
                 agent=AgentFile("{profile}/sokoban-search/seed{seed}/pixels/state.pt",
                                 "wmthesis.sokoban_search.trained:load_trained", "sokoban")),
@@ -135,5 +160,5 @@ def check_run(experiment: str, variant: str | None = None) -> None:
         registry.check(variant)
 
 
-__all__ = ["NO_SCORE", "Declaration", "AgentFile", "DECLARATIONS", "DECLARED", "EXPERIMENTS", "AGENTS", "BUILDS_ON", "resolve",
+__all__ = ["NO_SCORE", "DEFAULT_MEASURE", "Declaration", "AgentFile", "DECLARATIONS", "DECLARED", "EXPERIMENTS", "AGENTS", "BUILDS_ON", "resolve",
            "check_run"]

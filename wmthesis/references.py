@@ -1,8 +1,8 @@
 """Published figures shown beside ours, each written once with its source: random and human play,
 the thesis's own results, the Atari-100k agents, and the best Sokoban agents.
 
-A figure is a :class:`Reference` (name, value or words, source). :data:`PUBLISHED` lists, per
-experiment, the figures its results are shown beside (the summary's column and every
+A figure is a :class:`Reference` (name, value or words, source). Each experiment's declaration
+names the figures its results are shown beside (:func:`published_figures`) (the summary's column and every
 ``metrics.json``'s ``reference``); :func:`human` and :func:`random_play` give one game's.
 Other agents' figures are not on our levels or bouts, nor at our budget: they give the scale.
 """
@@ -90,25 +90,27 @@ BOXOBAN_PUBLISHED = (
      "AlignmentResearch/boxoban-astar-solutions"),
 )
 
-_BOXING_PLANET = (RANDOM["boxing"], HUMAN["boxing"], THESIS_PLANET_BOXING, *ATARI_100K["boxing"])
-_FREEWAY = (RANDOM["freeway"], HUMAN["freeway"], THESIS_PLANET_FREEWAY, *ATARI_100K["freeway"])
-PUBLISHED: dict[str, tuple[Reference, ...]] = {
-    "boxing-wm": (RANDOM["boxing"], HUMAN["boxing"], THESIS_WORLD_MODELS),
-    "boxing-wm-alphazero": (RANDOM["boxing"], HUMAN["boxing"], THESIS_ALPHAZERO),
-    "planet-boxing": _BOXING_PLANET,
-    "planet-boxing-agent": _BOXING_PLANET,
-    "planet-boxing-value": _BOXING_PLANET,
-    "planet-freeway": _FREEWAY,
-    "planet-freeway-value": _FREEWAY,
-    "sokoban-search": (THESIS_SOKOBAN, BOXOBAN["unfiltered"], THINKER),
-    "sokoban-wm": (Reference("thesis World Models", "0 levels solved", "thesis 5.3"),),
-    "planet-sokoban": (),  # the thesis judged it by its open-loop rollouts (Fig. 58), no score
-}
+# The figures each experiment's results are shown beside, named by its declaration's ``published``.
+BOXING_WM_FIGURES = (RANDOM["boxing"], HUMAN["boxing"], THESIS_WORLD_MODELS)
+ALPHAZERO_FIGURES = (RANDOM["boxing"], HUMAN["boxing"], THESIS_ALPHAZERO)
+BOXING_PLANET_FIGURES = (RANDOM["boxing"], HUMAN["boxing"], THESIS_PLANET_BOXING, *ATARI_100K["boxing"])
+FREEWAY_FIGURES = (RANDOM["freeway"], HUMAN["freeway"], THESIS_PLANET_FREEWAY, *ATARI_100K["freeway"])
+SOKOBAN_SEARCH_FIGURES = (THESIS_SOKOBAN, BOXOBAN["unfiltered"], THINKER)
+SOKOBAN_WM_FIGURES = (Reference("thesis World Models", "0 levels solved", "thesis 5.3"),)
+
+
+def published_figures(experiment: str) -> tuple[Reference, ...]:
+    """The figures ``experiment``'s results are shown beside (its declaration's ``published``; none
+    where it names none: the thesis judged Fig. 58 by eye, a study has no score)."""
+    from wmthesis.declarations import DECLARED, resolve
+
+    named = DECLARED[experiment].published
+    return () if named is None else tuple(resolve(named))
 
 
 def published(experiment: str) -> dict[str, float | str]:
     """``experiment``'s published figures as a ``metrics.json`` keeps them: name -> value."""
-    return {ref.name: ref.value for ref in PUBLISHED.get(experiment, ())}
+    return {ref.name: ref.value for ref in published_figures(experiment)}
 
 
 def human(game: str) -> float:
@@ -121,7 +123,8 @@ def random_play(game: str) -> float:
     return float(RANDOM[game].value)
 
 
-__all__ = ["Reference", "RANDOM", "HUMAN", "ATARI_100K", "BOXOBAN", "BOXOBAN_PUBLISHED", "THINKER", "PUBLISHED",
+__all__ = ["Reference", "RANDOM", "HUMAN", "ATARI_100K", "BOXOBAN", "BOXOBAN_PUBLISHED", "THINKER", "BOXING_WM_FIGURES", "ALPHAZERO_FIGURES",
+           "BOXING_PLANET_FIGURES", "FREEWAY_FIGURES", "SOKOBAN_SEARCH_FIGURES", "SOKOBAN_WM_FIGURES", "published_figures",
            "THESIS_WORLD_MODELS", "THESIS_ALPHAZERO", "THESIS_PLANET_BOXING", "THESIS_PLANET_BOXING_SCORE",
            "THESIS_PLANET_FREEWAY", "THESIS_SOKOBAN", "THESIS_PLANET_SOKOBAN", "THESIS_PLANET_SEARCH", "THESIS_PLANNING",
            "THESIS_SOKOBAN_WM", "published", "human", "random_play", "best_atari_100k"]

@@ -25,30 +25,25 @@ import numpy as np
 
 from wmthesis.budget_curves import budget_markdown, read_budget_rows
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
-from wmthesis.declarations import DECLARED, resolve
+from wmthesis.declarations import DECLARATIONS, DECLARED, resolve
 from wmthesis.headline import BEGIN, END, ablation_table, headline_rows, headline_table, readme_with_table
 from wmthesis.metrics import aggregate
 from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
-from wmthesis.references import PUBLISHED
+from wmthesis.references import published_figures
 from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir
 from wmthesis.viz import save_figure
-from wmthesis.world_models.variants import VALIDATION_SEEDS as BOXING_WM_VALIDATION_SEEDS
 
 INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
 
-# Experiment -> what its headline score is.
-MEASURE = {"sokoban-search": "% of unseen 10x10 levels solved from pixels (generated; boxoban-*: Boxoban valid 005-009)",
-           "planet-boxing-value": "full-bout score, the value's chosen round",
-           "planet-freeway-value": "full-episode score, the value's chosen round",
-           "planet-boxing-agent": "full-bout score, CEM planner",
-           "planet-boxing-search": "the best trial's open-loop error on held-out bouts x 1000 (lower is better)"}
-DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
-# Experiment -> the seeds its recipe was chosen on: their runs form rows of their own ("VARIANT,
-# validation seeds"), never the reported ones.
-VALIDATION_SEEDS = {"boxing-wm": BOXING_WM_VALIDATION_SEEDS}
-# Experiment -> the range its score cannot leave; its interval is clipped to it.
-BOUNDS = {"sokoban-search": (0.0, 100.0)}
+# Experiment -> the range its score cannot leave (its interval is clipped to it): its declaration's.
+BOUNDS = {d.name: d.bounds for d in DECLARATIONS if d.bounds is not None}
+
+
+def choice_seeds(experiment: str) -> tuple:
+    """The seeds ``experiment``'s recipe was chosen on (its declaration's ``choice_seeds``; none by default)."""
+    declared = DECLARED[experiment].choice_seeds
+    return () if declared is None else tuple(resolve(declared))
 
 
 class Run(NamedTuple):
@@ -117,7 +112,7 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
                           f"{registry.findings})", stacklevel=2)
             continue
         machine, threads = machine_kind(metrics.get("machine")), metrics.get("threads")
-        if header[1] in VALIDATION_SEEDS.get(metrics["experiment"], ()):  # the choice's evidence: a row apart
+        if header[1] in choice_seeds(metrics["experiment"]):  # the choice's evidence: a row apart
             scores = {f"{variant or 'first recipe'}, validation seeds": score for variant, score in scores.items()}
         for variant, score in scores.items():
             run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine, threads,
@@ -168,7 +163,7 @@ def summarise(runs: list[Run]) -> list[dict]:
     for run in runs:
         groups.setdefault((run.experiment, run.variant, run.profile), []).append(run)
     return [{"experiment": experiment, "variant": variant, "profile": profile,
-             "measure": MEASURE.get(experiment, DEFAULT_MEASURE),
+             "measure": DECLARED[experiment].measure,
              **aggregate([r.score for r in group], BOUNDS.get(experiment)),
              "seeds": [r.seed for r in group], "scores": [r.score for r in group],
              "wall_seconds": [r.wall_seconds for r in group], "machines": [r.machine for r in group],
@@ -224,7 +219,7 @@ def summary_figure(rows: list[dict]):
                 ax.plot([row["ci_low"], row["ci_high"]], [y, y], color="black", lw=2)
             ax.scatter([row["mean"]], [y], marker="|", s=300, color="black", zorder=4)
         at: dict[float, list[str]] = {}  # published numbers, those at one value named together
-        for name, value, _ in PUBLISHED.get(experiment, []):
+        for name, value, _ in published_figures(experiment):
             if isinstance(value, (int, float)):
                 at.setdefault(float(value), []).append(name.split(" (")[0].split(",")[0])
         for value, names in at.items():
@@ -232,7 +227,7 @@ def summary_figure(rows: list[dict]):
             ax.annotate(" / ".join(names), (value, len(mine) - 0.5), fontsize=6, rotation=90, va="top", color="gray")
         ax.set_yticks(range(len(mine)), [f"{r['variant'] or 'default'} ({r['profile']}, n={r['n']})" for r in mine])
         ax.set_ylim(-0.5, len(mine) - 0.5)
-        ax.set_title(f"{experiment}: {MEASURE.get(experiment, DEFAULT_MEASURE)}", fontsize=9)
+        ax.set_title(f"{experiment}: {DECLARED[experiment].measure}", fontsize=9)
     fig.tight_layout()
     return fig
 
