@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from wmthesis.training import ConfigMismatch, NonFiniteLoss, train
+from wmthesis.training import ConfigMismatch, NonFiniteLoss, train, trained_seconds
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,31 @@ def test_resumed_run_reaches_the_same_weights(tmp_path):
                     eval_every=10, progress=False)
     assert [h["step"] for h in history] == [10, 20, 30, 40]
     assert torch.equal(model.weight.detach(), straight)
+
+
+def test_a_checkpoint_keeps_the_seconds_trained_over_every_sitting(tmp_path, monkeypatch):
+    """A run cut off and resumed reports the time of both sittings (the results table's minutes a
+    seed), not its last sitting's alone; a cached run adds nothing."""
+    clock = {"now": 0.0}
+    monkeypatch.setattr("wmthesis.training.time.perf_counter", lambda: clock["now"])
+    model, optimiser, sample, loss_fn = problem()
+
+    def slow(batch):  # every update takes 2 seconds of the clock
+        clock["now"] += 2.0
+        return loss_fn(batch)
+
+    assert trained_seconds(tmp_path / "c.pt") == 0.0  # nothing trained yet
+    train(model, optimiser, slow, sample, steps=20, checkpoint=tmp_path / "c.pt", config=Cfg(), eval_every=10,
+          eval_batches=1, progress=False)
+    first = trained_seconds(tmp_path / "c.pt")
+    assert first == 2.0 * (20 + 2)  # 20 updates and 2 evaluations of 1 batch
+    clock["now"] += 1000.0  # the machine was off
+    train(model, optimiser, slow, sample, steps=40, checkpoint=tmp_path / "c.pt", config=Cfg(), eval_every=10,
+          eval_batches=1, progress=False)
+    assert trained_seconds(tmp_path / "c.pt") == 2 * first
+    train(model, optimiser, slow, sample, steps=40, checkpoint=tmp_path / "c.pt", config=Cfg(), eval_every=10,
+          eval_batches=1, progress=False)  # finished: nothing trains, nothing is added
+    assert trained_seconds(tmp_path / "c.pt") == 2 * first
 
 
 def test_early_stopping_with_patience(tmp_path):

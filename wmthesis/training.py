@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -109,7 +110,8 @@ def train(model: torch.nn.Module, optimiser: torch.optim.Optimizer, loss_fn: Cal
     ``loss_fn(batch)`` returns a dict of scalar tensors with a ``"loss"`` entry.
     ``patience``: stop after this many evaluations without a better validation loss.
     The best weights (lowest validation loss) are saved beside ``checkpoint`` with the
-    suffix ``.best.pt`` and loaded into ``model`` at the end.
+    suffix ``.best.pt`` and loaded into ``model`` at the end. The checkpoint keeps the seconds
+    spent training over every sitting (:func:`trained_seconds`).
     """
     checkpoint = Path(checkpoint)
     best_path = checkpoint.with_suffix(".best.pt")
@@ -122,6 +124,7 @@ def train(model: torch.nn.Module, optimiser: torch.optim.Optimizer, loss_fn: Cal
     rng.bit_generator.state = state["rng"]
     torch.set_rng_state(state["torch_rng"])
     bar = tqdm(total=steps, initial=state["step"], desc=desc, disable=not progress)
+    sitting, before = time.perf_counter(), state.get("seconds", 0.0)  # a checkpoint of an older file holds none
     while state["step"] < steps and not state["stopped"]:
         model.train()
         terms = loss_fn(sample("train", rng))
@@ -133,6 +136,7 @@ def train(model: torch.nn.Module, optimiser: torch.optim.Optimizer, loss_fn: Cal
             _evaluate(model, loss_fn, sample, rng, eval_batches, terms, state, patience, best_path)
             bar.set_postfix(train=f"{state['history'][-1]['train_loss']:.4g}", val=f"{state['history'][-1]['val_loss']:.4g}")
             state["rng"], state["torch_rng"] = rng.bit_generator.state, torch.get_rng_state()
+            state["seconds"] = before + time.perf_counter() - sitting
             _save(checkpoint, model, optimiser, state, wanted)
     bar.close()
     if best_path.exists():
@@ -177,6 +181,15 @@ def _resume(path: Path, model, optimiser, wanted: dict) -> dict:
     model.load_state_dict(saved["model"])
     optimiser.load_state_dict(saved["optimiser"])
     return saved["state"]
+
+
+def trained_seconds(checkpoint: str | Path) -> float:
+    """The seconds a :func:`train` checkpoint spent training, summed over every sitting up to its
+    last save (0 where there is no checkpoint, or it was written before it kept them)."""
+    path = Path(checkpoint)
+    if not path.is_file():
+        return 0.0
+    return float(torch.load(path, weights_only=False, map_location="cpu")["state"].get("seconds", 0.0))
 
 
 def load_weights(path: str | Path, model: torch.nn.Module) -> torch.nn.Module:

@@ -24,6 +24,7 @@ from wmthesis.world_models.agent import save_agent
 from wmthesis.world_models.evolution import evaluate_population, final_bout_seeds, train_controller
 from wmthesis.world_models.figures import plot_learning_curve
 from wmthesis.world_models.prediction import open_loop, open_loop_errors
+from wmthesis.training import trained_seconds
 from wmthesis.world_models.train import encode_store, reconstruct, train_memory, train_vision
 from wmthesis.world_models.variants import BOXING_WM, agent_path, controller_config, controller_folder
 from wmthesis.world_models.vision import VAEVision
@@ -41,6 +42,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     profile = profile_name(profile)
     started = time.time()
     wm = _world_model(profile, seed, progress)
+    modelling = time.time() - started  # this call's world model: a resumed or cached one trained before it
     work, store, vae, vision, memory = wm.work, wm.store, wm.vae, wm.vision, wm.memory
     out = results_folder("boxing-wm", profile, seed, BOXING_WM.folder_name(chosen.name))
     controller_cfg = controller_config(profile, seed, chosen.name)
@@ -80,8 +82,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
         "files": {"figures": [str(f) for f in figures], "recording": str(recording), "agent": str(agent)},
     }
     evolved = json.loads(json.dumps(run.curve, default=float))  # an earlier file of another controller keeps no time
-    earlier_generations = max(0.0, sum(g["seconds"] for g in run.curve) - evolving)
-    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"] + earlier_generations,
+    sittings = max(0.0, sum(g["seconds"] for g in run.curve) - evolving) + max(0.0, wm.trained_seconds - modelling)
+    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"] + sittings,
                                                           lambda earlier: earlier.get("controller_curve") == evolved)
     write_json(out / "metrics.json", metrics, default=float)
     return metrics
@@ -104,7 +106,8 @@ class BoxingWorldModel(NamedTuple):
     """The Boxing world model of a profile and seed: its folders (``work``: artifacts,
     ``out``: results), the random rollouts' store path, the VAE and its
     :class:`~wmthesis.world_models.vision.VAEVision`,
-    the MDN-RNN memory and the two training histories."""
+    the MDN-RNN memory, the two training histories and the seconds the two trained, over every
+    sitting (a resumed or cached model trained before this call)."""
 
     work: Path
     out: Path
@@ -114,6 +117,7 @@ class BoxingWorldModel(NamedTuple):
     memory: object
     vision_history: list
     memory_history: list
+    trained_seconds: float = 0.0
 
 
 def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
@@ -121,15 +125,15 @@ def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     each step cached."""
     work = hold(work_folder(profile, "boxing-wm", seed))
 
-    collect_cfg = for_profile(CollectConfig, profile)
+    collect_cfg, memory_cfg = for_profile(CollectConfig, profile), for_profile(MemoryConfig, profile)
     store = collect("boxing", collect_cfg.episodes, work / "random.h5", workers=collect_cfg.workers, seed=seed,
                     preprocessing="world_models", max_steps=collect_cfg.max_steps, progress=progress)
     vae, vision_history = train_vision(store, work, for_profile(VisionConfig, profile), seed=seed, progress=progress)
     latents = encode_store(store, vae, work / "latents.h5", progress=progress)
-    memory, memory_history = train_memory(latents, work, for_profile(MemoryConfig, profile), n_actions=18,
-                                          seed=seed, progress=progress)
+    memory, memory_history = train_memory(latents, work, memory_cfg, n_actions=18, seed=seed, progress=progress)
+    trained = trained_seconds(work / "vision.pt") + trained_seconds(work / f"memory-{memory_cfg.kind}.pt")
     return BoxingWorldModel(work, results_folder("boxing-wm", profile, seed), store, vae,
-                            VAEVision(vae), memory, vision_history, memory_history)
+                            VAEVision(vae), memory, vision_history, memory_history, trained)
 
 
 # Dreams are cheap in real steps, so the dream controller keeps the thesis's population and episodes.
