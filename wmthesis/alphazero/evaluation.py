@@ -11,7 +11,6 @@ from typing import Callable
 import matplotlib.pyplot as plt
 from tqdm.auto import tqdm
 
-from wmthesis.alphazero.expert_memory import memory_folder
 from wmthesis.alphazero.heads import Evaluator
 from wmthesis.alphazero.imitation import PolicyHeadMind
 from wmthesis.alphazero.replay import game_seeds
@@ -184,28 +183,6 @@ def head_returns(vision, mdp, heads, env, key: dict) -> dict:
     finally:
         env.close()
     return {"returns": returns, "ms_per_action": 1000 * (time.perf_counter() - start) / max(1, sum(steps))}
-
-
-def trained_run(wm: Path, work: Path, variant: str):
-    """The trained self-play run of ``variant`` under ``work`` (``boxing-wm-alphazero``'s folder)
-    with what it searches: ``(run, vision, memory, config)``; the vision from the World Models
-    folder ``wm``, the deterministic memory the run searched in (:func:`~wmthesis.alphazero.expert_memory.memory_folder`). FileNotFoundError names a missing file."""
-    from wmthesis.alphazero.config import AlphaZeroConfig
-    from wmthesis.alphazero.selfplay import load_run as load_alphazero
-    from wmthesis.world_models.vision import VAE, VAEVision
-
-    paths = {"vision": wm / "vision.best.pt", "run": work / variant}
-    missing = [str(p) for p in paths.values() if not p.exists()]
-    if not missing:
-        run = load_alphazero(paths["run"])
-        cfg = AlphaZeroConfig(**run.config)
-        paths["memory"] = memory_folder(work, cfg) / "memory-deterministic.best.pt"
-        missing = [] if paths["memory"].exists() else [str(paths["memory"])]
-    if missing:
-        raise FileNotFoundError(f"no trained boxing-wm-alphazero {variant} run: missing {', '.join(missing)}")
-    memory = load_weights(paths["memory"], make_memory(run.task["latent_size"], run.task["n_actions"],
-                                                       MemoryConfig(kind="deterministic", hidden_size=run.task["hidden_size"])))
-    return run, VAEVision(load_weights(paths["vision"], VAE(run.task["latent_size"]))), memory.eval(), cfg
 
 
 def policy_head_returns(run, vision, memory, cfg, work: Path, seed: int) -> list[float]:
