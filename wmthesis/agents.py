@@ -140,9 +140,15 @@ class TrainedAgent:
         """The :class:`~wmthesis.thoughts.Thought` of each snapshot, in order."""
         return snapshots
 
+    decoded: str | None = None  # what a recording decodes into frames (None: nothing)
+    fit_decoder: str = ""  # the command that fits a decoder where none ships
+    decoder_info: dict | None = None  # the shipped decoder's ``fitted_on`` (None: none ships)
+
     def left_out(self) -> str | None:
         """Which panels a recording leaves out and why (a missing decoder), or None."""
-        return None
+        if self.decoded is None or self.decoder_info is not None:
+            return None
+        return f"left out: {self.decoded} (no decoder ships with this agent; `{self.fit_decoder}` fits one)"
 
     def record(self, bouts: int, path, video=None, on_bout: Callable | None = None) -> dict:
         """The first ``bouts`` scored bouts played as the evaluation played them, each step's frame

@@ -23,6 +23,9 @@ class AlphaZeroAgent(TrainedAgent):
     :class:`~wmthesis.alphazero.selfplay.AlphaZeroMind` as it searched in its evaluation games)
     and ``heads`` (policy and value on ``[z h]``)."""
 
+    decoded = "the vision's reconstructions and the principal variation's frames"
+    fit_decoder = "python tools/fit_decoders.py world-models"
+
     def __init__(self, path: Path, experiment: str, variant: str | None, profile: str, seed: int):
         loaded = load_agent(path)
         super().__init__(path, experiment, variant, profile, seed, loaded.info)
@@ -83,12 +86,6 @@ class AlphaZeroAgent(TrainedAgent):
             mind.new_search(search_seed, k)
             minds.append((env_seed, mind))
         return minds
-
-    def left_out(self) -> str | None:
-        if self.decoder_info is None:
-            return ("left out: the vision's reconstructions and the principal variation's frames (no decoder ships for "
-                    "this vision; `python tools/fit_decoders.py world-models` fits one)")
-        return None
 
     def thought(self, mind):
         """What the search weighed at its root (visits, Q, prior per action) and what it imagines:

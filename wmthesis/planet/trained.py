@@ -38,6 +38,8 @@ class PlanetAgent(TrainedAgent):
     """A PlaNet experiment's agent: ``model`` (the RSSM), ``planner`` (the CEM settings it plans
     with, its :class:`~wmthesis.planet.config.PlaNetConfig`) and ``value`` (None: PlaNet's own CEM)."""
 
+    decoded = "the posterior's reconstructions and the imagined frames"
+    fit_decoder = "python tools/fit_decoders.py planet"
     read = staticmethod(load_agent)  # the agent file's reader
     play_one = staticmethod(play_agent)  # one scored bout: (loaded, env seed, mind seed, frames) -> rewards
 
@@ -73,12 +75,6 @@ class PlanetAgent(TrainedAgent):
     def check_bouts(self, bouts: int) -> None:
         if bouts > len(self.info["bouts"]):
             raise ValueError(f"{self.path} was scored on {len(self.info['bouts'])} bouts, not {bouts}")
-
-    def left_out(self) -> str | None:
-        if self.decoder_info is None:
-            return ("left out: the posterior's reconstructions and the imagined frames (no observation decoder ships "
-                    "with this agent; `python tools/fit_decoders.py planet` fits one)")
-        return None
 
     @torch.inference_mode()
     def thought(self, mind):

@@ -38,6 +38,9 @@ class WorldModelsAgent(TrainedAgent):
     """boxing-wm's agent: ``vision`` (:class:`~wmthesis.world_models.vision.VAEVision`),
     ``memory`` (the MDN-RNN), ``controller`` (:class:`~wmthesis.world_models.controller.Controller`)."""
 
+    decoded = "the vision's reconstructions and the dream's frames"
+    fit_decoder = "python tools/fit_decoders.py world-models"
+
     def __init__(self, path: Path, experiment: str, variant: str | None, profile: str, seed: int):
         loaded = load_agent(path)
         super().__init__(path, experiment, variant, profile, seed, loaded.info)
@@ -84,12 +87,6 @@ class WorldModelsAgent(TrainedAgent):
         for p in plays if on_bout is not None else ():
             on_bout(p)
         return plays
-
-    def left_out(self) -> str | None:
-        if self.decoder_info is None:
-            return ("left out: the vision's reconstructions and the dream's frames (no decoder ships for this vision; "
-                    "`python tools/fit_decoders.py world-models` fits one)")
-        return None
 
     def snapshot(self, mind: ControllerMind) -> tuple:
         """The mind's ``z``, ``h`` and memory state once it planned."""
