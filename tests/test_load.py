@@ -243,3 +243,38 @@ def test_a_decoder_ships_as_int8_weights_within_half_a_step_of_its_float_ones():
     assert ((expanded(stored) - weight).abs() <= step / 2 + 1e-6).all() and not torch.equal(expanded(stored), weight)
     bias = torch.randn(7)
     assert expanded(compact(bias)).dtype == torch.float32 and torch.allclose(expanded(compact(bias)), bias, atol=1e-2)
+
+
+def test_a_step_limited_play_seeds_each_bout_as_the_evaluation_did():
+    """``play(bouts, max_steps=...)`` without a policy plays each bout's scored mind (its own
+    noise seed), not one mind for every bout."""
+    import gymnasium as gym
+
+    from wmthesis.agents import TrainedAgent
+    from wmthesis.core import Callback, ConstantMind
+
+    class Pushes(ConstantMind, Callback):  # a mind that is its own callback, as the agents' are
+        pass
+
+    class Seeded(TrainedAgent):
+        def env(self):
+            return gym.make("CartPole-v1")
+
+        def scored_seeds(self, bouts):
+            return [11, 12][:bouts]
+
+        def scored_minds(self, bouts):  # bout k's mind pushes action k, as if seeded so
+            return [(seed, Pushes(2, k)) for k, seed in enumerate(self.scored_seeds(bouts))]
+
+    agent = Seeded(Path("x.pt"), "toy", None, "smoke", 0, {})
+    played = agent.play(bouts=2, max_steps=500)
+    by_hand = []
+    for k, seed in enumerate((11, 12)):
+        env = gym.make("CartPole-v1")
+        env.reset(seed=seed)
+        total, done = 0.0, False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(k)
+            total, done = total + reward, terminated or truncated
+        by_hand.append(total)
+    assert played == by_hand

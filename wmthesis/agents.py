@@ -214,14 +214,16 @@ class TrainedAgent:
         return self.loop_bouts(bouts, policy, max_steps)
 
     def loop_bouts(self, bouts: int, policy: Callable | None = None, max_steps: int | None = None) -> list[float]:
-        """The returns of :meth:`mind` (or ``policy``) through :meth:`env` on the first ``bouts``
-        scored starts, one :func:`wmthesis.core.loop` each."""
+        """The returns of the agent's scored minds (:meth:`scored_minds`: each bout's as the
+        evaluation seeded it), or of ``policy``, through :meth:`env` on the first ``bouts`` scored
+        starts, one :func:`wmthesis.core.loop` each."""
         from wmthesis.core import loop
 
         env, returns = self.env(), []
-        mind = self.mind() if policy is None else PolicyMind(policy, int(env.action_space.n))
+        starts = self.scored_minds(bouts) if policy is None else \
+            [(seed, PolicyMind(policy, int(env.action_space.n))) for seed in self.scored_seeds(bouts)]
         try:
-            for seed in self.scored_seeds(bouts):
+            for seed, mind in starts:
                 history = loop(env, mind, callbacks=[mind] if policy is None else None, seed=int(seed),
                                max_steps=max_steps, train_mode=False)
                 returns.append(float(history[0]["return"]))
