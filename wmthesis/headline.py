@@ -55,7 +55,7 @@ HEADLINES = (
                  "value on the same frozen model reaches it (notebook 09)"),
     Headline("planet-freeway", "freeway-tuned", "PlaNet on Freeway", "5.6.5", "08", THESIS_PLANET_FREEWAY,
              best_atari_100k("freeway"), bar=0.0,
-             why="though a player pressing UP at every step scores nearly as much (notebook 08): what a planner adds "
+             why="though a player pressing UP at every step scores nearly as much (below): what a planner adds "
                  "over it is cars dodged"),
     Headline("planet-boxing-value", "lean-value-rewards-0.7, cem-with-value",
              "Boxing: CEM with a learned value on PlaNet's model", "beyond", "10", THESIS_PLANET_BOXING,
