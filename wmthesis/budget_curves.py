@@ -155,8 +155,8 @@ def row_line(row: dict) -> str:
 
 def budget_box(rows: list[dict], profile: str = DEFAULT_PROFILE) -> str:
     """The chapter's opening box (Markdown): the thesis's promise, and per planner and game its
-    largest budget's paired gain over no search with the 95% interval over seeds, and the
-    verdict: *reproduced* where the interval lies above 0, *search hurts* where it lies below,
+    largest budget's paired gain over no search with the 95% interval over seeds, at how many of its
+    budgets that interval lies above 0, and the verdict (on the largest budget): *reproduced* where the interval lies above 0, *search hurts* where it lies below,
     *not shown at this budget* where it holds 0 (or one seed gives no interval)."""
     from wmthesis.references import THESIS_PLANNING
 
@@ -169,9 +169,12 @@ def budget_box(rows: list[dict], profile: str = DEFAULT_PROFILE) -> str:
         said = ("not shown at this budget" if low is None or low <= 0 <= high else
                 "reproduced" if low > 0 else "search hurts")
         interval = "" if low is None else f" [{low:+.1f}, {high:+.1f}]"
+        searched = [r for r in table if (r["planner"], r["game"]) == (planner, game) and r["budget"] != NO_SEARCH]
+        above = sum(r["gain_ci_low"] is not None and r["gain_ci_low"] > 0 for r in searched)
         lines.append(f"> **Ours** (`{profile}`), {planner} on {game}: {top['score']:.1f} at budget {top['budget']:,}, "
                      f"{top['gain']:+.1f}{interval} over no search on the same bouts or levels ({top['seeds']} "
-                     f"seed{'s' * (top['seeds'] > 1)}): **{said}**  ")
+                     f"seed{'s' * (top['seeds'] > 1)}; the interval lies above 0 at {above} of its {len(searched)} "
+                     f"budgets): **{said}**  ")
     return "\n".join(lines).rstrip()
 
 

@@ -51,12 +51,12 @@ HEADLINES = (
              why="the thesis's coupling did not learn to plan, so its bar is random play's score"),
     Headline("planet-boxing-agent", None, "PlaNet on Boxing (KL scale 0.03, free nats 12)", "5.6.4", "05",
              THESIS_PLANET_BOXING, best_atari_100k("boxing"), bar=30.0,
-             why="trained on a few percent of the thesis's budget (notebook 05 sets the two side by side); a learned "
-                 "value on the same frozen model reaches it (notebook 09)"),
+             why="trained at far smaller sizes than the thesis's (the table below sets the two side by side); a learned "
+                 "value on a frozen PlaNet model comes nearer (notebooks 09 and 10)"),
     Headline("planet-freeway", "freeway-tuned", "PlaNet on Freeway", "5.6.5", "08", THESIS_PLANET_FREEWAY,
              best_atari_100k("freeway"), bar=0.0,
-             why="though a player pressing UP at every step scores nearly as much (below): what a planner adds "
-                 "over it is cars dodged"),
+             why="the bar is our reading of the thesis's words, no crossing; a player pressing UP at every step scores "
+                 "nearly as much as ours (below): what a planner adds over it is cars dodged"),
     Headline("planet-boxing-value", "lean-value-rewards-0.7, cem-with-value",
              "Boxing: CEM with a learned value on PlaNet's model", "beyond", "10", THESIS_PLANET_BOXING,
              best_atari_100k("boxing"), bar=30.0),

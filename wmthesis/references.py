@@ -29,7 +29,7 @@ THESIS_WORLD_MODELS = Reference("thesis World Models", "above 18 on average acro
 THESIS_ALPHAZERO = Reference("thesis World Models + AlphaZero", "did not train to properly plan", "thesis 5.4.2")
 THESIS_PLANET_BOXING = Reference("thesis PlaNet", "around 30", "thesis 5.6.4 (KL scale 0.03, free nats 12)")
 THESIS_PLANET_BOXING_SCORE = 30.0  # "around 30", as a line in the figures
-THESIS_PLANET_FREEWAY = Reference("thesis PlaNet", 0.0, "thesis 5.6.5")
+THESIS_PLANET_FREEWAY = Reference("thesis PlaNet", "failed to solve the task", "thesis 5.6.5")
 THESIS_SOKOBAN = Reference("thesis", "0 levels solved", "thesis 5.3, 5.5")
 THESIS_PLANET_SOKOBAN = Reference("thesis PlaNet", "did not capture Sokoban dynamics: future predictions are blurred, "
                                   "multiple agents appear", "thesis 5.5.1 (Fig. 58)")

@@ -17,7 +17,7 @@ PLANET_BOXING = Variants(
     Variant("action-repeat", "action repeat 8 (5.6.2; the thesis gives no value)", dict(action_repeat=8)),
     Variant("decoder-variance", "decoder variance 0.03, which is a KL scale of 3e-2 (5.6.3)",
             dict(decoder_variance=0.03)),
-    Variant("free-nats", "KL scale 0.03, free nats 12, no overshooting: the thesis's best Boxing model (5.6.4)",
+    Variant("free-nats", "KL scale 0.03, free nats 12 (the thesis's best Boxing model, 5.6.4), no latent overshooting",
             dict(kl_scale=0.03, free_nats=12.0, overshooting_distance=0), default=True),
     Variant("kl-scale", "KL scale 0.03 itself (5.6.3; the model study's middle configuration)", dict(kl_scale=0.03)))
 
