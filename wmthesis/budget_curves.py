@@ -174,7 +174,7 @@ def budget_box(rows: list[dict], profile: str = DEFAULT_PROFILE) -> str:
         lines.append(f"> **Ours** (`{profile}`), {planner} on {game}: {top['score']:.1f} at budget {top['budget']:,}, "
                      f"{top['gain']:+.1f}{interval} over no search on the same bouts or levels ({top['seeds']} "
                      f"seed{'s' * (top['seeds'] > 1)}; the interval lies above 0 at {above} of its {len(searched)} "
-                     f"budgets): **{said}**  ")
+                     f"budgets); **Verdict:** {said}  ")
     return "\n".join(lines).rstrip()
 
 
