@@ -105,6 +105,10 @@ def test_a_smoke_curve_writes_each_budget_on_the_same_levels_and_resumes_with_no
                            f"validation-{ALPHAZERO.default.name}.json")
     assert validation["variant"] == ALPHAZERO.default.name and validation["bouts"] == "validation"
     assert [r["budget"] for r in validation["rows"]] == [0, *sizes.mcts_budgets]
+    assert main(["budget-curve", "mcts", "--validation", "--profile", "smoke", "--budgets", "3"]) == 0  # one more
+    grown = read_json(tmp_path / "results" / "planning-budget" / "smoke-seed0" / f"validation-{ALPHAZERO.default.name}.json")
+    assert [r["budget"] for r in grown["rows"]] == sorted([0, 3, *sizes.mcts_budgets])  # the earlier budgets kept
+    assert [r for r in grown["rows"] if r["budget"] != 3] == validation["rows"]
     work = tmp_path / "smoke" / "planning-budget" / "seed0"
     budget = sizes.mcts_budgets[0]
     noop_max = for_profile(AlphaZeroConfig, "smoke").noop_max  # 3 counts: 2 evaluation bouts leave 1 to validate on

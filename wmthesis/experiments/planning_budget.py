@@ -68,14 +68,19 @@ def mcts_validation(profile: str | None = None, seed: int = 0, progress: bool = 
     ``search`` (default: the profile's) on the validation bouts, the evidence a choice of the
     search, its variant, its root or its budget is made on: written to the run's
     ``validation-<variant>.json`` (``validation-<variant>-<search>.json`` for another root than the
-    profile's), never to the report's rows, the CSV or the summary. Resumable bout by bout."""
+    profile's), never to the report's rows, the CSV or the summary; the file's rows of other budgets
+    on as many bouts are kept (a call with new budgets adds to it). Resumable bout by bout."""
     profile, started = profile_name(profile), time.time()
     variant = ALPHAZERO.check(variant).name
     rows = mcts_curve(profile, seed, progress, budgets, split="validation", variant=variant, search=search)
-    result = {**run_header("planning-budget", profile, seed, time.time() - started,
-                           variant=variant, bouts="validation"), "rows": rows}
     name = variant if search is None else f"{variant}-{search_tag(search).replace(' ', '-')}"
-    write_json(results_folder("planning-budget", profile, seed) / f"validation-{name}.json", result)
+    path = results_folder("planning-budget", profile, seed) / f"validation-{name}.json"
+    measured = {r["budget"] for r in rows}
+    kept = [r for r in (read_json(path) or {}).get("rows", [])
+            if r["budget"] not in measured and r.get("levels") == rows[0]["levels"]]
+    result = {**run_header("planning-budget", profile, seed, time.time() - started, variant=variant,
+                           bouts="validation"), "rows": sorted(rows + kept, key=lambda r: r["budget"])}
+    write_json(path, result)
     return result
 
 
