@@ -258,5 +258,7 @@ def test_a_chapters_verdict_sets_our_interval_against_the_thesiss_bar():
     assert verdict(judged, row(-12, -11)) == judged.judged == "reproduced"
     box = chapter_box("04", folder=ROOT / "data" / "results")  # a chapter row opens its notebook
     assert "**PlaNet on Sokoban-small" in box and "**Verdict:** reproduced;" in box
+    value = chapter_box("09", folder=ROOT / "data" / "results")  # an interval that holds the bar says so
+    assert ("**Verdict:** reproduced (the bar: 30, within our interval)" in value) == ("reproduced" in value)
     with pytest.raises(ValueError, match="holds no headline; those that do: 01, 02, 03, 04, 05, 06, 07, 08, 09, 10"):
         chapter_box("00", folder=ROOT / "data" / "results")

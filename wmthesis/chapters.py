@@ -4,7 +4,7 @@ summary's numbers, never typed), and a one-line verdict.
 The verdict sets our interval (or our one seed's score) against the number the thesis's figure
 stands for (:class:`~wmthesis.headline.Headline`'s ``bar``): *beyond the thesis* where the whole
 interval lies above it, *not reproduced at this budget* where it lies below, *reproduced* where it
-holds it; a chapter whose thesis gave no number carries the verdict its headline states.
+holds it (the box then says the bar lies within our interval: the seeds cannot tell us apart); a chapter whose thesis gave no number carries the verdict its headline states.
 """
 from __future__ import annotations
 
@@ -48,7 +48,8 @@ def chapter_box(notebook: str, profile: str = "quick", folder=None) -> str:
         published = "" if h.published is None else f" · best published: {h.published.value} ({h.published.name})"
         said = verdict(h, row)
         if h.bar is not None and row is not None:
-            said += f" (the bar: {h.bar:g})"
+            held = said == "reproduced" and row["ci_low"] is not None
+            said += f" (the bar: {h.bar:g}{', within our interval' if held else ''})"
         where = f"thesis {h.section}" if h.section[0].isdigit() else h.section.replace("beyond", "beyond the thesis")
         blocks.append(f"> **{h.title}** ({where})  \n"
                       f"> **The thesis:** {thesis}  \n"
