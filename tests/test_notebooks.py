@@ -32,10 +32,15 @@ def output_text(cell: dict) -> str:
     return "\n".join(parts)
 
 
+def is_ancestor(older: str, newer: str) -> bool:
+    """Whether commit ``older`` is ``newer`` or one of its ancestors in this checkout."""
+    return subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", older, newer],
+                          capture_output=True).returncode == 0
+
+
 def in_history(commit: str) -> bool:
     """Whether ``commit`` is HEAD or one of its ancestors in this checkout."""
-    return subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", commit, "HEAD"],
-                          capture_output=True).returncode == 0
+    return is_ancestor(commit, "HEAD")
 
 
 def imported_files(path: Path) -> list[str]:
@@ -61,11 +66,6 @@ def last_change(files: list[str]) -> str | None:
     found = subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%H", "--", *files], capture_output=True,
                            text=True)
     return found.stdout.strip() or None
-
-
-def is_ancestor(older: str, newer: str) -> bool:
-    return subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", older, newer],
-                          capture_output=True).returncode == 0
 
 
 def check_notebook(path: Path) -> None:
