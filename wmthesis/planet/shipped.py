@@ -91,12 +91,18 @@ def load_agent(path: str | os.PathLike) -> Agent:
 def play_agent(agent: Agent, env_seed: int, mind_seed: int, frames: list | None = None) -> list[float]:
     """One greedy bout of ``agent`` in its game (reset with ``env_seed``, the planner's noise from
     ``mind_seed``): its rewards, one per agent step; ``frames`` (a list) gets its frames where given."""
+    return in_its_game(agent, lambda env: play_greedy(env, agent.model, agent.planet, env_seed, mind_seed, frames))
+
+
+def in_its_game(agent, play):
+    """``play(env)`` in a fresh environment of ``agent``'s game and frames (its ``info["game"]``,
+    its ``planet`` config), closed afterwards: what ``play`` returns."""
     env = make_planet_env(agent.info["game"], agent.planet)
     try:
-        return play_greedy(env, agent.model, agent.planet, env_seed, mind_seed, frames)
+        return play(env)
     finally:
         env.close()
 
 
 __all__ = ["Agent", "AGENT_NAME", "DECODER", "FORMAT", "FORMAT_VERSION", "INFO", "NoDecoder", "sha256", "read_saved",
-           "saved_planet", "saved_model", "load_agent", "play_agent"]
+           "saved_planet", "saved_model", "load_agent", "play_agent", "in_its_game"]

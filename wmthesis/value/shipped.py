@@ -13,9 +13,8 @@ from pathlib import Path
 from typing import NamedTuple
 
 from wmthesis.planet.config import PlaNetConfig
-from wmthesis.planet.frames import make_planet_env
 from wmthesis.planet.rssm import RSSM
-from wmthesis.planet.shipped import INFO, load_agent, read_saved, saved_model, saved_planet, sha256
+from wmthesis.planet.shipped import INFO, in_its_game, load_agent, read_saved, saved_model, saved_planet, sha256
 from wmthesis.training import with_added_defaults
 from wmthesis.value.config import ValuePlannerConfig
 from wmthesis.value.latent_value import LatentValue
@@ -59,12 +58,8 @@ def load_value_agent(path: str | os.PathLike) -> ShippedValue:
 def play_value_agent(agent: ShippedValue, env_seed: int, mind_seed: int, frames: list | None = None) -> list[float]:
     """One bout of CEM with the value in its game (reset with ``env_seed``, the planner's noise from
     ``mind_seed``): its rewards, one per agent step; ``frames`` (a list) gets its frames where given."""
-    env = make_planet_env(agent.info["game"], agent.planet)
-    try:
-        return play_value_planner(env, agent.model, agent.value, agent.planet, agent.planner, env_seed, mind_seed,
-                                  frames)
-    finally:
-        env.close()
+    return in_its_game(agent, lambda env: play_value_planner(env, agent.model, agent.value, agent.planet, agent.planner,
+                                                             env_seed, mind_seed, frames))
 
 
 __all__ = ["ShippedValue", "load_value_agent", "play_value_agent"]
