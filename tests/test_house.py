@@ -201,10 +201,30 @@ def test_no_branch_on_an_experiments_name_outside_the_declarations():
         if path.name == "declarations.py":
             continue
         for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, (ast.If, ast.IfExp)) and any(
-                    isinstance(n, ast.Constant) and n.value in names for n in ast.walk(node.test)):
+            if isinstance(node, (ast.If, ast.IfExp)) and any(_names_an_experiment(n, names) for n in ast.walk(node.test)):
                 branches.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
     assert branches == []
+
+
+def _names_an_experiment(node: ast.AST, names: set[str]) -> bool:
+    """``"boxing-wm"`` or ``NAMES.boxing_wm``."""
+    return (isinstance(node, ast.Constant) and node.value in names) or (
+        isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "NAMES")
+
+
+def test_experiment_names_are_written_in_the_declarations_alone():
+    """Every name is a field of ``NAMES``, and the package outside the declarations writes a name
+    as text at most a few times (where it names something else too: the Sokoban planner)."""
+    from wmthesis.declarations import NAMES
+
+    assert set(vars(NAMES).values()) == set(EXPERIMENTS)
+    assert all(getattr(NAMES, field) == value for field, value in vars(NAMES).items())
+    names, written = set(EXPERIMENTS), []
+    for path in PACKAGE.rglob("*.py"):
+        if path.name != "declarations.py":
+            written += [f"{path.relative_to(PACKAGE)}:{node.lineno}" for node in ast.walk(ast.parse(path.read_text()))
+                        if isinstance(node, ast.Constant) and node.value in names]
+    assert len(written) <= 4, written  # today's: the Sokoban planner's name in the budget curves
 
 
 def test_each_profiles_sizes_are_written_in_the_config_modules_alone():

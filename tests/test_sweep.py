@@ -451,3 +451,61 @@ def test_a_port_that_answers_but_is_no_ray_cluster_is_one_line_within_the_timeou
         with pytest.raises(ValueError, match=f"--address '{address}': no Ray cluster could be joined there") as raised:
             check_joinable(address, timeout=8)
         assert time.perf_counter() - started < 20 and "\n" not in str(raised.value)
+
+
+# ------------------------------------------------------------- an experiment of one's own
+TOY_RECIPE = '''"""A toy experiment: its score is the seed plus a half."""
+from wmthesis.runs import results_folder, run_header, write_json
+
+
+def toy(profile, seed, variant, progress):
+    metrics = {**run_header("toy", profile, seed, 0.0), "score": {"mean": seed + 0.5}}
+    write_json(results_folder("toy", profile, seed) / "metrics.json", metrics)
+    return metrics
+'''
+
+
+def _toy_declared(folder: str):
+    """The toy declared in this process (a Ray worker starts without it)."""
+    from wmthesis.declarations import DECLARED, Declaration, declare
+
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    return DECLARED.get("toy") or declare(Declaration("toy", "beyond", "toy_recipe:toy"))
+
+
+def _toy_runner(folder, name, profile, seed, variant=None, progress=True):
+    _toy_declared(folder)
+    return reproduce(name, profile, seed, variant=variant, progress=progress)
+
+
+def test_a_new_experiment_is_one_recipe_module_and_one_declaration(local_ray, tmp_path):
+    """Declared from outside the package, a toy experiment runs through reproduce, a sweep on Ray
+    and the summary, which read it like every other."""
+    import functools
+
+    from wmthesis.declarations import DECLARED, EXPERIMENTS, declare, Declaration
+    from wmthesis.summary import summarise
+
+    (tmp_path / "toy_recipe.py").write_text(TOY_RECIPE)
+    try:
+        _toy_declared(str(tmp_path))
+        assert "toy" in EXPERIMENTS and EXPERIMENTS[-1] == "toy"
+        with pytest.raises(ValueError, match="'toy' is declared already"):
+            declare(Declaration("toy", "beyond", "toy_recipe:toy"))
+        with pytest.raises(ValueError, match="builds on undeclared nowhere"):
+            declare(Declaration("toy-2", "beyond", "toy_recipe:toy", builds_on=("nowhere",)))
+        assert reproduce("toy", "smoke", 1)["score"]["mean"] == 1.5
+        outcome = sweep([SweepRun("toy", None, 2), SweepRun("toy", None, 3)], "smoke", progress=False,
+                        runner=functools.partial(_toy_runner, str(tmp_path)))
+        assert [o["status"] for o in outcome.values()] == ["done", "done"]
+        again = sweep([SweepRun("toy", None, 2)], "smoke", runner=_must_not_run, progress=False)
+        assert [o["status"] for o in again.values()] == ["finished before"]
+        runs = [r for r in read_runs(local_ray / "results") if r.experiment == "toy"]
+        assert [(r.seed, r.score) for r in runs] == [(1, 1.5), (2, 2.5), (3, 3.5)]
+        (row,) = [row for row in summarise(runs)]
+        assert row["n"] == 3 and row["mean"] == pytest.approx(2.5)
+    finally:
+        DECLARED.pop("toy", None)
+        sys.path.remove(str(tmp_path))
+    assert "toy" not in EXPERIMENTS

@@ -49,7 +49,7 @@ from pathlib import Path
 from wmthesis.config import (ATARI_ENVIRONMENTS, PLANNERS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, check_storage,
                              for_profile)
 from wmthesis.runs import DiskFull, FolderHeld, check_writable, write_json
-from wmthesis.declarations import check_run
+from wmthesis.declarations import NAMES, Declared, check_run
 from wmthesis.utils import data_dir, parse_seeds
 
 
@@ -383,8 +383,7 @@ def parser() -> argparse.ArgumentParser:
     player.set_defaults(run=cmd_play)
 
     validate = commands.add_parser("validate", help="levers of an experiment on its validation split only")
-    validate.add_argument("experiment", choices=("sokoban-search", "planet-boxing-value", "planet-freeway-value",
-                                                 "boxing-wm"))
+    validate.add_argument("experiment", choices=Declared(lambda d: d.levers is not None))
     validate.add_argument("levers", nargs="+", metavar="LEVER", help="the levers to play (a wrong one lists the valid)")
     validate.add_argument("--variant", help="a PlaNet value's run whose agent the planners end in (default: its default)")
     validate.add_argument("--seeds", default="0", help="the trained runs' seeds: a range 0-2, a list 0,2, or one seed")
@@ -402,7 +401,7 @@ def parser() -> argparse.ArgumentParser:
     report.set_defaults(run=cmd_evaluate_sokoban)
 
     search = commands.add_parser("search", help="random search over KL scale x free nats (optuna)")
-    search.add_argument("name", choices=("planet-boxing", "planet-freeway"))
+    search.add_argument("name", choices=(NAMES.planet_boxing, NAMES.planet_freeway))
     search.add_argument("--trials", type=at_least(1), help="finished trials wanted in the study (default: profile's)")
     search.add_argument("--workers", type=at_least(1), help="worker processes on this machine")
     search.add_argument("--storage", help="optuna storage URL (default: sqlite file under data/search/)")

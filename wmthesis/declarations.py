@@ -9,16 +9,39 @@ names against these records before anything heavy loads, and ``reproduce``, ``sw
                                              "wmthesis.world_models.trained:load_trained", "boxing"))
 
 A recipe is ``recipe(profile, seed, variant, progress) -> metrics``; a new experiment is one
-recipe module and one declaration here.
+recipe module and one declaration here (or, from one's own code, :func:`declare`).
 """
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 
 NO_SCORE = "wmthesis.scores:no_score"  # the score of an experiment without a headline (a study, the curves)
 DEFAULT_MEASURE = "mean episode return over the evaluation episodes"
+
+
+@dataclass(frozen=True)
+class Names:
+    """Every experiment's name, written once: code outside this module writes
+    ``NAMES.boxing_wm``, never the text ``"boxing-wm"``."""
+    sokoban_wm: str = "sokoban-wm"
+    boxing_wm: str = "boxing-wm"
+    boxing_wm_alphazero: str = "boxing-wm-alphazero"
+    planet_sokoban: str = "planet-sokoban"
+    planet_boxing: str = "planet-boxing"
+    planet_freeway: str = "planet-freeway"
+    planet_boxing_study: str = "planet-boxing-study"
+    planet_boxing_search: str = "planet-boxing-search"
+    planet_boxing_agent: str = "planet-boxing-agent"
+    planet_boxing_value: str = "planet-boxing-value"
+    planet_freeway_value: str = "planet-freeway-value"
+    sokoban_search: str = "sokoban-search"
+    planning_budget: str = "planning-budget"
+
+
+NAMES = Names()
 
 
 def resolve(path: str):
@@ -78,72 +101,128 @@ class Declaration:
 
 
 DECLARATIONS = (
-    Declaration("sokoban-wm", "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models",
+    Declaration(NAMES.sokoban_wm, "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models",
                 published="wmthesis.references:SOKOBAN_WM_FIGURES"),
-    Declaration("boxing-wm", "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
+    Declaration(NAMES.boxing_wm, "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
                 published="wmthesis.references:BOXING_WM_FIGURES",
                 variants="wmthesis.world_models.variants:BOXING_WM", levers="wmthesis.validation:boxing_wm_levers",
                 choice_seeds="wmthesis.world_models.variants:VALIDATION_SEEDS",
                 agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.world_models.trained:load_trained", "boxing")),
-    Declaration("boxing-wm-alphazero", "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
+    Declaration(NAMES.boxing_wm_alphazero, "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
                 published="wmthesis.references:ALPHAZERO_FIGURES",
-                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=("boxing-wm",), score="wmthesis.scores:alphazero_scores",
+                variants="wmthesis.alphazero.variants:VARIANTS", builds_on=(NAMES.boxing_wm,),
+                score="wmthesis.scores:alphazero_scores",
                 agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.alphazero.trained:load_trained", "boxing")),
-    Declaration("planet-sokoban", "5.5.1", "wmthesis.experiments.planet:planet_sokoban",
+    Declaration(NAMES.planet_sokoban, "5.5.1", "wmthesis.experiments.planet:planet_sokoban",
                 variants="wmthesis.planet.variants:PLANET_SOKOBAN",
                 agent=AgentFile("{profile}/planet-sokoban/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "sokoban-small")),
-    Declaration("planet-boxing", "5.6.1-5.6.4", "wmthesis.experiments.planet:planet_boxing",
+    Declaration(NAMES.planet_boxing, "5.6.1-5.6.4", "wmthesis.experiments.planet:planet_boxing",
                 published="wmthesis.references:BOXING_PLANET_FIGURES",
                 variants="wmthesis.planet.variants:PLANET_BOXING",
                 agent=AgentFile("{profile}/planet-boxing/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
-    Declaration("planet-freeway", "5.6.5-5.6.6", "wmthesis.experiments.planet:planet_freeway",
+    Declaration(NAMES.planet_freeway, "5.6.5-5.6.6", "wmthesis.experiments.planet:planet_freeway",
                 published="wmthesis.references:FREEWAY_FIGURES",
                 variants="wmthesis.planet.variants:PLANET_FREEWAY",
                 agent=AgentFile("{profile}/planet-freeway/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "freeway")),
-    Declaration("planet-boxing-study", "5.6.1-5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_study",
+    Declaration(NAMES.planet_boxing_study, "5.6.1-5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_study",
                 score=NO_SCORE),
-    Declaration("planet-boxing-search", "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search",
+    Declaration(NAMES.planet_boxing_search, "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search",
                 measure="the best trial's open-loop error on held-out bouts x 1000 (lower is better)"),
-    Declaration("planet-boxing-agent", "5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_agent",
+    Declaration(NAMES.planet_boxing_agent, "5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_agent",
                 published="wmthesis.references:BOXING_PLANET_FIGURES",
                 measure="full-bout score, CEM planner",
                 score="wmthesis.scores:agent_score",
                 agent=AgentFile("{profile}/planet-boxing-agent/seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
-    Declaration("planet-boxing-value", "beyond", "wmthesis.experiments.planet_boxing_value:planet_boxing_value",
+    Declaration(NAMES.planet_boxing_value, "beyond", "wmthesis.experiments.planet_boxing_value:planet_boxing_value",
                 published="wmthesis.references:BOXING_PLANET_FIGURES",
                 measure="full-bout score, the value's chosen round",
-                variants="wmthesis.value.variants:VALUE_VARIANTS", builds_on=("planet-boxing-agent",),
+                variants="wmthesis.value.variants:VALUE_VARIANTS", builds_on=(NAMES.planet_boxing_agent,),
                 score="wmthesis.scores:value_scores", levers="wmthesis.validation:boxing_value_levers",
                 frozen_model="planet",
                 agent=AgentFile("{profile}/planet-boxing-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.value.trained:load_trained", "boxing")),
-    Declaration("planet-freeway-value", "beyond", "wmthesis.experiments.planet_freeway_value:planet_freeway_value",
+    Declaration(NAMES.planet_freeway_value, "beyond", "wmthesis.experiments.planet_freeway_value:planet_freeway_value",
                 published="wmthesis.references:FREEWAY_FIGURES",
                 measure="full-episode score, the value's chosen round",
-                variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=("planet-freeway",),
+                variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=(NAMES.planet_freeway,),
                 score="wmthesis.scores:value_scores", levers="wmthesis.validation:freeway_value_levers",
                 agent=AgentFile("{profile}/planet-freeway-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.value.trained:load_trained", "freeway")),
-    Declaration("sokoban-search", "beyond (ch. 1)", "wmthesis.experiments.sokoban_search:sokoban_search",
+    Declaration(NAMES.sokoban_search, "beyond (ch. 1)", "wmthesis.experiments.sokoban_search:sokoban_search",
                 published="wmthesis.references:SOKOBAN_SEARCH_FIGURES",
                 measure="% of unseen 10x10 levels solved from pixels (generated; boxoban-*: Boxoban valid 005-009)",
                 bounds=(0.0, 100.0),
                 score="wmthesis.scores:sokoban_scores", levers="wmthesis.validation:sokoban_levers",
                 agent=AgentFile("{profile}/sokoban-search/seed{seed}/pixels/state.pt",
                                 "wmthesis.sokoban_search.trained:load_trained", "sokoban")),
-    Declaration("planning-budget", "ch. 1", "wmthesis.experiments.planning_budget:planning_budget",
-                builds_on=("sokoban-search", "boxing-wm-alphazero", "planet-boxing-value"), score=NO_SCORE),
+    Declaration(NAMES.planning_budget, "ch. 1", "wmthesis.experiments.planning_budget:planning_budget",
+                builds_on=(NAMES.sokoban_search, NAMES.boxing_wm_alphazero, NAMES.planet_boxing_value), score=NO_SCORE),
 )
-DECLARED = {d.name: d for d in DECLARATIONS}
-EXPERIMENTS = tuple(DECLARED)
-AGENTS = tuple(d.name for d in DECLARATIONS if d.agent is not None)
-BUILDS_ON = {d.name: d.builds_on for d in DECLARATIONS if d.builds_on}
+DECLARED: dict[str, Declaration] = {d.name: d for d in DECLARATIONS}
+
+
+class Declared(Sequence):
+    """The declared experiments' names that ``keep`` admits, in declaration order, read anew at
+    each use, so an experiment :func:`declare` adds later counts everywhere."""
+
+    def __init__(self, keep: Callable[[Declaration], bool]):
+        self.keep = keep
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(name for name, d in DECLARED.items() if self.keep(d))
+
+    def __getitem__(self, index):
+        return self.names()[index]
+
+    def __len__(self) -> int:
+        return len(self.names())
+
+    def __eq__(self, other) -> bool:
+        return tuple(self) == tuple(other)
+
+    def __repr__(self) -> str:
+        return repr(self.names())
+
+
+class Of(Mapping):
+    """Experiment -> ``of(its declaration)``, for the declared experiments ``keep`` admits, read
+    anew at each use (as :class:`Declared`)."""
+
+    def __init__(self, of: Callable[[Declaration], object], keep: Callable[[Declaration], bool] = lambda d: True):
+        self.of, self.keep = of, keep
+
+    def __getitem__(self, name: str):
+        if name not in DECLARED or not self.keep(DECLARED[name]):
+            raise KeyError(name)
+        return self.of(DECLARED[name])
+
+    def __iter__(self):
+        return iter(Declared(self.keep))
+
+    def __len__(self) -> int:
+        return len(Declared(self.keep))
+
+
+EXPERIMENTS = Declared(lambda d: True)
+AGENTS = Declared(lambda d: d.agent is not None)
+
+
+def declare(declaration: Declaration) -> Declaration:
+    """Add an experiment of one's own (its recipe a ``"module:function"`` importable here):
+    ``reproduce``, ``sweep``, ``summary`` and ``load`` then know it. A declared name is refused."""
+    if declaration.name in DECLARED:
+        raise ValueError(f"experiment {declaration.name!r} is declared already")
+    unknown = [name for name in declaration.builds_on if name not in DECLARED]
+    if unknown:
+        raise ValueError(f"{declaration.name!r} builds on undeclared {', '.join(unknown)}; valid: {', '.join(DECLARED)}")
+    DECLARED[declaration.name] = declaration
+    return declaration
 
 
 
@@ -160,5 +239,5 @@ def check_run(experiment: str, variant: str | None = None) -> None:
         registry.check(variant)
 
 
-__all__ = ["NO_SCORE", "DEFAULT_MEASURE", "Declaration", "AgentFile", "DECLARATIONS", "DECLARED", "EXPERIMENTS", "AGENTS", "BUILDS_ON", "resolve",
-           "check_run"]
+__all__ = ["NAMES", "Names", "NO_SCORE", "DEFAULT_MEASURE", "Declaration", "AgentFile", "DECLARATIONS", "DECLARED",
+           "EXPERIMENTS", "AGENTS", "Declared", "Of", "declare", "resolve", "check_run"]

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
+from wmthesis.declarations import NAMES
 from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.references import (BOXOBAN, RANDOM, THESIS_ALPHAZERO, THESIS_PLANET_BOXING, THESIS_PLANET_BOXING_SCORE,
                                  THESIS_PLANET_FREEWAY, THESIS_PLANET_SEARCH, THESIS_PLANET_SOKOBAN, THESIS_SOKOBAN,
@@ -42,30 +43,30 @@ class Headline(NamedTuple):
 
 
 HEADLINES = (
-    Headline("sokoban-wm", None, "World Models on Sokoban (controller's return)", "5.3", "01", THESIS_SOKOBAN, None,
+    Headline(NAMES.sokoban_wm, None, "World Models on Sokoban (controller's return)", "5.3", "01", THESIS_SOKOBAN, None,
              judged="reproduced", why="no controller of ours solves a level either (the controllers' table above)"),
-    Headline("boxing-wm", BOXING_WM.folder_name(None), "World Models on Boxing", "5.4.1", "02", THESIS_WORLD_MODELS,
+    Headline(NAMES.boxing_wm, BOXING_WM.folder_name(None), "World Models on Boxing", "5.4.1", "02", THESIS_WORLD_MODELS,
              best_atari_100k("boxing"), bar=18.0),
-    Headline("boxing-wm-alphazero", ALPHAZERO.default.name, "World Models + AlphaZero on Boxing", "5.4.2", "03",
+    Headline(NAMES.boxing_wm_alphazero, ALPHAZERO.default.name, "World Models + AlphaZero on Boxing", "5.4.2", "03",
              THESIS_ALPHAZERO, best_atari_100k("boxing"), bar=RANDOM["boxing"].value,
              why="the thesis's coupling did not learn to plan, so its bar is random play's score"),
-    Headline("planet-boxing-agent", None, "PlaNet on Boxing (KL scale 0.03, free nats 12)", "5.6.4", "05",
+    Headline(NAMES.planet_boxing_agent, None, "PlaNet on Boxing (KL scale 0.03, free nats 12)", "5.6.4", "05",
              THESIS_PLANET_BOXING, best_atari_100k("boxing"), bar=30.0,
              why="trained at far smaller sizes than the thesis's (the table below sets the two side by side); a learned "
                  "value on a frozen PlaNet model comes nearer (notebooks 09 and 10)"),
-    Headline("planet-freeway", "freeway-tuned", "PlaNet on Freeway", "5.6.5", "08", THESIS_PLANET_FREEWAY,
+    Headline(NAMES.planet_freeway, "freeway-tuned", "PlaNet on Freeway", "5.6.5", "08", THESIS_PLANET_FREEWAY,
              best_atari_100k("freeway"), bar=0.0,
              why="the bar is our reading of the thesis's words, no crossing; a player pressing UP at every step scores "
                  "nearly as much as ours (below): what a planner adds over it is cars dodged"),
-    Headline("planet-boxing-value", "lean-value-rewards-0.7, cem-with-value",
+    Headline(NAMES.planet_boxing_value, "lean-value-rewards-0.7, cem-with-value",
              "Boxing: CEM with a learned value on PlaNet's model", "beyond", "10", THESIS_PLANET_BOXING,
              best_atari_100k("boxing"), bar=30.0),
-    Headline("planet-freeway-value", "cem-with-value", "Freeway: CEM with a learned value on PlaNet's model", "beyond",
+    Headline(NAMES.planet_freeway_value, "cem-with-value", "Freeway: CEM with a learned value on PlaNet's model", "beyond",
              "08", THESIS_PLANET_FREEWAY, best_atari_100k("freeway"), bar=0.0),
-    Headline("sokoban-search", "boxoban-unfiltered, 1000 report levels",
+    Headline(NAMES.sokoban_search, "boxoban-unfiltered, 1000 report levels",
              "Sokoban by search in a learned model: Boxoban unfiltered, % solved", "beyond (ch. 1)", "07",
              THESIS_SOKOBAN, BOXOBAN["unfiltered"], bar=0.0),
-    Headline("sokoban-search", "boxoban-medium, 1000 report levels",
+    Headline(NAMES.sokoban_search, "boxoban-medium, 1000 report levels",
              "Sokoban by search in a learned model: Boxoban medium, % solved", "beyond (ch. 1)", "07", THESIS_SOKOBAN,
              BOXOBAN["medium"], bar=0.0),
 )
@@ -73,16 +74,16 @@ HEADLINES = (
 # Rows that open a chapter without standing in the front door's table: a figure the thesis judged
 # by eye, a search's measure, a step on the way to another chapter's headline.
 CHAPTER_ROWS = (
-    Headline("planet-sokoban", "unchanged", "PlaNet on Sokoban-small (greedy return)", "5.5.1", "04",
+    Headline(NAMES.planet_sokoban, "unchanged", "PlaNet on Sokoban-small (greedy return)", "5.5.1", "04",
              THESIS_PLANET_SOKOBAN, None, judged="reproduced",
              why="its open-loop predictions blur and lose the player from the first imagined steps on (Fig. 58 "
                  "below), as the thesis's did"),
-    Headline("planet-boxing-search", None, "KL scale x free nats: the best trial's open-loop error x 1000 on held-out "
+    Headline(NAMES.planet_boxing_search, None, "KL scale x free nats: the best trial's open-loop error x 1000 on held-out "
              "bouts (lower is better)", "5.6.3-5.6.5", "06", THESIS_PLANET_SEARCH, None,
              judged="not reproduced at this budget",
              why="its best and worst settings differ by less than one setting's two seeds do (below), so its trials "
                  "choose no setting"),
-    Headline("planet-boxing-value", None, "Boxing: a learned value alone on PlaNet's model (the round chosen on "
+    Headline(NAMES.planet_boxing_value, None, "Boxing: a learned value alone on PlaNet's model (the round chosen on "
              "validation bouts)", "beyond", "09", THESIS_PLANET_BOXING, best_atari_100k("boxing"),
              bar=THESIS_PLANET_BOXING_SCORE),
 )

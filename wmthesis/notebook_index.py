@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from wmthesis.declarations import NAMES
 from wmthesis.runs import first_run_seconds, read_json
 from wmthesis.stamp import CHECKOUT, read_stamp
 from wmthesis.utils import data_dir
@@ -40,23 +41,25 @@ SHOWS = {
 # train as they run (their committed run is their time from scratch), and the others train nothing
 TRAINS_HERE: tuple[str, ...] = ()
 TRAINS = {
-    "01_sokoban_world_models": (("sokoban-wm", (None,), (0,)),),
-    "04_planet_sokoban": (("planet-sokoban", ("unchanged",), (0,)),),
-    "02_boxing_world_models": (("boxing-wm", ("separable-64",), range(10)),),
-    "03_boxing_world_models_alphazero": (("boxing-wm-alphazero", ("own-memory", "own-reward"), (0,)),
-                                         ("boxing-wm", ("separable-64",), (0,))),
-    "05_planet_boxing": (("planet-boxing-study", (None,), (0,)), ("planet-boxing-agent", (None,), (0,))),
-    "06_kl_scale_free_nats_search": (("planet-boxing-search", (None,), (0,)),),  # its trials, the confirmation apart
-    "07_sokoban_search": (("sokoban-search", (None,), (0, 1, 2)),),  # with the Boxoban report levels' search
-    "08_planet_freeway": (("planet-freeway", ("freeway-tuned", "freeway-adam", "freeway-explore", "long-horizon"), (0,)),
-                          ("planet-freeway-value", (None, "td", "horizon-12", "freeway-adam", "adam-td", "adam-log"), (0,))),
-    "09_planet_boxing_value": (("planet-boxing-value", ("scored-rounds",), (0,)), ("planet-boxing-value", ("rounds-10",), (1, 2)),
-                               ("planet-boxing-agent", (None,), (0, 1, 2))),
-    "10_planet_value_planner": (("planet-boxing-value", ("lean-value-rewards-0.7", "lean"), (0, 1, 2)),
-                                ("planet-boxing-agent", (None,), (0, 1, 2))),
-    "11_planning_budget": (("sokoban-search", (None,), (0, 1, 2)), ("boxing-wm-alphazero", ("own-memory",), (0, 1, 2)),
-                           ("boxing-wm", ("separable-64",), (0, 1, 2)), ("planet-boxing-value", ("lean-value-rewards-0.7",), (0, 1, 2)),
-                           ("planet-boxing-agent", (None,), (0, 1, 2))),
+    "01_sokoban_world_models": ((NAMES.sokoban_wm, (None,), (0,)),),
+    "04_planet_sokoban": ((NAMES.planet_sokoban, ("unchanged",), (0,)),),
+    "02_boxing_world_models": ((NAMES.boxing_wm, ("separable-64",), range(10)),),
+    "03_boxing_world_models_alphazero": ((NAMES.boxing_wm_alphazero, ("own-memory", "own-reward"), (0,)),
+                                         (NAMES.boxing_wm, ("separable-64",), (0,))),
+    "05_planet_boxing": ((NAMES.planet_boxing_study, (None,), (0,)), (NAMES.planet_boxing_agent, (None,), (0,))),
+    "06_kl_scale_free_nats_search": ((NAMES.planet_boxing_search, (None,), (0,)),),  # its trials, the confirmation apart
+    "07_sokoban_search": ((NAMES.sokoban_search, (None,), (0, 1, 2)),),  # with the Boxoban report levels' search
+    "08_planet_freeway": ((NAMES.planet_freeway, ("freeway-tuned", "freeway-adam", "freeway-explore", "long-horizon"), (0,)),
+                          (NAMES.planet_freeway_value, (None, "td", "horizon-12", "freeway-adam", "adam-td", "adam-log"), (0,))),
+    "09_planet_boxing_value": ((NAMES.planet_boxing_value, ("scored-rounds",), (0,)),
+                               (NAMES.planet_boxing_value, ("rounds-10",), (1, 2)),
+                               (NAMES.planet_boxing_agent, (None,), (0, 1, 2))),
+    "10_planet_value_planner": ((NAMES.planet_boxing_value, ("lean-value-rewards-0.7", "lean"), (0, 1, 2)),
+                                (NAMES.planet_boxing_agent, (None,), (0, 1, 2))),
+    "11_planning_budget": ((NAMES.sokoban_search, (None,), (0, 1, 2)), (NAMES.boxing_wm_alphazero, ("own-memory",), (0, 1, 2)),
+                           (NAMES.boxing_wm, ("separable-64",), (0, 1, 2)),
+                           (NAMES.planet_boxing_value, ("lean-value-rewards-0.7",), (0, 1, 2)),
+                           (NAMES.planet_boxing_agent, (None,), (0, 1, 2))),
 }
 UNTIMED = {"06_kl_scale_free_nats_search": "its confirmation runs", "11_planning_budget": "the curves' own bouts and levels"}
 

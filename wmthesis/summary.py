@@ -25,7 +25,7 @@ import numpy as np
 
 from wmthesis.budget_curves import budget_markdown, read_budget_rows
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
-from wmthesis.declarations import DECLARATIONS, DECLARED, resolve
+from wmthesis.declarations import NAMES, DECLARED, Of, resolve
 from wmthesis.headline import BEGIN, END, ablation_table, headline_rows, headline_table, readme_with_table
 from wmthesis.metrics import aggregate
 from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
@@ -37,7 +37,7 @@ from wmthesis.viz import save_figure
 INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
 
 # Experiment -> the range its score cannot leave (its interval is clipped to it): its declaration's.
-BOUNDS = {d.name: d.bounds for d in DECLARATIONS if d.bounds is not None}
+BOUNDS = Of(lambda d: d.bounds, lambda d: d.bounds is not None)
 
 
 def choice_seeds(experiment: str) -> tuple:
@@ -132,7 +132,7 @@ def report_runs(folder: Path) -> list[Run]:
     for path in sorted(folder.glob("sokoban-search/*/boxoban-report-*.json")):
         try:
             report = json.loads(path.read_text())
-            runs += [Run("sokoban-search", f"boxoban-{kind}, {int(report['levels'])} report levels",
+            runs += [Run(NAMES.sokoban_search, f"boxoban-{kind}, {int(report['levels'])} report levels",
                          str(report["profile"]), int(report["seed"]), 100.0 * float(row["solve_rate"]),
                          report_seconds(report, row), str(path), machine_kind(report.get("machine")))
                      for kind, row in report["rows"].items()]

@@ -29,18 +29,18 @@ from typing import Callable, NamedTuple
 from tqdm import tqdm
 
 from wmthesis.config import profile_name
-from wmthesis.declarations import BUILDS_ON, DECLARED, NO_SCORE
+from wmthesis.declarations import DECLARED, NO_SCORE
 from wmthesis.experiments import DEFAULT_RESULTS, EXPERIMENTS, VARIANTS, reproduce
 from wmthesis.runs import atomic_path
 from wmthesis.summary import run_scores
 from wmthesis.utils import MAX_SEED, MAX_SEEDS, check_choice, data_dir, parse_seeds
 
-# Experiment -> the experiment whose artifacts it reuses for the same seed (run first).
 
 
 def depth(experiment: str) -> int:
     """How many experiments deep ``experiment`` builds (0: on none): a sweep starts the shallow first."""
-    return 1 + max(map(depth, BUILDS_ON[experiment])) if experiment in BUILDS_ON else 0
+    builds_on = DECLARED[experiment].builds_on
+    return 1 + max(map(depth, builds_on)) if builds_on else 0
 
 
 class SweepRun(NamedTuple):
@@ -213,8 +213,8 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
     refs, started = {}, time.time()
     for run in todo:  # a prerequisite in this sweep goes first: its result is the dependent's argument;
         # variants of a dependent experiment and seed share its prerequisite's folders, so they go one by one
-        before = [refs[p] for p in refs if p.seed == run.seed and (p.experiment in BUILDS_ON.get(run.experiment, ()) or
-                                                                   p.experiment == run.experiment in BUILDS_ON)]
+        before = [refs[p] for p in refs if p.seed == run.seed and (p.experiment in DECLARED[run.experiment].builds_on or
+                                                                   p.experiment == run.experiment and DECLARED[run.experiment].builds_on)]
         refs[run] = task.remote(runner, run, profile, cpus, *before)
     waiting = {ref: run for run, ref in refs.items()}
     bar = tqdm(total=len(todo), desc=f"sweep ({profile})", unit="run", disable=not progress)

@@ -12,7 +12,7 @@ The levers that lost, with their numbers, are in ``docs/findings/EXPERIMENT.md``
 """
 from __future__ import annotations
 
-from wmthesis.declarations import DECLARED, DECLARATIONS, resolve
+from wmthesis.declarations import NAMES, DECLARED, Declared, resolve
 from wmthesis.utils import check_choice, over_seeds
 from wmthesis.variants import FINDINGS, Levers
 
@@ -28,7 +28,7 @@ def validate_recipes(levers, *, profile=None, seeds=(0,), variant=None, count=No
     if wrong:
         raise ValueError(f"boxing-wm's recipes are chosen on seeds {', '.join(map(str, VALIDATION_SEEDS))}, "
                          f"not {', '.join(map(str, wrong))}")
-    return {seed: {lever: reproduce("boxing-wm", profile, seed, lever, progress) for lever in levers} for seed in seeds}
+    return {seed: {lever: reproduce(NAMES.boxing_wm, profile, seed, lever, progress) for lever in levers} for seed in seeds}
 
 
 def recipe_lines(results: dict[str, dict]) -> list[str]:
@@ -90,7 +90,7 @@ def freeway_value_levers() -> Levers:
     return planner_levers("wmthesis.experiments.planet_freeway_value")
 
 
-WITH_LEVERS = tuple(d.name for d in DECLARATIONS if d.levers is not None)
+WITH_LEVERS = Declared(lambda d: d.levers is not None)
 
 
 def levers_of(experiment: str) -> Levers:

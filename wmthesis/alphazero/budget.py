@@ -21,6 +21,7 @@ import torch
 
 from wmthesis.alphazero.evaluation import bout_seeds, cached_games, head_returns, resumed_games
 from wmthesis.alphazero.variants import VARIANTS
+from wmthesis.declarations import NAMES
 from wmthesis.runs import built_on, file_sha256, read_json, write_json
 
 STEPS_AHEAD = 10  # a step's real return in :func:`search_changes`: its reward and the next 9
@@ -33,10 +34,10 @@ def alphazero_agent(profile: str, seed: int, variant: str | None, progress: bool
 
     name = VARIANTS.check(variant).name
     try:
-        return load("boxing-wm-alphazero", variant=name, profile=profile, seed=seed)
+        return load(NAMES.boxing_wm_alphazero, variant=name, profile=profile, seed=seed)
     except FileNotFoundError:
-        built_on("boxing-wm-alphazero", profile, seed, name, progress)
-        return load("boxing-wm-alphazero", variant=name, profile=profile, seed=seed)
+        built_on(NAMES.boxing_wm_alphazero, profile, seed, name, progress)
+        return load(NAMES.boxing_wm_alphazero, variant=name, profile=profile, seed=seed)
 
 
 def search_key(agent, split: str, bouts: int, **search) -> dict:

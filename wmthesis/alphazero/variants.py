@@ -4,11 +4,12 @@ and why: :mod:`wmthesis.alphazero.selfplay`. Light to import (no torch): the sum
 names the default from here."""
 from __future__ import annotations
 
+from wmthesis.declarations import NAMES
 from wmthesis.variants import Variant, Variants
 
 IMPROVED = dict(normalize_q=True, tie_break="q", value_target="n-step", reuse_tree=False)
 VARIANTS = Variants(
-    "boxing-wm-alphazero",
+    NAMES.boxing_wm_alphazero,
     Variant("unchanged", "thesis 4.3 as written", {}),
     Variant("improved", "min-max normalised Q, ties broken by Q, n-step values, no tree reuse (ours)", IMPROVED),
     Variant("learned-reward", "improved, with a reward model trained on self-play data (ours)", dict(reward_model=True),

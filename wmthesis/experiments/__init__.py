@@ -15,7 +15,7 @@ import os
 from typing import Callable
 
 from wmthesis.config import EXPERIMENTS, profile_name
-from wmthesis.declarations import DECLARATIONS, resolve
+from wmthesis.declarations import NAMES, Declaration, Declared, Of, resolve
 from wmthesis.experiments.alphazero import RECORDING_STEPS, boxing_wm_alphazero
 from wmthesis.experiments.planet import PLANET_GAMES, planet_experiment, planet_variants
 from wmthesis.experiments.planet_boxing import planet_boxing_agent, planet_boxing_study
@@ -39,14 +39,14 @@ from wmthesis.variants import no_variant
 
 # Experiment -> its recipe, each called ``recipe(profile, seed, variant, progress)``, and its registry of
 # variants (:mod:`wmthesis.variants`), for those that have them: from the declarations.
-RECIPES = {d.name: resolve(d.recipe) for d in DECLARATIONS}
-VARIANTS = {d.name: d.registry() for d in DECLARATIONS if d.variants is not None}
-NO_VARIANTS = tuple(name for name in EXPERIMENTS if name not in VARIANTS)
+RECIPES = Of(lambda d: resolve(d.recipe))
+VARIANTS = Of(Declaration.registry, lambda d: d.variants is not None)
+NO_VARIANTS = Declared(lambda d: d.variants is None)
 # Experiment -> the variant its default run's metrics name (None: it names none, its runs keep the
 # experiment's own folders), for the experiments whose default has a name in its metrics.
 DEFAULT_RESULTS = {**{name: registry.default.name for name, registry in PLANET_REGISTRIES.items()},
-                   "planet-boxing-value": BOXING_VALUE_VARIANTS.folder_name(None), "planet-freeway-value": None,
-                   "boxing-wm": BOXING_WM.folder_name(None), "boxing-wm-alphazero": ALPHAZERO_VARIANTS.default.name}
+                   NAMES.planet_boxing_value: BOXING_VALUE_VARIANTS.folder_name(None), NAMES.planet_freeway_value: None,
+                   NAMES.boxing_wm: BOXING_WM.folder_name(None), NAMES.boxing_wm_alphazero: ALPHAZERO_VARIANTS.default.name}
 
 
 def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str | None = None,

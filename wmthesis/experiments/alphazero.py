@@ -19,6 +19,7 @@ from wmthesis.alphazero.selfplay import train_alphazero
 from wmthesis.alphazero.variants import VARIANTS
 from wmthesis.config import CollectConfig, for_profile, profile_name
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.envs.atari import boxing_env
 from wmthesis.metrics import score_difference, score_summary
 from wmthesis.references import published
@@ -64,9 +65,9 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     variants = (VARIANTS.check(variant).name,)
     profile = profile_name(profile)
     started = time.time()
-    wm = work_folder(profile, "boxing-wm", seed)
-    work = hold(work_folder(profile, "boxing-wm-alphazero", seed))
-    out = results_folder("boxing-wm-alphazero", profile, seed, variants[0])
+    wm = work_folder(profile, NAMES.boxing_wm, seed)
+    work = hold(work_folder(profile, NAMES.boxing_wm_alphazero, seed))
+    out = results_folder(NAMES.boxing_wm_alphazero, profile, seed, variants[0])
     collect_cfg = for_profile(CollectConfig, profile)
     modelling = time.time()
     store = collect("boxing", collect_cfg.episodes, wm / "random.h5", workers=collect_cfg.workers, seed=seed,
@@ -133,11 +134,11 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
                                (("reward", shown.rewards), ("predicted_reward", shown.predicted_rewards),
                                 ("root_value", shown.root_values))})
     metrics = {
-        **run_header("boxing-wm-alphazero", profile, seed, time.time() - started, variants=list(variants)),
+        **run_header(NAMES.boxing_wm_alphazero, profile, seed, time.time() - started, variants=list(variants)),
         "score": scores[f"AlphaZero {variants[-1]}"], "scores": scores, "against_random": against_random,
         "evaluation": {"episodes": cfg.eval_episodes, "max_steps": cfg.eval_max_steps, "notes": baselines["notes"]},
         "random_play_in_store": {"max_steps": cfg.max_steps, **score_summary(random_in_store)},
-        "reference": published("boxing-wm-alphazero"),
+        "reference": published(NAMES.boxing_wm_alphazero),
         "runs": runs,
         "diagnosis": {"reward_error": reward_error, "value_fit_on_random_rollouts": value_fit,
                       "action_fit_on_random_rollouts": action_fit, "search": {name: {
@@ -171,7 +172,7 @@ def _expert(profile: str, seed: int, wm: Path, vision, progress: bool):
     imitation variant's expert; trains it first (the boxing-wm pipeline, its steps cached) if it is missing."""
     make_mind, note = controller_minds(profile, wm, vision)
     if make_mind is None:
-        built_on("boxing-wm", profile, seed, progress=progress)
+        built_on(NAMES.boxing_wm, profile, seed, progress=progress)
         make_mind, note = controller_minds(profile, wm, vision)
     if make_mind is None:
         raise RuntimeError(f"the imitation variant needs notebook 02's controller: {note}")

@@ -11,6 +11,7 @@ import torch
 
 from wmthesis.config import for_profile, profile_name
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.envs import ATARI_GAMES
 from wmthesis.metrics import error_at, horizon_errors, score_summary
 from wmthesis.planet.agent import play_greedy
@@ -82,7 +83,7 @@ def planet_experiment(name: str, profile: str | None = None, seed: int = 0, vari
     with EpisodeStore(work / "episodes.h5") as store:
         random_returns = [float(store.episode(i)["rewards"].sum()) for i in range(trained_config.seed_episodes)]
         rollout = _planet_open_loop(model, store, context + horizon, context, trained_config, seed)
-    title = {"planet-sokoban": "Fig. 58", "planet-boxing": "Fig. 59/510", "planet-freeway": "Fig. 511"}[name]
+    title = {NAMES.planet_sokoban: "Fig. 58", NAMES.planet_boxing: "Fig. 59/510", NAMES.planet_freeway: "Fig. 511"}[name]
     label = f"{env_name}, {variant}"
     figures = [
         save_figure(open_loop_figure(rollout, sequences=scoring.figure_sequences,
@@ -158,14 +159,14 @@ def _planet_open_loop(model, store, length: int, context: int, config, seed: int
 
 def planet_sokoban(profile: str | None = None, seed: int = 0, variant: str | None = None, progress: bool = True) -> dict:
     """Thesis 5.5.1: :func:`planet_experiment` on Sokoban."""
-    return planet_experiment("planet-sokoban", profile, seed, variant, progress)
+    return planet_experiment(NAMES.planet_sokoban, profile, seed, variant, progress)
 
 
 def planet_boxing(profile: str | None = None, seed: int = 0, variant: str | None = None, progress: bool = True) -> dict:
     """Thesis 5.6.1-5.6.4: :func:`planet_experiment` on Boxing."""
-    return planet_experiment("planet-boxing", profile, seed, variant, progress)
+    return planet_experiment(NAMES.planet_boxing, profile, seed, variant, progress)
 
 
 def planet_freeway(profile: str | None = None, seed: int = 0, variant: str | None = None, progress: bool = True) -> dict:
     """Thesis 5.6.5-5.6.6: :func:`planet_experiment` on Freeway."""
-    return planet_experiment("planet-freeway", profile, seed, variant, progress)
+    return planet_experiment(NAMES.planet_freeway, profile, seed, variant, progress)

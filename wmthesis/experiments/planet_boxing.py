@@ -16,6 +16,7 @@ from pathlib import Path
 
 from wmthesis.config import for_profile, profile_name
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.metrics import score_difference
 from wmthesis.planet.agent_file import AGENT_NAME, save_agent
 from wmthesis.planet.bouts import FIRST_STEPS, bout_scores, play_bout
@@ -55,12 +56,12 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, variant: str 
     ``data/results/planet-boxing-study/<profile>-seed<seed>/``. Returns the metrics:
     ``summary`` (:func:`~wmthesis.planet.study.summarise`), ``errors`` and ``diagnostics`` per
     run, ``files``."""
-    no_variant("planet-boxing-study", variant)
+    no_variant(NAMES.planet_boxing_study, variant)
     profile = profile_name(profile)
     started = time.time()
     sizes = study_sizes(profile)
-    work = hold(data_dir(profile, "planet-boxing-study"))
-    out = results_folder("planet-boxing-study", profile, seed)
+    work = hold(data_dir(profile, NAMES.planet_boxing_study))
+    out = results_folder(NAMES.planet_boxing_study, profile, seed)
     seeds = [seed + k for k in range(sizes["seeds"])]
     runs = {(variant, s): work / f"{variant}-seed{s}" for variant in STUDY_VARIANTS for s in seeds}
     parallel_calls([(_train_study_run, path, boxing_config(profile, variant), s)
@@ -89,7 +90,7 @@ def planet_boxing_study(profile: str | None = None, seed: int = 0, variant: str 
                 f"(repeat last {tuned['repeat last'][1]:.4f}, {tuned['repeat last'][h5]:.4f}; unchanged "
                 f"{summary['unchanged']['model'][1]['mean']:.4f}, {summary['unchanged']['model'][h5]['mean']:.4f}); "
                 f"beats both baselines: {tuned['beats_baselines']}")
-    metrics = {**run_header("planet-boxing-study", profile, seed, time.time() - started, env=GAME),
+    metrics = {**run_header(NAMES.planet_boxing_study, profile, seed, time.time() - started, env=GAME),
                "headline": headline, "seeds": seeds, "updates": config.pretrain_updates, "seed_episodes": config.seed_episodes,
                "summary": summary,
                "runs": {f"{v}-seed{s}": {key: scores[v][i][key] for key in ("errors", "diagnostics", "updates",
@@ -111,13 +112,13 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str 
     Returns the metrics: ``agent`` and ``random`` (scores over full bouts and over their first
     500 steps), ``difference`` (:func:`~wmthesis.metrics.score_difference`), the learning
     ``curve`` and ``files``."""
-    no_variant("planet-boxing-agent", variant)
+    no_variant(NAMES.planet_boxing_agent, variant)
     profile = profile_name(profile)
     bouts_scored = for_profile(PlanetEvaluationConfig, profile).agent_bouts
-    study = work_folder(profile, "planet-boxing-study", seed, TUNED)
+    study = work_folder(profile, NAMES.planet_boxing_study, seed, TUNED)
     _train_study_run(study, boxing_config(profile, TUNED), seed)
-    work = hold(work_folder(profile, "planet-boxing-agent", seed))
-    out = results_folder("planet-boxing-agent", profile, seed)
+    work = hold(work_folder(profile, NAMES.planet_boxing_agent, seed))
+    out = results_folder(NAMES.planet_boxing_agent, profile, seed)
     config = boxing_config(profile, TUNED, study=False)
     run = train_planet(GAME, config, work, seed=seed, progress=progress, start_from=study)
     started = time.time()  # run["seconds"] holds the training, over every resume; the evaluation is added
@@ -141,11 +142,11 @@ def planet_boxing_agent(profile: str | None = None, seed: int = 0, variant: str 
     full = scores["agent"]["full"]
     headline = (f"score {full['mean']:.1f} +- {full['std']:.1f} over {full['episodes']} bouts (random play "
                 f"{scores['random']['full']['mean']:.1f}); first {FIRST_STEPS} steps {scores['agent']['first']['mean']:.1f}")
-    metrics = {**run_header("planet-boxing-agent", profile, seed, run["seconds"] + time.time() - started, env=GAME),
+    metrics = {**run_header(NAMES.planet_boxing_agent, profile, seed, run["seconds"] + time.time() - started, env=GAME),
                "headline": headline, "env_steps": run["env_steps"], "updates": run["updates"], "episodes": run["episodes"],
                **scores, "difference": score_difference(scores["agent"]["returns"], scores["random"]["returns"]),
                "difference_first": score_difference(scores["agent"]["first_returns"], scores["random"]["first_returns"]),
-               "bouts": bouts, "curve": meta["curve"], "reference": published("planet-boxing"),
+               "bouts": bouts, "curve": meta["curve"], "reference": published(NAMES.planet_boxing),
                "files": {"figures": [str(figure)]}}
     write_json(out / "metrics.json", metrics)
     return metrics

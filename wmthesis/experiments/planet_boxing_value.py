@@ -11,6 +11,7 @@ import time
 
 from wmthesis import runs as run_store
 from wmthesis.config import for_profile, profile_name
+from wmthesis.declarations import NAMES
 from wmthesis.planet.bouts import bout_scores
 from wmthesis.value.config import LatentValueConfig, ValueEvaluationConfig, ValuePlannerConfig
 from wmthesis.planet.train import load_planet
@@ -44,7 +45,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
     chosen = VALUE_VARIANTS.check(variant)  # its folders: value_folder, results_folder (None: the default)
     profile = profile_name(profile)
     started = time.time()
-    agent, planet_run = frozen_agent("planet-boxing-agent", profile, seed, progress=progress)  # the shipped one, or trained
+    agent, planet_run = frozen_agent(NAMES.planet_boxing_agent, profile, seed, progress=progress)  # the shipped one, or trained
     work = hold(value_folder(profile, seed, chosen.name))
     out = results_folder(profile, seed, chosen.name)
     config = for_profile(LatentValueConfig, profile, test_bouts=len(agent["bouts"]),
@@ -53,7 +54,7 @@ def planet_boxing_value(profile: str | None = None, seed: int = 0, variant: str 
         start_from(work, value_folder(profile, seed, chosen.builds_on))
     discount = {"discount": config.discount} if config.target != "reward-sum" else {}
     planner = for_profile(ValuePlannerConfig, profile, **{**discount, **VALUE_VARIANTS.changes(chosen.name, "planner")})
-    return fit_and_compare("planet-boxing-value", GAME, planet_run, work, out, config, planner,
+    return fit_and_compare(NAMES.planet_boxing_value, GAME, planet_run, work, out, config, planner,
                            {"random": agent["random"], "planet": agent["agent"]}, agent["bouts"], profile=profile,
                            seed=seed, progress=progress, references=REFERENCES, variant=VALUE_VARIANTS.folder_name(chosen.name), started=started)
 
@@ -64,7 +65,7 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
     on the run of :func:`planet_boxing_value` with ``variant``, run first if need be; cached)."""
     profile = profile_name(profile)
     metrics = planet_boxing_value(profile, seed, variant, progress)
-    return compare_plans(GAME, run_store.work_folder(profile, "planet-boxing-agent", seed), value_folder(profile, seed, variant),
+    return compare_plans(GAME, run_store.work_folder(profile, NAMES.planet_boxing_agent, seed), value_folder(profile, seed, variant),
                          results_folder(profile, seed, variant),
                          metrics, for_profile(ValueEvaluationConfig, profile).plan_steps, seed)
 
@@ -100,7 +101,7 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     profile = profile_name(profile)
     levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, for_profile(ValueEvaluationConfig, profile).lever_bouts)
     metrics = planet_boxing_value(profile, seed, variant, progress) if metrics is None else metrics
-    planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
+    planet_run = run_store.work_folder(profile, NAMES.planet_boxing_agent, seed)
     work = value_folder(profile, seed, variant)  # the run's value: fitted there, or copied from the run it builds on
     planners = {lever: for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]) for lever in levers}
     return lever_scores(planet_run, work, metrics, planners, [validation_seeds(seed, k) for k in range(bouts)],
@@ -125,7 +126,7 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     profile = profile_name(profile)
     rules, bouts = checked_levers("agent rule", rules, AGENT_RULES, bouts, for_profile(ValueEvaluationConfig, profile).lever_bouts)
     metrics = planet_boxing_value(profile, seed, variant, progress)
-    planet_run = run_store.work_folder(profile, "planet-boxing-agent", seed)
+    planet_run = run_store.work_folder(profile, NAMES.planet_boxing_agent, seed)
     work = value_folder(profile, seed, variant)
     model, planet, _ = load_planet(planet_run)
     round_values(model, planet.bits, work, seed=seed, progress=progress)

@@ -28,6 +28,7 @@ from scipy.stats import fisher_exact
 
 from wmthesis.config import for_profile, profile_name
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.envs.freeway import play_lookahead
 from wmthesis.metrics import paired_difference
 from wmthesis.planet.bouts import bout_result, bout_scores, play_bout
@@ -61,7 +62,7 @@ BASELINES = ("planet", "random", "always-up")  # in the order their episodes are
 # fits one of its own. The numbers of those that left the code: docs/findings/planet-freeway-value.md.
 TD = dict(target="td", reward_steps=30, discount=0.99)
 VALUE_VARIANTS = Variants(
-    "planet-freeway-value",
+    NAMES.planet_freeway_value,
     Variant("default", "the discounted sum of the next 150 rewards on freeway-tuned's model, CEM 3 steps before it",
             default=True),
     # a collision's delay of 10-20 steps costs 10-20% of the value at 0.99
@@ -101,8 +102,8 @@ def value_variant(variant: str | None = None) -> str | None:
 
 def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
     """The frozen run of ``planet-freeway``'s variant ``model``, trained first if need be."""
-    built_on("planet-freeway", profile, seed, model, progress)
-    return work_folder(profile, "planet-freeway", seed, model)
+    built_on(NAMES.planet_freeway, profile, seed, model, progress)
+    return work_folder(profile, NAMES.planet_freeway, seed, model)
 
 
 def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -> dict:
@@ -129,8 +130,8 @@ def baseline_scores(planet_run: Path, bouts: list, work: Path, progress: bool) -
 def value_folders(profile: str, seed: int, variant: str | None = None) -> tuple[Path, Path]:
     """A run's work folder (``data/<profile>/planet-freeway-value/[<variant>-]seed<seed>``) and
     its results folder (``data/results/planet-freeway-value/<profile>-seed<seed>[/<variant>]``)."""
-    return (work_folder(profile, "planet-freeway-value", seed, variant),
-            results_folder("planet-freeway-value", profile, seed, variant))
+    return (work_folder(profile, NAMES.planet_freeway_value, seed, variant),
+            results_folder(NAMES.planet_freeway_value, profile, seed, variant))
 
 
 @releasing_holds
@@ -167,7 +168,7 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, variant: str
     bouts = [evaluation_seeds(seed, k) for k in range(for_profile(ValueEvaluationConfig, profile).freeway_episodes)]
     baselines = baseline_scores(planet_run, bouts, work, progress)
     planner = for_profile(ValuePlannerConfig, profile, discount=config.discount, **changes.get("planner", {}))
-    return fit_and_compare("planet-freeway-value", GAME, planet_run, work, out, config, planner, baselines, bouts,
+    return fit_and_compare(NAMES.planet_freeway_value, GAME, planet_run, work, out, config, planner, baselines, bouts,
                            profile=profile, seed=seed, progress=progress, references=REFERENCES, variant=variant,
                            started=started)
 
@@ -250,7 +251,7 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     key = {"updates": meta["updates"], "sizes": sizes, "version": CHECK_VERSION}
     cached = read_json(out / "open_loop_check.json")
     if cached is None or cached.get("key") != key:
-        held = held_out_store(data_dir(profile, "planet-freeway-value") / f"held-out-seed{seed}.h5", GAME, config,
+        held = held_out_store(data_dir(profile, NAMES.planet_freeway_value) / f"held-out-seed{seed}.h5", GAME, config,
                               10_000 + seed, sizes["held_out"])
         with EpisodeStore(planet_run / STORE) as store:
             background, mean_frame = scene(store)

@@ -21,6 +21,7 @@ from wmthesis.alphazero.config import search_settings, search_tag
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
 from wmthesis.budget_curves import BudgetCurveConfig, PLANNERS, check_planners, plot_budget_curves, write_budget_table
 from wmthesis.config import for_profile, profile_name
+from wmthesis.declarations import NAMES
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
 from wmthesis.value.config import ValuePlannerConfig
@@ -50,10 +51,10 @@ def planning_budget(profile: str | None = None, seed: int = 0, variant: str | No
     (:func:`~wmthesis.budget_curves.parse_budgets`). Returns the metrics: one row per planner and
     budget (score, the same agent without search on the same levels, the paired gain over it with
     its 95% t interval over levels, milliseconds per action), the other planners' rows kept."""
-    no_variant("planning-budget", variant)
+    no_variant(NAMES.planning_budget, variant)
     profile, budgets = profile_name(profile), budgets or {}
     check_planners([*planners, *budgets])
-    earlier = read_json(results_folder("planning-budget", profile, seed) / "metrics.json") or {}
+    earlier = read_json(results_folder(NAMES.planning_budget, profile, seed) / "metrics.json") or {}
     started, rows = time.time(), [r for r in earlier.get("rows", []) if r["planner"] not in planners]
     curves = {"sokoban-search": sokoban_curve, "mcts": mcts_curve, "cem": cem_curve}
     for planner in planners:  # each planner's rows saved before the next begins
@@ -74,11 +75,11 @@ def mcts_validation(profile: str | None = None, seed: int = 0, progress: bool = 
     variant = ALPHAZERO.check(variant).name
     rows = mcts_curve(profile, seed, progress, budgets, split="validation", variant=variant, search=search)
     name = variant if search is None else f"{variant}-{search_tag(search).replace(' ', '-')}"
-    path = results_folder("planning-budget", profile, seed) / f"validation-{name}.json"
+    path = results_folder(NAMES.planning_budget, profile, seed) / f"validation-{name}.json"
     measured = {r["budget"] for r in rows}
     kept = [r for r in (read_json(path) or {}).get("rows", [])
             if r["budget"] not in measured and r.get("levels") == rows[0]["levels"]]
-    result = {**run_header("planning-budget", profile, seed, time.time() - started, variant=variant,
+    result = {**run_header(NAMES.planning_budget, profile, seed, time.time() - started, variant=variant,
                            bouts="validation"), "rows": sorted(rows + kept, key=lambda r: r["budget"])}
     write_json(path, result)
     return result
@@ -86,12 +87,12 @@ def mcts_validation(profile: str | None = None, seed: int = 0, progress: bool = 
 
 def _write_run(rows: list[dict], profile: str, seed: int, seconds: float) -> dict:
     """The run's ``metrics.json`` (its rows so far, a summary line, the figure) and the profile's CSV."""
-    out = results_folder("planning-budget", profile, seed)
+    out = results_folder(NAMES.planning_budget, profile, seed)
     figure = save_figure(plot_budget_curves(rows), out / "budget_curve.png")
     curves = "; ".join(f"{planner} on {game}: " + ", ".join(f"{r['budget']:,}: {r['score']:.1f}" for r in rows
                                                          if (r["planner"], r["game"]) == (planner, game))
                        for planner, game in dict.fromkeys((r["planner"], r["game"]) for r in rows))
-    metrics = {**run_header("planning-budget", profile, seed, seconds),
+    metrics = {**run_header(NAMES.planning_budget, profile, seed, seconds),
                "summary": f"score by search budget (0: no search): {curves}",
                "rows": rows, "files": {"figures": [str(figure)]}}
     write_json(out / "metrics.json", metrics)
@@ -103,10 +104,10 @@ def sokoban_curve(profile: str, seed: int, progress: bool, budgets: tuple | None
     """The Sokoban agent's rows: without search (budget 0) and under each node budget of
     ``budgets`` (default the profile's ``sokoban_budgets``)."""
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
-    folder = work_folder(profile, "sokoban-search", seed) / "pixels"
+    folder = work_folder(profile, NAMES.sokoban_search, seed) / "pixels"
     if load_run(folder, cfg) is None:
-        built_on("sokoban-search", profile, seed, progress=progress)
-    work = hold(work_folder(profile, "planning-budget", seed))
+        built_on(NAMES.sokoban_search, profile, seed, progress=progress)
+    work = hold(work_folder(profile, NAMES.planning_budget, seed))
     budgets = (NO_SEARCH, *(budgets or curve_sizes(profile).sokoban_budgets))
     jobs = budget_jobs(work, folder, cfg, BOXOBAN_SPLITS["report"]["medium"], curve_sizes(profile).sokoban_levels, budgets)
     run_jobs(jobs, progress)
@@ -128,7 +129,7 @@ def mcts_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = 
     sizes = curve_sizes(profile)
     search = search_settings(profile) if search is None else dict(search)
     agent = alphazero_agent(profile, seed, variant, progress)
-    folder, bouts = work_folder(profile, "planning-budget", seed), sizes.boxing_bouts
+    folder, bouts = work_folder(profile, NAMES.planning_budget, seed), sizes.boxing_bouts
     head = head_games(agent, split, bouts, folder)
     without = np.array(head["returns"])
     tag = search_tag(search)
@@ -147,13 +148,14 @@ def cem_curve(profile: str, seed: int, progress: bool, budgets: tuple | None = N
     ``cem_budgets``; budget H x J x I x its particles), and CEM at H = 1 (budget 0: each sampled first
     action scored by the value alone, the best taken, not quite the value agent's argmax), on the first
     ``boxing_bouts`` of the value's evaluation bouts."""
-    metrics, work = frozen_agent("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(None), progress)
+    metrics, work = frozen_agent(NAMES.planet_boxing_value, profile, seed, VALUE_VARIANTS.folder_name(None), progress)
     base = with_added_defaults(ValuePlannerConfig, metrics["value_planner"]["config"])
     budgets = {NO_SEARCH: dict(horizon=1), **{h * j * i * (base["particles"] or 1): dict(horizon=h, candidates=j, iterations=i)
                                               for h, j, i in budgets or curve_sizes(profile).cem_budgets}}
     planners = {f"budget {budget}": ValuePlannerConfig(**{**base, **changes}) for budget, changes in budgets.items()}
-    scores = lever_scores(frozen_agent("planet-boxing-agent", profile, seed, progress=progress)[1], work,
-                          metrics, planners, metrics["bouts"][:curve_sizes(profile).boxing_bouts], progress, folder="planning-budget")
+    scores = lever_scores(frozen_agent(NAMES.planet_boxing_agent, profile, seed, progress=progress)[1], work,
+                          metrics, planners, metrics["bouts"][:curve_sizes(profile).boxing_bouts], progress,
+                          folder=NAMES.planning_budget)
     without = np.array(scores[f"budget {NO_SEARCH}"]["returns"])
     return [_row("cem", "boxing", budget, seed, np.array(scores[f"budget {budget}"]["returns"]), without,
                  scores[f"budget {budget}"].get("ms_per_action", float("nan"))) for budget in budgets]

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.config import for_profile, profile_name
+from wmthesis.declarations import NAMES
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS, load_levels
 from wmthesis.metrics import score_summary
 from wmthesis.references import BOXOBAN, published
@@ -37,7 +38,7 @@ def evaluation_levels(profile: str | None) -> SokobanEvaluationConfig:
 
 def work_folder(profile: str, seed: int) -> Path:
     """Where a run's experience and checkpoints live (``solve-sokoban`` reads them)."""
-    return run_folder(profile, "sokoban-search", seed)
+    return run_folder(profile, NAMES.sokoban_search, seed)
 
 
 @releasing_holds
@@ -47,11 +48,11 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
     levels of each of our generator's variants (:data:`GENERATED`) and on Boxoban's report files
     beside random play, the thesis, and its search with the true rules and A* (the reference rows,
     on the first reference levels of them: :func:`evaluation_levels`); return the metrics."""
-    no_variant("sokoban-search", variant)
+    no_variant(NAMES.sokoban_search, variant)
     profile = profile_name(profile)
     started = time.time()
     cfg = for_profile(SokobanSearchConfig, profile, seed=seed, inputs="pixels")
-    work, out = hold(work_folder(profile, seed)), results_folder("sokoban-search", profile, seed)
+    work, out = hold(work_folder(profile, seed)), results_folder(NAMES.sokoban_search, profile, seed)
     runs = {"pixels": _trained_run(work / "pixels", cfg, progress)}
     trained_at = time.time()
     tables, model_accuracy, solutions = {}, {}, {}
@@ -86,7 +87,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
     replayed = check_solutions(last, solutions[last][:20])
     solved = len(solutions[last])
     metrics = {
-        **run_header("sokoban-search", profile, seed, time.time() - started),
+        **run_header(NAMES.sokoban_search, profile, seed, time.time() - started),
         "score": score_summary([1.0] * solved + [0.0] * (cfg.eval_levels - solved)),
         "summary": f"{last} from pixels: {solved} of {cfg.eval_levels} unseen levels solved "
                    f"({100 * solved / cfg.eval_levels:.1f}%)",
@@ -95,7 +96,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
         "boxoban": {"tables": boxoban_tables, "splits": BOXOBAN_SPLITS,
                     "reference": {kind: f"{ref.name}: {ref.value}% ({ref.source})" for kind, ref in BOXOBAN.items()}},
         "accuracy": model_accuracy, "replayed_solutions": {"checked": len(replayed), "solved": int(sum(replayed))},
-        "reference": published("sokoban-search"),
+        "reference": published(NAMES.sokoban_search),
         "files": {"figures": [str(f) for f in figures], "recording": str(recording),
                   "solutions": [str(out / f"solutions-{n}-{v}.json") for n in runs for v in generated]},
     }
@@ -114,7 +115,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
 # docs/findings/sokoban-search.md.
 THREE_ROUNDS = dict(rounds=3, model_updates=3000, round_updates=500)  # quick's default until 2026-11-25
 LEVERS = Variants(
-    "sokoban-search",
+    NAMES.sokoban_search,
     Variant("baseline", "the pixel run of sokoban_search itself: the curriculum, two rounds a variant in quick",
             default=True),
     Variant("no-backups", "its value from solved levels alone: the baseline before backed-up values", dict(backups=0)),
@@ -158,7 +159,7 @@ def validate(lever: str, profile: str | None = None, seed: int = 0, levels: int 
     result = {"lever": lever, "changes": changes, "profile": profile, "seed": seed, "rows": rows,
               "search": evaluation_record(cfg),
               "env_steps": int(sum(h["env_steps"] for h in run.history)), "history": run.history}
-    out = results_folder("sokoban-search", profile, seed)
+    out = results_folder(NAMES.sokoban_search, profile, seed)
     write_json(out / f"validation-{lever}.json", jsonable(result))
     return result
 
@@ -186,7 +187,7 @@ def evaluate_report(profile: str | None = None, seed: int = 0, levels: int = 100
               "machine": machine_name(),
               "rows": {kind: boxoban_row(level_plays(jobs, "pixels", kind), source, load_levels(source))
                        for kind, source in BOXOBAN_SPLITS["report"].items()}}
-    out = results_folder("sokoban-search", profile, seed)
+    out = results_folder(NAMES.sokoban_search, profile, seed)
     write_json(out / f"boxoban-report-{levels}.json", jsonable(result))
     return result
 

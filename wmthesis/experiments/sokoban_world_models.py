@@ -11,6 +11,7 @@ import numpy as np
 
 from wmthesis.config import CollectConfig, for_profile, profile_name
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.envs.sokoban import ACTIONS
 from wmthesis.envs.vector import make_game
 from wmthesis.metrics import score_summary
@@ -68,11 +69,11 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str
     ``data/results/sokoban-wm/<profile>-seed<seed>/``; every step resumes from its artifact.
     Returns the metrics; ``score`` is the 5.3.1 controller's.
     """
-    no_variant("sokoban-wm", variant)
+    no_variant(NAMES.sokoban_wm, variant)
     profile = profile_name(profile)
     started = time.time()
-    work = hold(work_folder(profile, "sokoban-wm", seed))
-    out = results_folder("sokoban-wm", profile, seed)
+    work = hold(work_folder(profile, NAMES.sokoban_wm, seed))
+    out = results_folder(NAMES.sokoban_wm, profile, seed)
     configs = sokoban_wm_configs(profile, seed)
     evaluation = for_profile(SokobanWorldModelsConfig, profile).evaluation()
     collect_cfg = configs["collect"]
@@ -102,7 +103,7 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str
         store_returns = [float(store.episode(i)["rewards"].sum()) for i in range(len(store))]
 
     metrics = {
-        **run_header("sokoban-wm", profile, seed, time.time() - started),
+        **run_header(NAMES.sokoban_wm, profile, seed, time.time() - started),
         "score": score_summary(controllers[SOKOBAN_WM_CONTROLLERS[0]]["returns"]),
         "controllers": {variant: {"score": score_summary(c["returns"]), "solved": c["solved"],
                                   "generations": c["run"].generation, "curve": c["run"].curve}

@@ -11,6 +11,7 @@ import numpy as np
 
 from wmthesis.config import CollectConfig, for_profile, profile_name
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.envs.vector import make_game
 from wmthesis.metrics import score_summary
 from wmthesis.references import published
@@ -44,7 +45,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     wm = _world_model(profile, seed, progress)
     modelling = time.time() - started  # this call's world model: a resumed or cached one trained before it
     work, store, vae, vision, memory = wm.work, wm.store, wm.vae, wm.vision, wm.memory
-    out = results_folder("boxing-wm", profile, seed, BOXING_WM.folder_name(chosen.name))
+    out = results_folder(NAMES.boxing_wm, profile, seed, BOXING_WM.folder_name(chosen.name))
     controller_cfg = controller_config(profile, seed, chosen.name)
     evolving = time.time()
     run = train_controller("boxing", vision, memory, controller_cfg, out_dir=controller_folder(work, chosen.name),
@@ -71,11 +72,11 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     recording = record_frames(out / "open_loop.rrd", {"truth": rollout["truth"], "prediction": rollout["prediction"]},
                               {"pixel_error": rollout["pixel_error"]})
     metrics = {
-        **run_header("boxing-wm", profile, seed, time.time() - started,
+        **run_header(NAMES.boxing_wm, profile, seed, time.time() - started,
                      **({} if BOXING_WM.folder_name(chosen.name) is None else {"variant": chosen.name})),
         "score": score_summary(returns),
         "random_play_in_store": score_summary(random_returns),
-        "reference": published("boxing-wm"),
+        "reference": published(NAMES.boxing_wm),
         "controller_curve": run.curve, "vision_history": wm.vision_history, "memory_history": wm.memory_history,
         **{f"open_loop_{k}": v.tolist() if isinstance(v, np.ndarray) else v for k, v in errors.items()},
         "returns": returns.tolist(),
@@ -123,7 +124,7 @@ class BoxingWorldModel(NamedTuple):
 def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     """Random rollouts -> VAE -> latents -> MDN-RNN under ``data/<profile>/boxing-wm/seed<seed>/``,
     each step cached."""
-    work = hold(work_folder(profile, "boxing-wm", seed))
+    work = hold(work_folder(profile, NAMES.boxing_wm, seed))
 
     collect_cfg, memory_cfg = for_profile(CollectConfig, profile), for_profile(MemoryConfig, profile)
     store = collect("boxing", collect_cfg.episodes, work / "random.h5", workers=collect_cfg.workers, seed=seed,
@@ -132,7 +133,7 @@ def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     latents = encode_store(store, vae, work / "latents.h5", progress=progress)
     memory, memory_history = train_memory(latents, work, memory_cfg, n_actions=18, seed=seed, progress=progress)
     trained = trained_seconds(work / "vision.pt") + trained_seconds(work / f"memory-{memory_cfg.kind}.pt")
-    return BoxingWorldModel(work, results_folder("boxing-wm", profile, seed), store, vae,
+    return BoxingWorldModel(work, results_folder(NAMES.boxing_wm, profile, seed), store, vae,
                             VAEVision(vae), memory, vision_history, memory_history, trained)
 
 

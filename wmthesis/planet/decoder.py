@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from wmthesis.core import RandomMind, loop
+from wmthesis.declarations import NAMES
 from wmthesis.envs.preprocessing import to_float
 from wmthesis.planet.agent import PlanetMind
 from wmthesis.planet.config import PlaNetConfig
@@ -136,8 +137,8 @@ def fit_shipped(game: str, seed: int, profile: str = "quick", bouts: int = 8, pl
     from wmthesis.runs import work_folder
     from wmthesis.stamp import git_commit
 
-    folder = work_folder(profile, "planet-boxing-agent", seed) if game == "boxing" else \
-        work_folder(profile, "planet-freeway", seed, "freeway-tuned")
+    folder = work_folder(profile, NAMES.planet_boxing_agent, seed) if game == "boxing" else \
+        work_folder(profile, NAMES.planet_freeway, seed, "freeway-tuned")
     agent = load_agent(folder / AGENT_NAME)
     started = time.time()
     seeds = [10_000 + k for k in range(bouts)]

@@ -11,11 +11,12 @@ import time
 
 import optuna
 
+from wmthesis.declarations import NAMES
 from wmthesis.planet.tuning import confirm_extremes, ranked, run_search, trial_dir
 from wmthesis.runs import results_folder, run_header, write_json
 from wmthesis.variants import no_variant
 
-EXPERIMENT, GAME = "planet-boxing-search", "planet-boxing"
+EXPERIMENT, GAME = NAMES.planet_boxing_search, NAMES.planet_boxing
 SCALE = 1000.0  # the summary's number: the best trial's error x SCALE
 
 

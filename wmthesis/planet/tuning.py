@@ -30,8 +30,7 @@ and ``open_loop.png``. ``FOLDER`` (:func:`study_dir`) is the study's name for th
 and the name plus the storage's fingerprint (:func:`storage_fingerprint`) for any other: two
 storages holding a study of the same name keep apart.
 
-:func:`run_search` is the entry point; :func:`trial_rows`, :func:`ranked` and
-:func:`search_figure` read a study back (notebook 06).
+:func:`run_search` is the entry point; :func:`trial_rows`, :func:`ranked`, :func:`search_figure` read a study back.
 """
 from __future__ import annotations
 
@@ -59,6 +58,7 @@ from sqlalchemy.engine import make_url
 
 from wmthesis.config import for_profile, profile_name
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.planet.config import SearchConfig
 from wmthesis.planet.figures import open_loop_figure
 from wmthesis.planet.profiles import planet_config
@@ -82,8 +82,8 @@ class Game:
 # Cut-offs (not in the thesis): Boxing the planner's horizon, Freeway our longer one (a crossing
 # takes longer than 12 steps). Boxing's setting is the thesis's (5.6.4), Freeway's our guess.
 GAMES: dict[str, Game] = {
-    "planet-boxing": Game("boxing", 3e-2, 12.0, 12),
-    "planet-freeway": Game("freeway", 8e-3, 3.0, 25),
+    NAMES.planet_boxing: Game("boxing", 3e-2, 12.0, 12),
+    NAMES.planet_freeway: Game("freeway", 8e-3, 3.0, 25),
 }
 # name -> optuna directions (both: score, error)
 OBJECTIVES: dict[str, tuple[str, ...]] = {"score": ("maximize",), "error": ("minimize",), "both": ("maximize", "minimize")}

@@ -2,17 +2,18 @@
 5.6.1-5.6.4 on Boxing, 5.6.5-5.6.6 on Freeway), each a change to :class:`~wmthesis.planet.config.PlaNetConfig`."""
 from __future__ import annotations
 
+from wmthesis.declarations import NAMES
 from wmthesis.variants import Variant, Variants
 
 # Freeway's KL setting (5.6.5: the thesis gives no values; ours), under every Freeway variant.
 FREEWAY_KL = dict(kl_scale=8e-3, free_nats=3.0)
 
 PLANET_SOKOBAN = Variants(
-    "planet-sokoban",
+    NAMES.planet_sokoban,
     Variant("unchanged", "PlaNet as published (5.5.1)", default=True))
 
 PLANET_BOXING = Variants(
-    "planet-boxing",
+    NAMES.planet_boxing,
     Variant("unchanged", "PlaNet as published (5.6.1)"),
     Variant("action-repeat", "action repeat 8 (5.6.2; the thesis gives no value)", dict(action_repeat=8)),
     Variant("decoder-variance", "decoder variance 0.03, which is a KL scale of 3e-2 (5.6.3)",
@@ -22,7 +23,7 @@ PLANET_BOXING = Variants(
     Variant("kl-scale", "KL scale 0.03 itself (5.6.3; the model study's middle configuration)", dict(kl_scale=0.03)))
 
 PLANET_FREEWAY = Variants(
-    "planet-freeway",
+    NAMES.planet_freeway,
     Variant("freeway-tuned", "KL scale 8e-3, free nats 3 (5.6.5; the thesis gives no values: ours)", FREEWAY_KL,
             default=True),
     Variant("long-horizon", "freeway-tuned planning 25 steps ahead (5.6.6; the thesis gives no horizon)",
@@ -37,7 +38,7 @@ PLANET_FREEWAY = Variants(
             dict(explore_scale=10.0), builds_on="freeway-adam"))
 
 REGISTRIES = {registry.experiment: registry for registry in (PLANET_SOKOBAN, PLANET_BOXING, PLANET_FREEWAY)}
-ENVIRONMENTS = {"planet-sokoban": "sokoban-small", "planet-boxing": "boxing", "planet-freeway": "freeway"}
+ENVIRONMENTS = {NAMES.planet_sokoban: "sokoban-small", NAMES.planet_boxing: "boxing", NAMES.planet_freeway: "freeway"}
 
 
 def variant_changes(name: str) -> dict:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from wmthesis.config import for_profile, profile_name
+from wmthesis.declarations import NAMES
 from wmthesis.envs.boxoban import BOXOBAN_SPLITS
 from wmthesis.metrics import aggregate
 from wmthesis.references import BOXOBAN_PUBLISHED
@@ -113,7 +114,7 @@ def lever_rows(profile: str | None = None, seed: int = 0) -> list[list]:
     :func:`validate` wrote, or kept from an earlier baseline under its own name): (lever, its
     changes, unfiltered %, medium %, levels, nodes per level, seconds per level, environment
     steps), the baseline first."""
-    folder = results_folder("sokoban-search", profile_name(profile), seed)
+    folder = results_folder(NAMES.sokoban_search, profile_name(profile), seed)
     found = [result for result in map(read_json, folder.glob("validation-*.json")) if result and "lever" in result]
     found.sort(key=lambda result: (result["lever"] != "baseline", result["lever"]))
     rows = []
@@ -146,7 +147,7 @@ def _seed_rows(name: str, profile: str | None, accept) -> list[list]:
     steps), then the mean, the sample standard deviation and the 95% Student-t interval of the
     mean over the seeds, clipped to 0-100% (:func:`~wmthesis.metrics.aggregate`)."""
 
-    root, found = data_dir("results", "sokoban-search"), []
+    root, found = data_dir("results", NAMES.sokoban_search), []
     for path in sorted(root.glob(f"{profile_name(profile)}-seed*/{name}")):
         result = read_json(path)
         if result and accept(result):

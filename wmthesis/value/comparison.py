@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.metrics import score_difference, score_summary
 from wmthesis.planet.bouts import FIRST_STEPS
 from wmthesis.value.config import LatentValueConfig, ValuePlannerConfig
@@ -33,7 +34,7 @@ from wmthesis.utils import check_choice
 from wmthesis.viz import image_grid, save_figure
 
 
-VALUE_EXPERIMENTS = ("planet-boxing-value", "planet-freeway-value")  # their runs' checkpoint is the value's
+VALUE_EXPERIMENTS = (NAMES.planet_boxing_value, NAMES.planet_freeway_value)  # their runs' checkpoint is the value's
 
 
 def frozen_agent(experiment: str, profile: str, seed: int, variant: str | None = None,

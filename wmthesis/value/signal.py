@@ -23,6 +23,7 @@ from torch import nn
 from wmthesis import runs as run_store
 from wmthesis.config import for_profile
 from wmthesis.data import EpisodeStore
+from wmthesis.declarations import NAMES
 from wmthesis.value.config import LatentValueConfig
 from wmthesis.value.own_rewards import planner_model
 from wmthesis.planet.rssm import RSSM
@@ -82,7 +83,7 @@ def signal_models(profile: str, seed: int) -> dict:
     from wmthesis.agents import agent_file
 
     return {name: run_store.file_sha256(path) if (path := agent_file(name, None, profile, seed)).is_file() else None
-            for name in ("planet-boxing-agent", "planet-boxing-value")}
+            for name in (NAMES.planet_boxing_agent, NAMES.planet_boxing_value)}
 
 
 def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_DEPTHS,
@@ -92,7 +93,7 @@ def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_
     (``value_signal.json``) and read from there when it holds these depths and bouts, was measured
     on the agent files that ship now (their SHA-256) and by this :data:`SIGNAL_VERSION` of the
     measurement, so a fresh clone reads the committed measurement and a changed model measures again."""
-    path = run_store.results_folder("planning-budget", profile, seed) / "value_signal.json"
+    path = run_store.results_folder(NAMES.planning_budget, profile, seed) / "value_signal.json"
     kept, models = run_store.read_json(path), signal_models(profile, seed)
     if kept and kept.get("depths") == list(depths) and kept.get("bouts") == bouts and "correlation" in kept \
             and kept.get("models") == models and kept.get("version") == SIGNAL_VERSION:
@@ -101,7 +102,7 @@ def seed_value_signal(profile: str, seed: int, depths: tuple[int, ...] = SIGNAL_
     if not (value_run / STORE).is_file():
         raise FileNotFoundError(f"{value_run / STORE}: no fitted value for seed {seed} in {profile}; run "
                                 f"`python -m wmthesis reproduce planet-boxing-value --profile {profile} --seed {seed}`")
-    model, planet, value = planner_model(run_store.work_folder(profile, "planet-boxing-agent", seed), value_run, None)
+    model, planet, value = planner_model(run_store.work_folder(profile, NAMES.planet_boxing_agent, seed), value_run, None)
     with EpisodeStore(value_run / STORE, "r") as store:
         episodes = [store.episode(index) for index in range(max(0, len(store) - bouts), len(store))]
     signal = value_signal(model, value, episodes, planet.bits, depths=tuple(depths), seed=seed,

@@ -4,6 +4,7 @@ and bouts (``planet-boxing-value``'s recipe, and what builds on its runs, find t
 from __future__ import annotations
 
 from wmthesis import runs as run_store
+from wmthesis.declarations import NAMES
 from wmthesis.variants import Variant, Variants
 
 # Each variant fits its value on the same frozen model and bouts, in a folder of its own; one that
@@ -13,7 +14,7 @@ from wmthesis.variants import Variant, Variants
 GAME = "boxing"
 LEAN = dict(rounds=10, agent_rounds=3, score_rounds=False)
 VALUE_VARIANTS = Variants(
-    "planet-boxing-value",
+    NAMES.planet_boxing_value,
     Variant("scored-rounds", "the value of the round chosen on validation bouts, every round scored (notebook 09)"),
     Variant("rounds-10", "ten rounds, each scored", dict(value=dict(rounds=10)), builds_on="scored-rounds"),
     Variant("rounds-10-mean-3", "rounds-10's agent as the mean of its last 3 rounds' values (chosen by validate_agents)",
@@ -31,12 +32,12 @@ ROOT = VALUE_VARIANTS.root
 
 def value_folder(profile: str, seed: int, variant: str | None = None):
     """The work folder of the value run of ``variant`` (None: the default) and ``seed``."""
-    return run_store.work_folder(profile, "planet-boxing-value", seed, VALUE_VARIANTS.folder_name(variant))
+    return run_store.work_folder(profile, NAMES.planet_boxing_value, seed, VALUE_VARIANTS.folder_name(variant))
 
 
 def results_folder(profile: str, seed: int, variant: str | None = None):
     """Where the value run of ``variant`` (None: the default) and ``seed`` writes its ``metrics.json`` and figures."""
-    return run_store.results_folder("planet-boxing-value", profile, seed, VALUE_VARIANTS.folder_name(variant))
+    return run_store.results_folder(NAMES.planet_boxing_value, profile, seed, VALUE_VARIANTS.folder_name(variant))
 
 
 __all__ = ["GAME", "LEAN", "VALUE_VARIANTS", "ROOT", "value_folder", "results_folder"]

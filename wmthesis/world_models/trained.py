@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from wmthesis.agents import TrainedAgent, check_episode
+from wmthesis.declarations import NAMES
 from wmthesis.world_models.agent import load_agent
 from wmthesis.world_models.controller import Controller, ControllerMind
 from wmthesis.world_models.decoder import DECODER_NAME, MissingDecoder, attach_decoder
@@ -24,7 +25,7 @@ def shipped_decoder(vision, folder: Path) -> dict | None:
     """Attach the decoder file in ``folder`` (or, for an agent seeing through boxing-wm's vision,
     in boxing-wm's folder of the same seed) to ``vision``; its ``fitted_on``, or None where none
     ships (the vision then refuses to decode, saying why)."""
-    candidates = [folder / DECODER_NAME, folder.parent.parent / "boxing-wm" / folder.name / DECODER_NAME]
+    candidates = [folder / DECODER_NAME, folder.parent.parent / NAMES.boxing_wm / folder.name / DECODER_NAME]
     for path in candidates:
         if path.is_file():
             return attach_decoder(vision.vae, path)

@@ -15,11 +15,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from wmthesis.config import for_variant
+from wmthesis.declarations import NAMES
 from wmthesis.variants import Variant, Variants
 from wmthesis.world_models.config import ControllerConfig
 
 BOXING_WM = Variants(
-    "boxing-wm",
+    NAMES.boxing_wm,
     Variant("population-16", "the first quick recipe: CMA-ES with a population of 16, 2 bouts a candidate, "
             "45 generations (stalled on 2 seeds of 5)"),
     Variant("separable-64", "separable CMA-ES with the thesis's population of 64, 1 bout a candidate "
