@@ -71,3 +71,9 @@ class EpisodeGuard(gym.Wrapper):
         if terminated or truncated:
             self._state = "ended"
         return observation, reward, terminated, truncated, info
+
+
+def check_positive(name: str, value) -> None:
+    """Refuse ``value`` unless it is a positive integer (a bool is not), in one line naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")

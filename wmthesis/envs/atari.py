@@ -16,7 +16,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from wmthesis.envs.actions import EpisodeGuard
+from wmthesis.envs.actions import EpisodeGuard, check_positive
 from wmthesis.envs.preprocessing import CROPS, crop_resize, quantize
 from wmthesis.utils import check_choice
 
@@ -77,11 +77,6 @@ def make_atari(game: str, preprocessing: str = "none", action_repeat: int = 4,
     if max_steps is not None:
         env = gym.wrappers.TimeLimit(env, max_episode_steps=max_steps)
     return EpisodeGuard(env)
-
-
-def check_positive(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
 
 
 class NoopStart(gym.Wrapper):

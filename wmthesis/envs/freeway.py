@@ -16,7 +16,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from wmthesis.envs.atari import check_positive
+from wmthesis.envs.actions import check_positive
 
 # Player 1's height on the road (it rises as the chicken crosses), from AtariARI's RAM
 # annotations (Anand et al. 2019, mila-iqia/atari-representation-learning).

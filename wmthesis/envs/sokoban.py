@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from wmthesis.envs.actions import check_action, check_order
+from wmthesis.envs.actions import check_action, check_order, check_positive
 from wmthesis.envs.boxoban import load_levels
 from wmthesis.envs.levels import (BOX, BOX_ON_TARGET, CELL_NAMES, FLOOR, PLAYER, PLAYER_ON_TARGET, TARGET, WALL,
                                   check_board, fit_board, parse_level)
@@ -68,6 +68,9 @@ class SokobanEnv(gym.Env):
                  render_mode="rgb_array", tile_size=16, frame_size=None, levels=None):
         check_choice("observation", observation, OBSERVATIONS)
         check_choice("render_mode", render_mode, RENDER_MODES)
+        for name, value in (("dim_room's height", dim_room[0]), ("dim_room's width", dim_room[1]),
+                            ("num_boxes", num_boxes), ("max_steps", max_steps), ("tile_size", tile_size)):
+            check_positive(name, value)
         h, w = (int(n) for n in dim_room)
         if min(h, w) < 3 or num_boxes < 1 or max_steps < 1 or tile_size < 1:
             raise ValueError(f"need dim_room >= (3, 3), num_boxes >= 1, max_steps >= 1 and "
