@@ -12,6 +12,10 @@ if os.environ.get("PYTEST_XDIST_WORKER"):  # each worker process (pytest -n) get
     os.environ["WMTHESIS_DATA"] = os.path.join(os.environ["WMTHESIS_DATA"], os.environ["PYTEST_XDIST_WORKER"])
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as wmthesis sets it; torch is imported below
+# The two test workers keep both cores busy: each runs as on a 1-core machine (one torch thread,
+# the package's pools in-process), which spares every pool's spawned processes their start.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("WMTHESIS_PROCESSES", "1")
 
 import pytest  # noqa: E402
 import torch  # noqa: E402

@@ -280,6 +280,9 @@ def test_a_store_that_cannot_be_created_or_read_says_which_and_what_to_do(tmp_pa
     (["sweep", "boxing-wm:nope", "--seeds", "0"], "unknown variant 'nope'"),
     (["budget-curve", "mcts", "--validation", "--search", "root=chess"], "unknown root 'chess'"),
     (["play", "boxing-wm", "--variant", "nope"], "unknown variant 'nope'"),
+    (["reproduce", "sokoban-wm", "--seed", str(10**20)], "out of range (valid: 0 to 2,147,483,647)"),
+    (["play", "boxing-wm", "--seed", "-1"], "out of range (valid: 0 to 2,147,483,647)"),
+    (["summary", "--results", "/no/such/folder"], "--results /no/such/folder: no such folder"),
 ])
 def test_the_command_line_checks_its_arguments_before_torch_ray_or_ale_py_load(argv, says):
     import subprocess
@@ -290,6 +293,8 @@ def test_the_command_line_checks_its_arguments_before_torch_ray_or_ale_py_load(a
             "print(code, sorted(m for m in ('torch', 'ray', 'ale_py', 'gymnasium') if m in sys.modules))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.split() == ["2", "[]"] and says in done.stderr, (done.stdout, done.stderr)
+    if argv[0] in ("validate", "summary"):  # our own refusals are one line (argparse's add its usage)
+        assert done.stderr.count("\n") == 1, done.stderr
 
 
 def test_ctrl_c_in_any_command_is_one_line_and_exit_status_130(monkeypatch, capsys):
@@ -342,8 +347,35 @@ def test_a_batched_game_checks_its_actions_as_a_single_game_does(actions, says):
         game = make_game(name, 2)
         try:
             game.reset(np.array([0, 1]))
-            with pytest.raises(ValueError, match=re.escape(says)):
+            with pytest.raises(ValueError, match=re.escape(says)) as refused:
                 game.step(actions)
+            assert "\n" not in str(refused.value)  # one line
             game.step(np.array([0, 1]))  # a good batch still plays
         finally:
             game.close()
+
+
+def test_a_levels_file_that_is_no_text_and_help_are_answered_before_torch_loads(tmp_path):
+    import subprocess
+    import sys
+
+    binary = tmp_path / "levels.txt"
+    binary.write_bytes(bytes(range(256)))
+    code = ("import sys\nfrom wmthesis.__main__ import main\n"
+            f"code = main(['solve-sokoban', {str(binary)!r}, '--profile', 'smoke'])\n"
+            "try:\n    main(['--help'])\nexcept SystemExit as e:\n    code = (code, e.code)\n"
+            "print(code, sorted(m for m in ('torch', 'ray', 'ale_py') if m in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
+    assert done.stdout.splitlines()[-1] == "(2, 0) []", done.stdout
+    assert done.stderr.count("\n") == 1 and f"{binary}" in done.stderr and "usage:" in done.stdout
+
+
+def test_a_seed_out_of_range_is_refused_before_any_folder_is_made(tmp_path, monkeypatch):
+    from wmthesis.experiments import reproduce
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    for seed, says in ((10**20, "seeds are from 0 to 2,147,483,647"), (-1, "seeds are from 0"),
+                       (1.5, "a seed is an integer")):
+        with pytest.raises(ValueError, match=says):
+            reproduce("sokoban-wm", "smoke", seed, progress=False)
+    assert list(tmp_path.iterdir()) == []

@@ -151,3 +151,67 @@ def test_the_models_refuse_nan_at_their_door():
         vision.decode(np.full((1, 8), np.nan, np.float32))
     with pytest.raises(ValueError, match="uint8 frames"):
         vision(np.full((1, 64, 64, 3), np.nan, np.float32))
+
+
+SHIPPED_DATA = str(__import__("pathlib").Path(__file__).resolve().parents[1] / "data")
+
+
+def test_play_record_onto_a_full_disk_is_one_line_exit_1_and_leaves_no_half_file(tmp_path, monkeypatch, capsys):
+    from wmthesis.__main__ import main
+
+    monkeypatch.setenv("WMTHESIS_DATA", SHIPPED_DATA)  # the shipped agent
+    no_space(monkeypatch)
+    assert main(["play", "boxing-wm", "--profile", "quick", "--bouts", "1", "--record", str(tmp_path / "bout.rrd"),
+                 "--video", str(tmp_path / "bout.mp4")]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1].startswith(f"error: no space left on {tmp_path}: bout.rrd was not written"), err
+    assert "Traceback" not in err and list(tmp_path.iterdir()) == []
+
+
+def test_solve_sokoban_out_onto_a_full_disk_is_one_line_exit_1_and_leaves_no_half_file(tmp_path, monkeypatch, capsys):
+    import os
+
+    from wmthesis.__main__ import main
+
+    monkeypatch.setenv("WMTHESIS_DATA", SHIPPED_DATA)
+    levels, out = tmp_path / "levels.txt", tmp_path / "out" / "solved.json"
+    levels.write_text("#####\n#@$.#\n#####\n")
+    out.parent.mkdir()
+    replace = os.replace
+
+    def full(source, target):  # the disk fills as the answers are moved into place
+        if str(target) == str(out):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return replace(source, target)
+
+    monkeypatch.setattr(runs.os, "replace", full)
+    assert main(["solve-sokoban", str(levels), "--profile", "quick", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("levels:")]  # the bar aside
+    assert lines == [f"error: no space left on {out.parent}: solved.json was not written; free some space and run it "
+                     "again"], err
+    assert list(out.parent.iterdir()) == []
+
+
+def test_outputs_that_take_no_file_are_refused_before_anything_heavy_loads(tmp_path):
+    """``/proc`` takes no new file though it looks writable to root; a folder is no file: each
+    output refused in one line naming the user's path, before torch, ale-py or the agent load."""
+    import subprocess
+    import sys
+
+    (tmp_path / "folder.mp4").mkdir()
+    cases = [(["play", "boxing-wm", "--record", "/proc/x.rrd"], "/proc/x.rrd cannot be written"),
+             (["play", "boxing-wm", "--video", "/proc/x.mp4"], "/proc/x.mp4 cannot be written"),
+             (["play", "boxing-wm", "--video", str(tmp_path / "folder.mp4")], f"{tmp_path}/folder.mp4 is a folder"),
+             (["collect", "boxing", "--out", "/proc/x.h5"], "/proc/x.h5 cannot be written")]
+    code = ("import sys, contextlib, io\nfrom wmthesis.__main__ import main\n"
+            f"for argv, _ in {cases!r}:\n"
+            "    err = io.StringIO()\n"
+            "    with contextlib.redirect_stderr(err):\n"
+            "        code = main(argv)\n"
+            "    heavy = sorted(m for m in ('torch', 'ray', 'ale_py') if m in sys.modules)\n"
+            "    print(repr((code, err.getvalue(), heavy)))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
+    for (argv, says), line in zip(cases, done.stdout.splitlines()):
+        status, err, heavy = eval(line)
+        assert status == 2 and says in err and err.count("\n") == 1 and ".tmp" not in err and heavy == [], (argv, line)

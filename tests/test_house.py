@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import json
 import os
+import shutil
 import warnings
 from pathlib import Path
 
@@ -153,12 +154,12 @@ def test_the_readme_holds_the_table_the_summary_writes_within_its_first_60_lines
 def test_every_declaration_resolves_and_names_only_declared_experiments():
     """Each experiment's one declaration: its recipe, variants, agent loader and score reader
     resolve; what it builds on is declared before it; the shipped agents' files are where it says."""
-    from wmthesis.declarations import DECLARATIONS, EXPERIMENTS as DECLARED, resolve
+    from wmthesis.declarations import DECLARED as DECLARATIONS, EXPERIMENTS as DECLARED, resolve
     from wmthesis.agents import agent_file
 
     assert DECLARED == EXPERIMENTS and tuple(RECIPES) == DECLARED
     seen = set()
-    for d in DECLARATIONS:
+    for d in DECLARATIONS.values():
         assert callable(resolve(d.recipe)) and callable(resolve(d.score))
         assert set(d.builds_on) <= seen, d.name  # declared in order: what it builds on comes first
         assert (d.registry() is None) == (d.name not in VARIANTS)
@@ -190,6 +191,13 @@ def test_the_summary_never_replaces_the_readmes_table_with_one_from_fewer_runs(t
     assert readme.read_text() == before and not (empty / "summary.md").exists()  # nothing written
     write_summary(empty, readme, force=True)
     assert "not run yet" in readme.read_text()
+    readme.write_text(before)  # a folder with one seed fewer of World Models on Boxing
+    fewer = tmp_path / "fewer"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "data" / "results", fewer)
+    shutil.rmtree(fewer / "boxing-wm" / "quick-seed0")
+    with pytest.raises(ValueError, match=r"it would drop World Models on Boxing \(10 -> 9 seeds\)"):
+        write_summary(fewer, readme)
+    assert readme.read_text() == before
 
 
 def test_no_branch_on_an_experiments_name_outside_the_declarations():

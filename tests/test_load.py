@@ -188,6 +188,11 @@ def test_a_file_of_another_game_or_variant_is_refused_naming_both(tmp_path, monk
     shutil.copy(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", vision)
     with pytest.raises(ValueError, match=rf"{own_memory} holds boxing-wm-alphazero's imitation agent, not own-memory"):
         wmthesis.load("boxing-wm-alphazero")
+    sokoban = wmthesis.agent_file("sokoban-search")  # a World Models agent in the Sokoban agent's place
+    sokoban.parent.mkdir(parents=True)
+    shutil.copy(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", sokoban)
+    with pytest.raises(ValueError, match=rf"{sokoban} holds a \S+ file \(version \d+\), not a Sokoban search run's"):
+        wmthesis.load("sokoban-search")
 
 
 def test_alphazero_agents_can_share_the_vision_of_their_world_models_agent(tmp_path):

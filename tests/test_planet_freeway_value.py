@@ -9,7 +9,33 @@ from wmthesis.data import EpisodeStore
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # see conftest.py
 
 
-def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_episodes(tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """The default run (PlaNet on Freeway and its value, smoke, seed 0), trained once for the module."""
+    import torch
+
+    from wmthesis.experiments import reproduce
+
+    folder, threads = tmp_path_factory.mktemp("freeway-value"), torch.get_num_threads()
+    torch.set_num_threads(1)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("WMTHESIS_DATA", str(folder))
+        reproduce("planet-freeway-value", "smoke", 0, progress=False)
+    torch.set_num_threads(threads)
+    return folder
+
+
+@pytest.fixture
+def default_run(trained, tmp_path, monkeypatch):
+    """A copy of the module's default run (files and their times) as this test's data folder."""
+    import shutil
+
+    shutil.copytree(trained, tmp_path, dirs_exist_ok=True)
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    return tmp_path
+
+
+def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_episodes(default_run):
     from wmthesis.experiments import reproduce
     from wmthesis.config import for_profile
     from wmthesis.experiments.planet_freeway_value import FREEWAY_VALUE
@@ -17,7 +43,7 @@ def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_epi
     from wmthesis.summary import run_scores
     from wmthesis.value.play import evaluation_seeds
 
-    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    tmp_path = default_run
     metrics = reproduce("planet-freeway-value", "smoke", 0, progress=False)
     planet_run, work = tmp_path / "smoke" / "planet-freeway" / "freeway-tuned-seed0", tmp_path / "smoke" / "planet-freeway-value" / "seed0"
     with EpisodeStore(planet_run / "episodes.h5") as planet, EpisodeStore(work / "episodes.h5") as value:
@@ -43,13 +69,13 @@ def test_freeway_value_starts_from_planets_episodes_and_compares_on_the_same_epi
     assert (work / "baseline-bouts.json").stat().st_mtime_ns == played
 
 
-def test_always_up_is_added_to_a_run_saved_without_it_playing_only_its_own_episodes(tmp_path, monkeypatch):
+def test_always_up_is_added_to_a_run_saved_without_it_playing_only_its_own_episodes(default_run):
     import json
 
     from wmthesis.experiments import reproduce
     from wmthesis.experiments.planet_freeway_value import BASELINES
 
-    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    tmp_path = default_run
     metrics = reproduce("planet-freeway-value", "smoke", 0, progress=False)
     assert set(metrics["baselines"]) == set(BASELINES)
     up = metrics["baselines"]["always-up"]
@@ -69,14 +95,14 @@ def test_always_up_is_added_to_a_run_saved_without_it_playing_only_its_own_episo
     assert again["baselines"] == metrics["baselines"] and again["planet"] == metrics["planet"]
 
 
-def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_variant_fits_its_own(tmp_path, monkeypatch):
+def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_variant_fits_its_own(default_run):
     import json
 
     from wmthesis.experiments import reproduce
     from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS
     from wmthesis.summary import run_scores
 
-    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    tmp_path = default_run
     with pytest.raises(ValueError, match="valid: default, td, horizon-12, freeway-adam, adam-td"):
         reproduce("planet-freeway-value", "smoke", 0, variant="nope", progress=False)
     default = reproduce("planet-freeway-value", "smoke", 0, progress=False)
@@ -115,13 +141,13 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     assert not (work / "seed0" / "plan_choices.json").exists()  # the default's folder is left alone
 
 
-def test_open_loop_check_scores_the_frozen_model_on_moving_pixels_against_both_baselines(tmp_path, monkeypatch):
+def test_open_loop_check_scores_the_frozen_model_on_moving_pixels_against_both_baselines(default_run):
     import json
 
     from wmthesis.planet.study import study_sizes
     from wmthesis.experiments.planet_freeway_value import open_loop_check
 
-    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    tmp_path = default_run
     check = open_loop_check("smoke", 0, progress=False)
     horizon = study_sizes("smoke")["horizon"]
     assert all(len(check["errors"][name]) == horizon for name in ("model", "repeat last", "mean frame"))
@@ -240,7 +266,7 @@ def test_lookahead_ceiling_plays_each_horizon_once_on_the_evaluation_episodes(tm
     assert saved.stat().st_mtime_ns == played  # a finished ceiling plays nothing again
 
 
-def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_own_episode(tmp_path, monkeypatch):
+def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_own_episode(tmp_path, monkeypatch, request):
     from wmthesis.envs.freeway import play_lookahead
     from wmthesis.experiments.planet_freeway_value import GAME, UP, when_to_wait
     from wmthesis.config import for_profile
@@ -250,10 +276,12 @@ def test_when_to_wait_sets_each_planners_choices_beside_the_lookaheads_on_its_ow
     from wmthesis.value.play import evaluation_seeds
     from wmthesis.value.planner import PLANNERS
 
-    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    empty = tmp_path / "empty"
+    monkeypatch.setenv("WMTHESIS_DATA", str(empty))
     with pytest.raises(ValueError, match=r"lookahead horizons must be positive integers, got \(0,\)"):
         when_to_wait("smoke", 0, variant=None, horizon=0, progress=False)
-    assert not (tmp_path / "smoke").exists()  # refused before any model or value was trained
+    assert not (empty / "smoke").exists()  # refused before any model or value was trained
+    tmp_path = request.getfixturevalue("default_run")
     found = when_to_wait("smoke", 0, variant=None, horizon=3, progress=False)
     env = make_planet_env(GAME, planet_config(GAME, "smoke"))
     lookahead = play_lookahead(env, 3, evaluation_seeds(0, 0)[0])["actions"][:for_profile(ValueEvaluationConfig, "smoke").plan_steps]

@@ -124,6 +124,12 @@ def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path
         saved_metrics.write_text(json.dumps({**metrics, "planet": planet, "first_run_wall_seconds": 1e6}))
         again = reproduce("planet-boxing-value", "smoke", 0, progress=False)  # cached: it plays nothing again
         assert (again["first_run_wall_seconds"] == 1e6) == kept and again["value"] == metrics["value"]
+    saved_metrics.unlink()  # written again by a call that fits nothing: the rounds' sittings count
+    again = reproduce("planet-boxing-value", "smoke", 0, progress=False)
+    import torch
+
+    rounds = torch.load(next(tmp_path.rglob("value.pt")), weights_only=False)["seconds"]
+    assert rounds > 0 and again["first_run_wall_seconds"] >= round(again["wall_seconds"] + 0.9 * rounds, 1)
     result = play_module.play("planet-boxing-value", profile="smoke", bouts=2, record=tmp_path / "bouts.rrd",
                               on_play=lambda line: None)
     assert [p["return"] for p in result["plays"]] == metrics["value_planner"]["returns"][:2]

@@ -1,6 +1,7 @@
 """Sokoban solved by search in a learned model: levels as text, the search, the model, the
 experience file, resuming, saved solutions and bad input."""
 import json
+import re
 import shutil
 import zlib
 
@@ -78,9 +79,15 @@ def test_a_boxoban_file_holds_several_levels_and_outside_floor_becomes_wall(tmp_
     ("#####\n#@$ #\n#####", "exactly one target per box"),
     ("######\n#@$..#\n######", "exactly one target per box; found 1 boxes and 2 targets"),  # a spare target
 ])
-def test_unplayable_levels_are_refused_naming_why(text, words):
+def test_unplayable_levels_are_refused_naming_why(text, words, tmp_path):
     with pytest.raises(LevelError, match=words):
         parse_level(text, "my level")
+    from wmthesis.envs.boxoban import load_levels
+
+    levels = tmp_path / "mine.txt"  # in a file, after a good level: the file, the level's index and why
+    levels.write_text(f"; 0\n#####\n#@$.#\n#####\n\n; 1\n{text}\n")
+    with pytest.raises(LevelError, match=rf"^{re.escape(str(levels))}, level 1: .*{words}"):
+        load_levels(levels)
 
 
 def test_env_resets_to_a_text_level_padded_with_wall_to_its_room():

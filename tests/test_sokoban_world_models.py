@@ -240,5 +240,13 @@ def test_command_line_reproduces_sokoban_and_resumes(smoke_metrics, capsys):
     assert main(["reproduce", "sokoban-wm", "--profile", "smoke"]) == 0
     assert f"score {smoke_metrics['score']['mean']:.1f}" in capsys.readouterr().out
     assert [p.stat().st_mtime_ns for p in checkpoints] == stamps  # nothing retrained
+    # written again by a call that trains nothing: the time it states for a run from scratch counts the sittings before it
+    saved = Path(smoke_metrics["files"]["recording"]).parent / "metrics.json"
+    saved.unlink()
+    assert main(["reproduce", "sokoban-wm", "--profile", "smoke"]) == 0
+    again = json.loads(saved.read_text())
+    evolved = sum(g["seconds"] for c in smoke_metrics["controllers"].values() for g in c["curve"])
+    assert evolved > 0 and again["first_run_wall_seconds"] > again["wall_seconds"] + 0.9 * evolved
+    assert [p.stat().st_mtime_ns for p in checkpoints] == stamps
     assert main(["reproduce", "sokoban-wm", "--variant", "grid", "--profile", "smoke"]) == 2
     assert "has no variants" in capsys.readouterr().err

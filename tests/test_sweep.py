@@ -509,3 +509,48 @@ def test_a_new_experiment_is_one_recipe_module_and_one_declaration(local_ray, tm
         DECLARED.pop("toy", None)
         sys.path.remove(str(tmp_path))
     assert "toy" not in EXPERIMENTS
+
+
+def test_a_killed_driver_leaves_no_run_going_on(tmp_path):
+    """A sweep's driver killed outright (SIGKILL: no Ctrl-C handler runs): the worker running its
+    task ends within a few checks of the driver (the run resumes from its checkpoints next time)."""
+    import subprocess
+
+    pid_file = tmp_path / "worker.pid"
+    code = (f"import os, time\nos.environ['WMTHESIS_DATA'] = {str(tmp_path)!r}\n"
+            "from wmthesis.sweep import SweepRun, sweep\n"
+            "def sleeps(name, profile, seed, variant=None, progress=True):\n"
+            f"    open({str(pid_file)!r}, 'w').write(str(os.getpid()))\n"
+            "    time.sleep(300)\n"
+            "sweep([SweepRun('planet-freeway', None, 11)], 'smoke', runner=sleeps, progress=False)\n")
+    driver = subprocess.Popen([sys.executable, "-c", code], start_new_session=True,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = None
+    try:
+        deadline = time.time() + 120
+        while worker is None and time.time() < deadline and driver.poll() is None:
+            time.sleep(0.5)
+            if pid_file.is_file() and pid_file.read_text():
+                worker = int(pid_file.read_text())
+        assert worker is not None, "the task never started"
+        driver.kill()
+        driver.wait()
+        deadline = time.time() + 30
+        while _running(worker) and time.time() < deadline:
+            time.sleep(0.5)
+        assert not _running(worker), "the worker outlived its driver"
+    finally:
+        if worker is not None and _running(worker):
+            os.kill(worker, signal.SIGKILL)
+        try:
+            os.killpg(driver.pid, signal.SIGKILL)  # Ray's own processes of the driver's session
+        except ProcessLookupError:
+            pass
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False

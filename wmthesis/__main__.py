@@ -50,22 +50,28 @@ from wmthesis.config import (ATARI_ENVIRONMENTS, PLANNERS, CollectConfig, ENVIRO
                              for_profile)
 from wmthesis.runs import DiskFull, FolderHeld, check_writable, write_json
 from wmthesis.declarations import NAMES, Declared, check_run
-from wmthesis.utils import data_dir, parse_seeds
+from wmthesis.utils import MAX_SEED, data_dir, parse_seeds
 
 
-def at_least(minimum: int):
-    """An argparse type: an integer >= ``minimum``, refused with the valid range otherwise."""
+def at_least(minimum: int, most: int | None = None):
+    """An argparse type: an integer >= ``minimum`` (and <= ``most``, where given), refused with the
+    valid range otherwise."""
+    valid = f"{minimum} or more" if most is None else f"{minimum} to {most:,}"
+
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer (valid: {minimum} or more)") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"{value} is out of range (valid: {minimum} or more)")
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer (valid: {valid})") from None
+        if value < minimum or (most is not None and value > most):
+            raise argparse.ArgumentTypeError(f"{value} is out of range (valid: {valid})")
         return value
 
-    parse.__name__ = f"integer >= {minimum}"
+    parse.__name__ = f"integer >= {minimum}" if most is None else f"integer in {minimum}-{most}"
     return parse
+
+
+SEED = at_least(0, MAX_SEED)  # a run's seed: every generator and store of the package takes 31 bits
 
 
 def default_store_path(env: str, preprocessing: str | None) -> Path:
@@ -73,8 +79,6 @@ def default_store_path(env: str, preprocessing: str | None) -> Path:
 
 
 def cmd_collect(args) -> int:
-    from wmthesis.rollouts import collect
-
     cfg = for_profile(CollectConfig, args.profile)
     episodes = cfg.episodes if args.episodes is None else args.episodes
     if episodes == 0:
@@ -85,6 +89,8 @@ def cmd_collect(args) -> int:
     out = Path(args.out) if args.out else default_store_path(args.env, preprocessing)
     if args.out:  # the user's path, checked before anything plays (the default folder is made)
         check_writable(out, ".h5", make_folder=True)
+    from wmthesis.rollouts import collect  # heavy: the emulator and torch
+
     workers = cfg.workers if args.workers is None else args.workers
     path = collect(args.env, episodes, out, workers=workers, seed=args.seed,
                    preprocessing=preprocessing, max_steps=max_steps)
@@ -143,18 +149,18 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_solve_sokoban(args) -> int:
-
-    from wmthesis.sokoban_search.config import SokobanSearchConfig
     from wmthesis.config import for_profile, profile_name
-    from wmthesis.envs.boxoban import load_levels
+    from wmthesis.envs.boxoban import load_levels  # light: numpy and gymnasium, no torch
+
+    profile = profile_name(args.profile)
+    if args.out:  # the user's path and the levels, checked before any model loads or level is played
+        check_writable(args.out, ".json")
+    boards = load_levels(args.levels)
     from wmthesis.experiments.sokoban_search import work_folder
+    from wmthesis.sokoban_search.config import SokobanSearchConfig
     from wmthesis.sokoban_search.evaluation import solve_boards
     from wmthesis.sokoban_search.iteration import evaluation_search, load_run
 
-    profile = profile_name(args.profile)
-    if args.out:  # the user's path, checked before any level is played
-        check_writable(args.out, ".json")
-    boards = load_levels(args.levels)
     folder = work_folder(profile, args.seed) / "pixels"
     run = load_run(folder)
     if run is None:
@@ -299,15 +305,15 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_summary(args) -> int:
+    folder = Path(args.results) if args.results else None
+    if folder is not None and not folder.is_dir():  # before matplotlib and torch load
+        raise ValueError(f"--results {args.results}: no such folder")
     import matplotlib
 
     matplotlib.use("Agg")
     from wmthesis.headline import BEGIN
     from wmthesis.summary import markdown_table, write_summary
 
-    folder = Path(args.results) if args.results else None
-    if folder is not None and not folder.is_dir():
-        raise ValueError(f"--results {args.results}: no such folder")
     readme = Path(__file__).resolve().parents[1] / "README.md"  # the checkout's front door, where its results block is
     with_table = folder is None and readme.is_file() and BEGIN in readme.read_text()
     rows = write_summary(folder, readme if with_table else None, force=args.force)
@@ -327,7 +333,7 @@ def parser() -> argparse.ArgumentParser:
     collect.add_argument("--episodes", type=at_least(0), help="episodes wanted in the store (default: profile's)")
     collect.add_argument("--workers", type=at_least(1))
     collect.add_argument("--out", help="store path (default: data/ENV-PREPROCESSING.h5)")
-    collect.add_argument("--seed", type=at_least(0), default=0)
+    collect.add_argument("--seed", type=SEED, default=0)
     collect.add_argument("--max-steps", type=at_least(1), help="cut episodes after this many steps")
     collect.add_argument("--preprocessing", choices=("none", "world_models", "planet"))
     collect.add_argument("--profile", choices=PROFILES)
@@ -342,7 +348,7 @@ def parser() -> argparse.ArgumentParser:
     reproduce = commands.add_parser("reproduce", help="run a thesis experiment end to end (resumable)")
     reproduce.add_argument("experiment", choices=EXPERIMENTS)
     reproduce.add_argument("--profile", choices=PROFILES)
-    reproduce.add_argument("--seed", type=at_least(0), default=0)
+    reproduce.add_argument("--seed", type=SEED, default=0)
     reproduce.add_argument("--variant", help="a variant of the experiment (PlaNet's: see its --help)")
     reproduce.set_defaults(run=cmd_reproduce)
 
@@ -350,7 +356,7 @@ def parser() -> argparse.ArgumentParser:
     solve.add_argument("levels", help="a text file of levels (# wall, . target, $ box, @ player; '; N' lines between), "
                                       "or Boxoban levels: boxoban-SET[:FILES], e.g. boxoban-medium-valid:005-009")
     solve.add_argument("--profile", choices=PROFILES)
-    solve.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
+    solve.add_argument("--seed", type=SEED, default=0, help="the seed of the trained run")
     solve.add_argument("--out", help="JSON results (default: LEVELS.solutions.json)")
     solve.add_argument("--max-steps", type=at_least(1), default=120, help="steps allowed per level")
     solve.set_defaults(run=cmd_solve_sokoban)
@@ -360,7 +366,7 @@ def parser() -> argparse.ArgumentParser:
     budget.add_argument("--budgets", help="budgets in place of the profile's: 16,64,256 (mcts: simulations; "
                                           "sokoban-search: nodes) or 6x100x3,12x100x3 (cem: horizon x candidates x iterations)")
     budget.add_argument("--profile", choices=PROFILES)
-    budget.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained models")
+    budget.add_argument("--seed", type=SEED, default=0, help="the seed of the trained models")
     budget.add_argument("--validation", action="store_true",
                         help="mcts: play the validation bouts (to choose on; written to validation-VARIANT.json, "
                              "not reported)")
@@ -373,7 +379,7 @@ def parser() -> argparse.ArgumentParser:
     player = commands.add_parser("play", help="a trained agent plays, with no training")
     player.add_argument("experiment", choices=EXPERIMENTS)
     player.add_argument("--profile", choices=PROFILES)
-    player.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
+    player.add_argument("--seed", type=SEED, default=0, help="the seed of the trained run")
     player.add_argument("--variant", help="a variant of the experiment (default: its default)")
     player.add_argument("--bouts", type=at_least(1), default=10, help="bouts or levels to play (default 10)")
     player.add_argument("--record", help="a rerun recording (.rrd) of every step: the real frame beside what the "
@@ -397,7 +403,7 @@ def parser() -> argparse.ArgumentParser:
     report.add_argument("--levels", type=at_least(1), default=1000, help="the first N levels of each report set "
                                                                          "(default 1000)")
     report.add_argument("--profile", choices=PROFILES)
-    report.add_argument("--seed", type=at_least(0), default=0, help="the seed of the trained run")
+    report.add_argument("--seed", type=SEED, default=0, help="the seed of the trained run")
     report.set_defaults(run=cmd_evaluate_sokoban)
 
     search = commands.add_parser("search", help="random search over KL scale x free nats (optuna)")
@@ -407,7 +413,7 @@ def parser() -> argparse.ArgumentParser:
     search.add_argument("--storage", help="optuna storage URL (default: sqlite file under data/search/)")
     search.add_argument("--profile", choices=PROFILES)
     search.add_argument("--objective", choices=("score", "error", "both"))
-    search.add_argument("--seed", type=at_least(0), help="study seed (the sampler's and every trial's)")
+    search.add_argument("--seed", type=SEED, help="study seed (the sampler's and every trial's)")
     search.set_defaults(run=cmd_search)
 
     sweep = commands.add_parser("sweep", help="seeds of experiments as Ray tasks, then the summary (resumable)")

@@ -100,7 +100,7 @@ class Declaration:
         return None if self.variants is None else resolve(self.variants)
 
 
-DECLARATIONS = (
+DECLARATIONS = (  # the thesis's and ours, built in; DECLARED holds them and every one declare() adds
     Declaration(NAMES.sokoban_wm, "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models",
                 published="wmthesis.references:SOKOBAN_WM_FIGURES"),
     Declaration(NAMES.boxing_wm, "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
@@ -184,7 +184,11 @@ class Declared(Sequence):
         return len(self.names())
 
     def __eq__(self, other) -> bool:
+        if not isinstance(other, Sequence):
+            return NotImplemented
         return tuple(self) == tuple(other)
+
+    __hash__ = None  # a live view: its members change as experiments are declared
 
     def __repr__(self) -> str:
         return repr(self.names())

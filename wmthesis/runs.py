@@ -223,6 +223,14 @@ def first_run_seconds(path: Path, seconds: float, same: Callable[[dict], bool] |
         return seconds
 
 
+def over_sittings(seconds: float, recorded: float | None, recorded_here: float) -> float:
+    """A run's wall time over every sitting: this call's ``seconds`` plus the time its checkpoints
+    record (``recorded``: training, evolution or rounds, summed over every sitting; None: none
+    recorded) beyond this call's own share of it (``recorded_here``, the seconds this call spent in
+    the resumed stages)."""
+    return seconds + max(0.0, (recorded or 0.0) - recorded_here)
+
+
 # ----------------------------------------------------------------------------- agent files
 def save_agent_file(path: str | os.PathLike, form: str, version: int, **fields) -> Path:
     """A trained agent in one torch file at ``path``, written whole: its ``form`` and ``version``
@@ -416,6 +424,6 @@ def _alive(pid) -> bool:
 
 __all__ = ["work_folder", "results_folder", "register_runner", "built_on", "DiskFull", "MIN_FREE_BYTES", "is_disk_full",
            "check_space", "check_writable", "atomic_path", "write_json", "read_json", "jsonable", "cached",
-           "run_header", "first_run_seconds", "cached_for", "played_bouts", "played_groups", "partial_path",
+           "run_header", "first_run_seconds", "over_sittings", "cached_for", "played_bouts", "played_groups", "partial_path",
            "run_jobs", "LOCK_NAME", "FolderHeld", "hold", "release", "releasing_holds", "save_agent_file",
            "read_agent_file"]

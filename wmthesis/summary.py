@@ -311,16 +311,27 @@ def write_summary(folder: str | Path | None = None, readme: str | Path | None = 
 
 
 def check_not_fewer(readme: str, table: str, folder: Path) -> None:
-    """ValueError where ``table`` leaves "not run yet" a headline row that ``readme``'s table fills."""
-    def unfilled(text: str) -> set[str]:
-        return {line.split(" | ")[0].lstrip("| ") for line in text.splitlines() if "| not run yet |" in line}
-
+    """ValueError where ``table`` shows a headline row that ``readme``'s table shows over fewer
+    seeds, or leaves it "not run yet"."""
     start = readme.find(BEGIN)
-    held = readme[start:readme.find(END, start)] if start >= 0 else ""
-    dropped = sorted(unfilled(table) - unfilled(held))
-    if held and dropped:
+    held = _seeds_shown(readme[start:readme.find(END, start)] if start >= 0 else "")
+    shown = _seeds_shown(table)
+    dropped = [f"{title} ({n} -> {shown.get(title, 0)} seeds)" for title, n in held.items() if shown.get(title, 0) < n]
+    if dropped:
         raise ValueError(f"{folder} holds fewer runs than the README's table: it would drop {'; '.join(dropped)} "
                          "(is WMTHESIS_DATA the folder you meant? `summary --force` writes it anyway)")
+
+
+def _seeds_shown(table: str) -> dict[str, int]:
+    """A headline table's rows: title -> the seeds it is shown over (0: not run yet)."""
+    seeds = {}
+    for line in table.splitlines():
+        title = line.split(" | ")[0].lstrip("| ")
+        if "| not run yet |" in line:
+            seeds[title] = 0
+        elif (found := re.search(r"\((\d+) seeds?\) \|", line)) is not None:
+            seeds[title] = int(found[1])
+    return seeds
 
 
 __all__ = ["check_not_fewer", "headlines", "Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",

@@ -22,6 +22,7 @@ import os
 import re
 import socket
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Callable, NamedTuple
@@ -100,10 +101,48 @@ def _wanted_variants(run: SweepRun) -> set:
     return set() if DECLARED[run.experiment].score == NO_SCORE else {None}
 
 
-def _run_task(runner: Callable, run: SweepRun, profile: str, threads: int, *prerequisites) -> tuple[dict, str]:
+DRIVER_CHECK_S = 2.0  # how often a worker on the driver's machine looks whether the driver still runs
+_WATCHED: set[int] = set()  # the drivers this worker process watches
+
+
+def end_with_driver(driver: tuple[str, int], every: float = DRIVER_CHECK_S) -> None:
+    """In a worker on the driver's machine (``driver``: its host name and process id): a daemon
+    thread that ends this process once the driver is gone, so a killed sweep leaves no run going
+    on (each resumes from its checkpoints when the sweep runs again)."""
+    host, pid = driver
+    if socket.gethostname() != host or pid in _WATCHED:  # a worker runs many tasks: one watch a driver
+        return
+    _WATCHED.add(pid)
+
+    def watch() -> None:
+        while _alive(pid):
+            time.sleep(every)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="end-with-driver", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process of that number: alive
+        return True
+    try:  # a killed driver no parent reaps stays a zombie
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return True
+
+
+def _run_task(runner: Callable, run: SweepRun, profile: str, threads: int, driver: tuple[str, int],
+              *prerequisites) -> tuple[dict, str]:
     """In a Ray worker: one run with ``threads`` torch threads, after its ``prerequisites``
-    (results of other tasks, which Ray waits for before it calls); returns its metrics and the
-    path of its ``metrics.json`` relative to the worker's data folder."""
+    (results of other tasks, which Ray waits for before it calls), ended with its ``driver``
+    (:func:`end_with_driver`); returns its metrics and the path of its ``metrics.json``
+    relative to the worker's data folder."""
+    end_with_driver(driver)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -213,9 +252,10 @@ def sweep(runs: list[SweepRun], profile: str | None = None, address: str | None 
     refs, started = {}, time.time()
     for run in todo:  # a prerequisite in this sweep goes first: its result is the dependent's argument;
         # variants of a dependent experiment and seed share its prerequisite's folders, so they go one by one
-        before = [refs[p] for p in refs if p.seed == run.seed and (p.experiment in DECLARED[run.experiment].builds_on or
-                                                                   p.experiment == run.experiment and DECLARED[run.experiment].builds_on)]
-        refs[run] = task.remote(runner, run, profile, cpus, *before)
+        builds_on = DECLARED[run.experiment].builds_on
+        before = [refs[p] for p in refs if p.seed == run.seed and (p.experiment in builds_on or
+                                                                   (p.experiment == run.experiment and bool(builds_on)))]
+        refs[run] = task.remote(runner, run, profile, cpus, (socket.gethostname(), os.getpid()), *before)
     waiting = {ref: run for run, ref in refs.items()}
     bar = tqdm(total=len(todo), desc=f"sweep ({profile})", unit="run", disable=not progress)
     try:

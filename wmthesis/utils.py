@@ -111,6 +111,16 @@ MAX_SEED = 2**31 - 1  # seeds are 31-bit: every generator and store of the packa
 MAX_SEEDS = 100  # seeds one command takes: a longer range is almost surely a typo
 
 
+def check_seed(seed) -> int:
+    """``seed`` as an int if it is an integer in 0..:data:`MAX_SEED`, else ValueError in one line
+    (before any folder is made for it)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"a seed is an integer from 0 to {MAX_SEED:,}, got {seed!r}")
+    if not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"seeds are from 0 to {MAX_SEED:,} (31 bits), got {int(seed):,}")
+    return int(seed)
+
+
 def parse_seeds(text: str, most: int = MAX_SEEDS) -> list[int]:
     """``"0-4"`` -> [0, 1, 2, 3, 4]; ``"0,2,7"`` and ``"3"`` as written; a bad range, a seed above
     :data:`MAX_SEED` or more than ``most`` seeds raises ValueError (before anything is counted out)."""
@@ -181,14 +191,26 @@ def fingerprint(model) -> str | None:
     return digest.hexdigest()[:16]
 
 
+def default_processes() -> int:
+    """The processes the package's pools use unless told: ``$WMTHESIS_PROCESSES`` where set (1:
+    every call in the calling process, as on a 1-core machine), else two on a machine with 2 cores
+    or more."""
+    text = os.environ.get("WMTHESIS_PROCESSES")
+    if text is None:
+        return 2 if (os.cpu_count() or 1) >= 2 else 1
+    if not text.strip().isdigit() or int(text) < 1:
+        raise ValueError(f"WMTHESIS_PROCESSES must be a positive integer, got {text!r}")
+    return int(text)
+
+
 def process_pool(workers: int | None = None):
     """A pool of spawned processes (one torch thread each) that several :func:`parallel_calls`
-    share, started once: ``workers`` (by default two on a machine with 2 cores or more), or a
-    ``nullcontext`` of None where one process would do by default (a 1-core machine). ``workers``
-    given: that many processes, one included. Its processes start at the first call."""
-    if workers is None and (os.cpu_count() or 1) < 2:
+    share, started once: ``workers`` (by default :func:`default_processes`), or a ``nullcontext``
+    of None where one process would do by default. ``workers`` given: that many processes, one
+    included. Its processes start at the first call."""
+    if workers is None and default_processes() < 2:
         return nullcontext(None)
-    workers = 2 if workers is None else workers
+    workers = default_processes() if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     return concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
@@ -205,14 +227,14 @@ def over_seeds(call, seeds, workers: int | None = None) -> dict:
 
 def parallel_calls(calls: list[tuple], progress: bool = True, on_done=None, executor=None) -> list:
     """``fn(*args)`` for each ``(fn, *args)`` in ``calls`` (module-level functions), two at a
-    time in spawned processes with one torch thread each on a machine with 2 cores or more
-    (small networks gain less from a second thread than from a second process), or in
+    time (:func:`default_processes`) in spawned processes with one torch thread each on a machine
+    with 2 cores or more (small networks gain less from a second thread than from a second process), or in
     ``executor`` (:func:`process_pool`) where given; results in order. ``on_done(index, result)``
     is called as each finishes (to save it at once)."""
     on_done = on_done or (lambda index, result: None)
     if executor is not None:
         return _gathered(executor, calls, progress, on_done)
-    workers = min(len(calls), os.cpu_count() or 1, 2)
+    workers = min(len(calls), default_processes())
     if workers <= 1:
         results = []
         for index, (fn, *args) in enumerate(calls):

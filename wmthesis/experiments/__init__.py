@@ -34,7 +34,7 @@ from wmthesis.planet.search_run import planet_boxing_search
 from wmthesis.value.variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
 from wmthesis.runs import read_json, register_runner, results_folder
-from wmthesis.utils import check_choice, worker_init
+from wmthesis.utils import check_choice, check_seed, worker_init
 from wmthesis.variants import no_variant
 
 # Experiment -> its recipe, each called ``recipe(profile, seed, variant, progress)``, and its registry of
@@ -59,6 +59,7 @@ def reproduce(name: str, profile: str | None = None, seed: int = 0, variant: str
     PlaNet value's); others refuse one.
     """
     check_choice("experiment", name, EXPERIMENTS)
+    seed = check_seed(seed)
     if name in VARIANTS:
         VARIANTS[name].check(variant)
     else:

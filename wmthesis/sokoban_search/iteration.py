@@ -406,6 +406,9 @@ def load_run(folder: str | Path, cfg: SokobanSearchConfig | None = None) -> Run 
         version = saved["version"]
     except Exception as error:  # a truncated or foreign file
         raise ValueError(f"cannot read {path}: {error}; delete it to start over") from error
+    if "format" in saved:  # another family's agent file (they name their form)
+        raise ValueError(f"{path} holds a {saved['format']} file (version {version}), not a Sokoban search run's "
+                         "state: train it with `python -m wmthesis reproduce sokoban-search`")
     if version != STATE_VERSION:
         raise ValueError(f"{path} has format version {version}, this code reads {STATE_VERSION}")
     if cfg is not None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import time
 from pathlib import Path
 
 import numpy as np
@@ -77,7 +78,8 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     ``returns`` (the test bouts), ``first_returns`` (their first ``first_steps`` steps), ``mean``,
     ``std``, ``loss``), ``best_round``, the ``agent`` (the scores of the values that make it, with
     their ``rounds``: the best round, or with ``config.agent_rounds`` the mean of the last rounds)
-    and ``run_dir``. Every round's value is kept (``rounds`` in the checkpoint). Without
+    ``run_dir`` and ``seconds`` (the rounds' wall time over every sitting; None for a checkpoint
+    written before it kept them). Every round's value is kept (``rounds`` in the checkpoint). Without
     ``config.score_rounds`` the rounds play no greedy bouts (their entries hold ``round``,
     ``episodes`` and ``loss``; ``best_round`` is None) and only the agent is scored. With
     ``make_env`` (``(fn, *args)``, module-level, building ``env``'s game) the bouts play two at a
@@ -100,6 +102,7 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
     curve, cache = state["curve"], []
     with bout_pool(model, make_env) as pool:
         for round_ in tqdm(range(len(curve), config.rounds + 1), desc="value rounds", disable=not progress):
+            start = time.perf_counter()
             episodes = _store_bouts(run_dir / STORE, env, model, value, bits, config, seed, round_, pool)
             data = value_dataset(model, run_dir / STORE, config, bits, cache)
             loss = _fit_round(value, model, data, config, int(derive_seeds(seed, 5, round_)[0]), fitted=round_ > 0)
@@ -109,14 +112,15 @@ def train_value(model: RSSM, bits: int, env, config: LatentValueConfig, run_dir,
             rounds[round_] = {key: v.clone() for key, v in value.state_dict().items()}
             if config.score_rounds and best_round(curve) == round_:
                 state["best"] = rounds[round_]
+            state["seconds"] = state.get("seconds", 0.0) + time.perf_counter() - start
             with atomic_path(saved) as tmp:
                 torch.save({"value": value.state_dict(), **({"best": state["best"]} if "best" in state else {}),
                             "rounds": rounds, "curve": curve, "config": dataclasses.asdict(config),
-                            "model": fingerprint(model)}, tmp)
+                            "model": fingerprint(model), "seconds": state["seconds"]}, tmp)
         agent = _agent(env, model, bits, config, run_dir, seed=seed, progress=progress, first_steps=first_steps,
                        pool=pool)
     return {"curve": curve, "best_round": best_round(curve) if config.score_rounds else None, "agent": agent,
-            "run_dir": str(run_dir)}
+            "run_dir": str(run_dir), "seconds": state.get("seconds")}
 
 
 def _store_bouts(path: Path, env, model: RSSM, value: LatentValue, bits: int, config: LatentValueConfig, seed: int,
