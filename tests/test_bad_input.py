@@ -88,9 +88,9 @@ def test_zero_episodes_collects_nothing_and_says_so(tmp_path, capsys):
     (["collect", "sokoban-small", "--workers", "0"], "--workers: 0 is out of range (valid: 1 or more)"),
     (["collect", "sokoban-small", "--episodes", "-3"], "--episodes: -3 is out of range (valid: 0 or more)"),
     (["collect", "sokoban-small", "--max-steps", "0"], "--max-steps: 0 is out of range (valid: 1 or more)"),
-    (["collect", "sokoban-small", "--seed", "-1"], "--seed: -1 is out of range (valid: 0 or more)"),
+    (["collect", "sokoban-small", "--seed", "-1"], "--seed: -1 is out of range (valid: 0 to 2,147,483,647)"),
     (["collect", "sokoban-small", "--episodes", "two"], "--episodes: 'two' is not an integer"),
-    (["reproduce", "planet-boxing", "--seed", "-2"], "--seed: -2 is out of range (valid: 0 or more)"),
+    (["reproduce", "planet-boxing", "--seed", "-2"], "--seed: -2 is out of range (valid: 0 to 2,147,483,647)"),
     (["search", "planet-boxing", "--trials", "0"], "--trials: 0 is out of range (valid: 1 or more)"),
     (["view", "x.h5", "--episode", "-1"], "--episode: -1 is out of range (valid: 0 or more)"),
 ])

@@ -360,7 +360,8 @@ def test_the_agent_can_be_the_mean_of_the_last_rounds_values_played_once(tmp_pat
         train_value(model, 5, env, dataclasses.replace(config, agent_rounds=-1), tmp_path, seed=0, progress=False)
 
 
-def test_bouts_in_a_pool_of_processes_are_the_bouts_played_here_stored_in_order():
+def test_bouts_in_a_pool_of_processes_are_the_bouts_played_here_stored_in_order(monkeypatch):
+    monkeypatch.setenv("WMTHESIS_PROCESSES", "2")  # the pool of a 2-core machine (the suite runs as on one)
     model, env = frozen_rssm(), DelayedPunch()
     torch.manual_seed(1)
     value = LatentValue(20, 8, heads=2)
@@ -368,7 +369,7 @@ def test_bouts_in_a_pool_of_processes_are_the_bouts_played_here_stored_in_order(
     here = play_values(env, model, value, 5, seeds, epsilon=0.5)
     order = []
     with bout_pool(model, (DelayedPunch,)) as pool:
-        assert pool is not None  # two processes on this machine's 2 cores
+        assert pool is not None  # two processes
         there = play_values(env, model, value, 5, seeds, epsilon=0.5, pool=pool,
                             on_done=lambda index, episode: order.append((index, episode["actions"].tolist())))
     assert order == [(k, episode["actions"].tolist()) for k, episode in enumerate(here)]

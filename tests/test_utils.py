@@ -34,7 +34,8 @@ def test_a_killed_driver_leaves_no_worker_computing_on(tmp_path):
     (tmp_path / "driver.py").write_text(DRIVER)
     pids = tmp_path / "pids"
     pids.mkdir()
-    driver = subprocess.Popen([sys.executable, str(tmp_path / "driver.py"), str(pids)])
+    driver = subprocess.Popen([sys.executable, str(tmp_path / "driver.py"), str(pids)],
+                              env={**os.environ, "WMTHESIS_PROCESSES": "2"})  # a pool, as on 2 cores
     deadline = time.time() + 120
     while len(os.listdir(pids)) < 2 and time.time() < deadline:
         time.sleep(0.2)

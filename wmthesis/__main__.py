@@ -47,15 +47,14 @@ import sys
 from pathlib import Path
 
 from wmthesis.config import (ATARI_ENVIRONMENTS, PLANNERS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, check_storage,
-                             for_profile)
+                             for_profile, profile_name)
 from wmthesis.runs import DiskFull, FolderHeld, check_writable, write_json
 from wmthesis.declarations import NAMES, Declared, check_run
 from wmthesis.utils import MAX_SEED, data_dir, parse_seeds
 
 
 def at_least(minimum: int, most: int | None = None):
-    """An argparse type: an integer >= ``minimum`` (and <= ``most``, where given), refused with the
-    valid range otherwise."""
+    """An argparse type: an integer >= ``minimum`` (<= ``most`` too, where given), else refused with its range."""
     valid = f"{minimum} or more" if most is None else f"{minimum} to {most:,}"
 
     def parse(text: str) -> int:
@@ -67,11 +66,18 @@ def at_least(minimum: int, most: int | None = None):
             raise argparse.ArgumentTypeError(f"{value} is out of range (valid: {valid})")
         return value
 
-    parse.__name__ = f"integer >= {minimum}" if most is None else f"integer in {minimum}-{most}"
+    parse.__name__ = f"integer, {valid}"
     return parse
 
 
 SEED = at_least(0, MAX_SEED)  # a run's seed: every generator and store of the package takes 31 bits
+
+
+def figures_to_files() -> None:
+    """matplotlib drawing into files (its Agg backend), never a window: loaded here, when a command draws."""
+    import matplotlib
+
+    matplotlib.use("Agg")
 
 
 def default_store_path(env: str, preprocessing: str | None) -> Path:
@@ -99,9 +105,7 @@ def cmd_collect(args) -> int:
 
 
 def cmd_view(args) -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
+    figures_to_files()
     import numpy as np
 
     from wmthesis.data import EpisodeStore
@@ -131,9 +135,7 @@ def cmd_view(args) -> int:
 
 def cmd_reproduce(args) -> int:
     check_run(args.experiment, args.variant)  # before torch loads
-    import matplotlib
-
-    matplotlib.use("Agg")
+    figures_to_files()
     from wmthesis.experiments import reproduce
 
     metrics = reproduce(args.experiment, args.profile, args.seed, args.variant)
@@ -149,10 +151,8 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_solve_sokoban(args) -> int:
-    from wmthesis.config import for_profile, profile_name
     from wmthesis.envs.boxoban import load_levels  # light: numpy and gymnasium, no torch
 
-    profile = profile_name(args.profile)
     if args.out:  # the user's path and the levels, checked before any model loads or level is played
         check_writable(args.out, ".json")
     boards = load_levels(args.levels)
@@ -161,6 +161,7 @@ def cmd_solve_sokoban(args) -> int:
     from wmthesis.sokoban_search.evaluation import solve_boards
     from wmthesis.sokoban_search.iteration import evaluation_search, load_run
 
+    profile = profile_name(args.profile)
     folder = work_folder(profile, args.seed) / "pixels"
     run = load_run(folder)
     if run is None:
@@ -197,9 +198,7 @@ def cmd_budget_curve(args) -> int:
     from wmthesis.alphazero.config import search_settings, search_tag
 
     search = None if args.search is None else search_settings(args.profile, args.search)
-    import matplotlib
-
-    matplotlib.use("Agg")
+    figures_to_files()
     from wmthesis.experiments.planning_budget import mcts_validation, planning_budget
 
     if args.validation:
@@ -250,9 +249,7 @@ def cmd_evaluate_sokoban(args) -> int:
 
 def cmd_search(args) -> int:
     check_storage(args.storage)
-    import matplotlib
-
-    matplotlib.use("Agg")
+    figures_to_files()
     from wmthesis.planet.tuning import GAMES, ranked, run_search, trial_rows
 
     study = run_search(args.name, trials=args.trials, workers=args.workers, storage=args.storage,
@@ -273,10 +270,7 @@ def cmd_sweep(args) -> int:
     seeds = parse_seeds(args.seeds)  # names and seeds refused before torch or Ray load
     for spec in args.runs:
         check_run(*(spec.partition(":")[::2]))
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from wmthesis.config import profile_name
+    figures_to_files()
     from wmthesis.summary import markdown_table, write_summary
     from wmthesis.sweep import RayStartFailed, check_address, parse_runs, sweep
 
@@ -308,9 +302,7 @@ def cmd_summary(args) -> int:
     folder = Path(args.results) if args.results else None
     if folder is not None and not folder.is_dir():  # before matplotlib and torch load
         raise ValueError(f"--results {args.results}: no such folder")
-    import matplotlib
-
-    matplotlib.use("Agg")
+    figures_to_files()
     from wmthesis.headline import BEGIN
     from wmthesis.summary import markdown_table, write_summary
 
