@@ -418,7 +418,7 @@ def test_ctrl_c_stops_the_workers_and_keeps_complete_episodes(reference, tmp_pat
     os.killpg(child.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
     _, stderr = child.communicate(timeout=30)
     assert child.returncode != 0 and "KeyboardInterrupt" in stderr
-    assert "keeps" in stderr and "run again to resume" in stderr
+    assert f"KeyboardInterrupt: {path} keeps " in stderr and "complete episodes" in stderr
     with EpisodeStore(path) as store:
         assert 0 < len(store) < 4000 and all(store.episode_lengths == 15)
         with EpisodeStore(reference) as ref:

@@ -215,3 +215,43 @@ def test_outputs_that_take_no_file_are_refused_before_anything_heavy_loads(tmp_p
     for (argv, says), line in zip(cases, done.stdout.splitlines()):
         status, err, heavy = eval(line)
         assert status == 2 and says in err and err.count("\n") == 1 and ".tmp" not in err and heavy == [], (argv, line)
+
+
+def test_reproduce_onto_a_full_disk_is_one_line_exit_1_and_leaves_no_half_file(tmp_path, monkeypatch, capsys):
+    from wmthesis.__main__ import main
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+    no_space(monkeypatch)
+    assert main(["reproduce", "sokoban-wm", "--profile", "smoke"]) == 1
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1 and lines[0].startswith("error: no space left on ") and "Traceback" not in err, err
+    assert not [p for p in tmp_path.rglob("*") if ".tmp" in p.name or p.suffix in (".pt", ".json")]
+
+
+def test_ctrl_c_during_collect_is_one_line_exit_130_and_keeps_the_episodes_before(tmp_path):
+    """A real SIGINT, as a terminal sends it, to a command collecting episodes."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from wmthesis.data import EpisodeStore
+
+    out = tmp_path / "store.h5"
+    command = subprocess.Popen([sys.executable, "-m", "wmthesis", "collect", "sokoban-small", "--episodes", "100000",
+                                "--workers", "1", "--out", str(out), "--profile", "smoke"],
+                               stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.default_int_handler))
+    deadline = time.time() + 60
+    while time.time() < deadline and not (out.is_file() and out.stat().st_size > 4096):
+        time.sleep(0.5)
+    time.sleep(2)  # some episodes in
+    command.send_signal(signal.SIGINT)
+    _, err = command.communicate(timeout=60)
+    lines = [line for line in err.splitlines() if line.strip() and "collect sokoban-small" not in line]  # the bar aside
+    with EpisodeStore(out) as store:
+        kept = len(store)  # the episodes before, whole
+    assert command.returncode == 130 and kept > 0 and lines == [
+        f"collect interrupted: {out} keeps {kept} complete episodes; run the same command again to resume"], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["store.h5"]

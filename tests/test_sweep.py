@@ -432,14 +432,16 @@ def test_ctrl_c_stops_the_driver_and_its_runs_at_once(local_ray, capsys):
     assert ray.is_initialized()  # the fixture's Ray, not the sweep's own, stays up for the other tests
 
 
-def test_a_port_that_answers_but_is_no_ray_cluster_is_one_line_within_the_timeout():
+def test_a_port_that_answers_but_is_no_ray_cluster_is_one_line_within_the_timeout(monkeypatch, capsys):
     """A listening socket that is no Ray: the join is given up in a child process after the
-    timeout, naming the address (ray.init would retry for minutes)."""
+    timeout, naming the address (ray.init would retry for minutes), by the library and the command."""
     import socket
     import time
 
     import pytest
 
+    import wmthesis.sweep as sweep_module
+    from wmthesis.__main__ import main
     from wmthesis.sweep import check_address, check_joinable
 
     with socket.socket() as server:
@@ -451,6 +453,12 @@ def test_a_port_that_answers_but_is_no_ray_cluster_is_one_line_within_the_timeou
         with pytest.raises(ValueError, match=f"--address '{address}': no Ray cluster could be joined there") as raised:
             check_joinable(address, timeout=8)
         assert time.perf_counter() - started < 20 and "\n" not in str(raised.value)
+        monkeypatch.setattr(sweep_module, "JOIN_TIMEOUT_S", 8.0)  # the command's 30 s, shortened
+        started = time.perf_counter()
+        assert main(["sweep", "boxing-wm", "--seeds", "0", "--profile", "smoke", "--address", address]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith(f"error: --address '{address}': no Ray cluster could be joined there"), err
+        assert time.perf_counter() - started < 20
 
 
 # ------------------------------------------------------------- an experiment of one's own

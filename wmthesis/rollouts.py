@@ -8,7 +8,6 @@ import atexit
 import multiprocessing as mp
 import os
 import signal
-import sys
 import threading
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
@@ -118,10 +117,8 @@ def collect(env_name: str, episodes: int, out: str | os.PathLike, *, workers: in
                         bar.set_postfix(steps=store.num_steps, refresh=False)
                         if interrupted():
                             raise KeyboardInterrupt
-            except KeyboardInterrupt:
-                print(f"\ninterrupted: {out} keeps {len(store)} complete episodes; "
-                      "run again to resume", file=sys.stderr)
-                raise
+            except KeyboardInterrupt:  # what was kept, for the one line the caller says
+                raise KeyboardInterrupt(f"{out} keeps {len(store)} complete episodes") from None
             finally:
                 rollouts.close()
     return out

@@ -217,7 +217,7 @@ def start_ray(address: str | None, cpus: int | None = None, attempts: int = 3, w
                 time.sleep(wait_s)
     else:
         check_address(address)
-        check_joinable(address)
+        check_joinable(address, JOIN_TIMEOUT_S)
         try:
             ray.init(address=address, log_to_driver=False)
         except ConnectionError as error:
