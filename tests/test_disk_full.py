@@ -255,3 +255,75 @@ def test_ctrl_c_during_collect_is_one_line_exit_130_and_keeps_the_episodes_befor
     assert command.returncode == 130 and kept > 0 and lines == [
         f"collect interrupted: {out} keeps {kept} complete episodes; run the same command again to resume"], err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["store.h5"]
+
+
+# ------------------------------------------------------------- a real small filesystem, where mounting is allowed
+@pytest.fixture
+def mounted(tmp_path):
+    """``mount(kind)``: a 2 MiB tmpfs (``"small"``) or a read-only bind mount (``"read-only"``) in
+    ``tmp_path``, unmounted after the test; the test is skipped where this machine allows no mount."""
+    import subprocess
+
+    mounts = []
+
+    def mount(kind: str):
+        target = tmp_path / kind
+        target.mkdir()
+        if kind == "small":
+            steps = [["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(target)]]
+        else:
+            steps = [["mount", "--bind", str(tmp_path), str(target)], ["mount", "-o", "remount,bind,ro", str(target)]]
+        for step in steps:
+            done = subprocess.run(step, capture_output=True, text=True)
+            if done.returncode != 0:
+                pytest.skip(f"this machine allows no {kind} mount: {done.stderr.strip()}")
+            if step[1] in ("-t", "--bind"):
+                mounts.append(target)
+        return target
+
+    yield mount
+    for target in reversed(mounts):
+        subprocess.run(["umount", "-l", str(target)], capture_output=True)
+
+
+def test_collect_onto_a_small_filesystem_is_one_line_exit_1_and_keeps_the_episodes_before(mounted, capsys):
+    from wmthesis.__main__ import main
+    from wmthesis.data import EpisodeStore
+
+    disk = mounted("small")
+    out = disk / "store.h5"
+    assert main(["collect", "boxing", "--episodes", "200", "--workers", "1", "--out", str(out),
+                 "--profile", "smoke"]) == 1
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip() and "collect boxing" not in line]  # the bar aside
+    assert len(lines) == 1 and lines[0].startswith(f"error: no space left on {disk}: "), err
+    with EpisodeStore(out) as store:
+        assert 0 < len(store) < 200 and store.episode(len(store) - 1)["actions"].size > 0  # whole episodes
+    assert [p.name for p in disk.iterdir()] == ["store.h5"]
+
+
+def test_solve_sokoban_out_onto_a_filesystem_that_fills_leaves_no_half_file(mounted, monkeypatch, capsys):
+    from wmthesis.__main__ import main
+
+    monkeypatch.setenv("WMTHESIS_DATA", SHIPPED_DATA)
+    disk = mounted("small")
+    (disk / "filler").write_bytes(bytes(2 * 1024 * 1024 - 2048))  # a few KiB left
+    levels = disk.parent / "levels.txt"
+    levels.write_text("\n\n".join(f"; {k}\n#####\n#@$.#\n#####" for k in range(40)))
+    assert main(["solve-sokoban", str(levels), "--profile", "quick", "--out", str(disk / "solved.json")]) == 1
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert err == [f"error: no space left on {disk}: solved.json was not written; free some space and run it again"]
+    assert [p.name for p in disk.iterdir()] == ["filler"]
+
+
+def test_an_output_on_a_read_only_mount_is_refused_before_anything_plays(mounted, capsys):
+    from wmthesis.__main__ import main
+
+    read_only = mounted("read-only")
+    with pytest.raises(ValueError, match=f"{read_only}/x.json cannot be written"):
+        check_writable(read_only / "x.json", ".json")
+    started = time.perf_counter()
+    assert main(["play", "boxing-wm", "--record", str(read_only / "bout.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert f"{read_only}/bout.rrd cannot be written" in err and err.count("\n") == 1
+    assert time.perf_counter() - started < 5
