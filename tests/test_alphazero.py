@@ -690,6 +690,12 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     assert expert["games"] == 8 and expert["steps"] == 8 * 20 and 0 <= expert["agreement"] <= 1
     again = reproduce("boxing-wm-alphazero", "smoke", progress=False)  # cached: evaluates nothing again
     assert again["scores"] == default["scores"]
+    # written again by a call that trains nothing: the time it states for a run from scratch counts
+    # the world model's and the self-play's sittings before it
+    Path(default["files"]["figures"][0]).with_name("metrics.json").unlink()
+    fresh = reproduce("boxing-wm-alphazero", "smoke", progress=False)
+    played = sum(g["seconds"] for g in default["runs"]["own-memory"]["curve"])
+    assert played > 0 and fresh["first_run_wall_seconds"] > fresh["wall_seconds"] + 0.9 * played
 
 
 def _the_own_memory_is_searched_and_shipped():
