@@ -273,3 +273,16 @@ def test_a_wing_imports_only_the_wings_it_builds_on():
                     crossing.append(f"{wing}/{path.name} imports {node.module}")
     assert crossing == []
     assert set(WINGS_BUILT_ON) == {p.name for p in PACKAGE.iterdir() if (p / "config.py").is_file()}
+
+
+def test_a_fresh_install_takes_the_locked_versions_the_numbers_were_made_with():
+    """requirements.txt installs within constraints.txt (as .ci/run does), and what is installed
+    here is what the lock says."""
+    import importlib.metadata
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    assert "-c constraints.txt" in (root / "requirements.txt").read_text().splitlines()
+    assert "pip install --quiet -r requirements.txt" in (root / ".ci" / "run").read_text()
+    locked = dict(re.findall(r"^([A-Za-z0-9_.-]+)==(\S+)", (root / "constraints.txt").read_text(), re.M))
+    assert locked and {name: importlib.metadata.version(name) for name in locked} == locked
