@@ -42,7 +42,12 @@ def test_validate_refuses_an_unknown_lever_before_any_runs_and_reports_each_leve
     assert "unknown lever 'bigger-brain' of sokoban-search; valid: baseline;" in err and not called
     assert "docs/findings/sokoban-search.md" in err  # where a removed lever's numbers went
     assert main(["validate", "planet-boxing-value", "H2 from a zero mean", "--profile", "smoke"]) == 2
-    assert "docs/findings/planet-boxing-value.md" in capsys.readouterr().err  # a removed planner lever
+    err = capsys.readouterr().err
+    assert "docs/findings/planet-boxing-value.md" in err  # a removed planner lever
+    from wmthesis.validation import levers_of
+
+    listed = err.split("valid: ", 1)[1].split(" (levers no longer", 1)[0].split("; ")  # names with commas in them
+    assert listed == list(levers_of("planet-boxing-value").changes) and any("," in name for name in listed)
     assert main(["validate", "sokoban-search", "baseline", "prior-afterwards", "--profile", "smoke", "--count", "3",
                  "--seeds", "0-1"]) == 0
     assert called == [("baseline", "smoke", 0, 3), ("prior-afterwards", "smoke", 0, 3),

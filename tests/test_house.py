@@ -286,3 +286,24 @@ def test_a_fresh_install_takes_the_locked_versions_the_numbers_were_made_with():
     assert "pip install --quiet -r requirements.txt" in (root / ".ci" / "run").read_text()
     locked = dict(re.findall(r"^([A-Za-z0-9_.-]+)==(\S+)", (root / "constraints.txt").read_text(), re.M))
     assert locked and {name: importlib.metadata.version(name) for name in locked} == locked
+
+
+def test_the_suite_removes_the_data_folder_it_made(tmp_path):
+    """A test run with no WMTHESIS_DATA of its own makes one in the temporary folder and removes it
+    when it ends (they had piled up to gigabytes)."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = {k: v for k, v in os.environ.items() if k not in ("WMTHESIS_DATA", "PYTEST_XDIST_WORKER")}
+    code = ("import os, pathlib; pathlib.Path(os.environ['WMTHESIS_DATA'], 'made').write_text('x'); "
+            "print(os.environ['WMTHESIS_DATA'])")
+    test = tmp_path / "test_one.py"
+    test.write_text(f"def test_writes():\n    import subprocess, sys\n    exec({code!r})\n")
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-s", "-n", "0", "-p", "no:cacheprovider",
+                           "-p", "conftest", str(test)],  # the repository's conftest.py, for a test outside it
+                          cwd=tmp_path, env={**env, "TMPDIR": str(tmp_path), "PYTHONPATH": str(root)},
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    made = Path(next(line for line in done.stdout.splitlines() if "wmthesis-test-data-" in line).strip(". "))
+    assert made.parent == tmp_path and not made.exists()
