@@ -695,7 +695,7 @@ def test_smoke_experiment_writes_metrics_with_finite_scores():
     Path(default["files"]["figures"][0]).with_name("metrics.json").unlink()
     fresh = reproduce("boxing-wm-alphazero", "smoke", progress=False)
     played = sum(g["seconds"] for g in default["runs"]["own-memory"]["curve"])
-    assert played > 0 and fresh["first_run_wall_seconds"] > fresh["wall_seconds"] + 0.9 * played
+    assert played > 0 and fresh["first_run_wall_seconds"] > fresh["wall_seconds"] + 0.5 * played
 
 
 def _the_own_memory_is_searched_and_shipped():

@@ -113,7 +113,7 @@ def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, cap
     assert main(["reproduce", "sokoban-search", "--profile", "smoke", "--seed", "3"]) == 0
     again = json.loads((tmp_path / "data/results/sokoban-search/smoke-seed3/metrics.json").read_text())
     assert again["training_wall_seconds"] == metrics["training_wall_seconds"] > 0
-    assert again["first_run_wall_seconds"] >= again["wall_seconds"] + 0.9 * again["training_wall_seconds"]
+    assert again["first_run_wall_seconds"] > again["wall_seconds"] + 0.5 * again["training_wall_seconds"]
 
 
 def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, monkeypatch):

@@ -129,7 +129,7 @@ def test_a_planet_value_agent_plays_the_bouts_its_score_was_measured_on(tmp_path
     import torch
 
     rounds = torch.load(next(tmp_path.rglob("value.pt")), weights_only=False)["seconds"]
-    assert rounds > 0 and again["first_run_wall_seconds"] >= round(again["wall_seconds"] + 0.9 * rounds, 1)
+    assert rounds > 0 and again["first_run_wall_seconds"] > again["wall_seconds"] + 0.5 * rounds
     result = play_module.play("planet-boxing-value", profile="smoke", bouts=2, record=tmp_path / "bouts.rrd",
                               on_play=lambda line: None)
     assert [p["return"] for p in result["plays"]] == metrics["value_planner"]["returns"][:2]

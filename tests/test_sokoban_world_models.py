@@ -246,7 +246,7 @@ def test_command_line_reproduces_sokoban_and_resumes(smoke_metrics, capsys):
     assert main(["reproduce", "sokoban-wm", "--profile", "smoke"]) == 0
     again = json.loads(saved.read_text())
     evolved = sum(g["seconds"] for c in smoke_metrics["controllers"].values() for g in c["curve"])
-    assert evolved > 0 and again["first_run_wall_seconds"] > again["wall_seconds"] + 0.9 * evolved
+    assert evolved > 0 and again["first_run_wall_seconds"] > again["wall_seconds"] + 0.5 * evolved
     assert [p.stat().st_mtime_ns for p in checkpoints] == stamps
     assert main(["reproduce", "sokoban-wm", "--variant", "grid", "--profile", "smoke"]) == 2
     assert "has no variants" in capsys.readouterr().err

@@ -432,7 +432,7 @@ def test_ctrl_c_stops_the_driver_and_its_runs_at_once(local_ray, capsys):
     assert ray.is_initialized()  # the fixture's Ray, not the sweep's own, stays up for the other tests
 
 
-def test_a_port_that_answers_but_is_no_ray_cluster_is_one_line_within_the_timeout(monkeypatch, capsys):
+def test_a_port_that_answers_but_is_no_ray_cluster_is_one_line_within_the_timeout(monkeypatch, capsys, tmp_path):
     """A listening socket that is no Ray: the join is given up in a child process after the
     timeout, naming the address (ray.init would retry for minutes), by the library and the command."""
     import socket
@@ -454,6 +454,10 @@ def test_a_port_that_answers_but_is_no_ray_cluster_is_one_line_within_the_timeou
             check_joinable(address, timeout=8)
         assert time.perf_counter() - started < 20 and "\n" not in str(raised.value)
         monkeypatch.setattr(sweep_module, "JOIN_TIMEOUT_S", 8.0)  # the command's 30 s, shortened
+        import ray
+
+        monkeypatch.setattr(ray, "is_initialized", lambda: False)  # this module's own Ray may be up already
+        monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))  # no run finished before
         started = time.perf_counter()
         assert main(["sweep", "boxing-wm", "--seeds", "0", "--profile", "smoke", "--address", address]) == 2
         err = capsys.readouterr().err.strip().splitlines()

@@ -437,7 +437,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error.strerror if isinstance(error, DiskFull) else error}", file=sys.stderr)
         return 1 if full else 2
     except KeyboardInterrupt as error:  # every step a run finished is on disk: running it again resumes after it
-        print(f"{args.command} interrupted: {error or 'what it finished is kept'}; run the same command again to "
+        print(f"{args.command} interrupted: {str(error) or 'what it finished is kept'}; run the same command again to "
               "resume", file=sys.stderr)
         return 130
 
