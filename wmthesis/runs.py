@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wmthesis.utils import data_dir, parallel_calls
+from wmthesis.utils import data_dir, parallel_calls, process_alive
 
 
 # ----------------------------------------------------------------------------- folders
@@ -223,12 +223,12 @@ def first_run_seconds(path: Path, seconds: float, same: Callable[[dict], bool] |
         return seconds
 
 
-def over_sittings(seconds: float, recorded: float | None, recorded_here: float) -> float:
-    """A run's wall time over every sitting: this call's ``seconds`` plus the time its checkpoints
-    record (``recorded``: training, evolution or rounds, summed over every sitting; None: none
-    recorded) beyond this call's own share of it (``recorded_here``, the seconds this call spent in
-    the resumed stages)."""
-    return seconds + max(0.0, (recorded or 0.0) - recorded_here)
+def over_sittings(seconds: float, *stages: tuple[float | None, float]) -> float:
+    """A run's wall time over every sitting: this call's ``seconds`` plus, for each resumable stage
+    ``(recorded, here)``, the time its checkpoints record (training, evolution or rounds, summed over
+    every sitting; None: none recorded) beyond this call's own share of it (``here``, the seconds
+    this call spent in that stage)."""
+    return seconds + sum(max(0.0, (recorded or 0.0) - here) for recorded, here in stages)
 
 
 # ----------------------------------------------------------------------------- agent files
@@ -413,13 +413,7 @@ def _alive(pid) -> bool:
         return False
     if pid == os.getpid():
         return False  # our own lock from before a fork/exec is stale for this holder count
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+    return process_alive(pid)
 
 
 __all__ = ["work_folder", "results_folder", "register_runner", "built_on", "DiskFull", "MIN_FREE_BYTES", "is_disk_full",

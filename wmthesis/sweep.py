@@ -34,7 +34,7 @@ from wmthesis.declarations import DECLARED, NO_SCORE
 from wmthesis.experiments import DEFAULT_RESULTS, EXPERIMENTS, VARIANTS, reproduce
 from wmthesis.runs import atomic_path
 from wmthesis.summary import run_scores
-from wmthesis.utils import MAX_SEED, MAX_SEEDS, check_choice, data_dir, parse_seeds
+from wmthesis.utils import MAX_SEED, MAX_SEEDS, check_choice, data_dir, parse_seeds, process_alive
 
 
 
@@ -115,25 +115,11 @@ def end_with_driver(driver: tuple[str, int], every: float = DRIVER_CHECK_S) -> N
     _WATCHED.add(pid)
 
     def watch() -> None:
-        while _alive(pid):
+        while process_alive(pid):
             time.sleep(every)
         os._exit(1)
 
     threading.Thread(target=watch, name="end-with-driver", daemon=True).start()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process of that number: alive
-        return True
-    try:  # a killed driver no parent reaps stays a zombie
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return True
 
 
 def _run_task(runner: Callable, run: SweepRun, profile: str, threads: int, driver: tuple[str, int],

@@ -191,6 +191,22 @@ def fingerprint(model) -> str | None:
     return digest.hexdigest()[:16]
 
 
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this machine runs (another user's counts; a zombie, ended but not
+    reaped by its parent, does not)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:  # no /proc (not Linux): kill's answer stands
+        return True
+
+
 def default_processes() -> int:
     """The processes the package's pools use unless told: ``$WMTHESIS_PROCESSES`` where set (1:
     every call in the calling process, as on a 1-core machine), else two on a machine with 2 cores

@@ -25,8 +25,8 @@ from wmthesis.metrics import score_difference, score_summary
 from wmthesis.references import published
 from wmthesis.rollouts import collect
 from wmthesis.stamp import git_commit
-from wmthesis.runs import (built_on, first_run_seconds, hold, releasing_holds, results_folder, run_header, work_folder,
-                           write_json)
+from wmthesis.runs import (built_on, first_run_seconds, hold, over_sittings, releasing_holds, results_folder, run_header,
+                           work_folder, write_json)
 from wmthesis.viz import record_frames, save_figure
 from wmthesis.world_models.config import MemoryConfig, VisionConfig
 from wmthesis.training import trained_seconds
@@ -79,7 +79,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
     vision = VAEVision(vae)
     modelling = time.time() - modelling  # this call's: a resumed or cached model trained in sittings before it
     trained = trained_seconds(wm / "vision.pt") + trained_seconds(work / f"memory-{memory_cfg.kind}.pt")
-    sittings = max(0.0, trained - modelling)
+    stages = [(trained, modelling)]  # (seconds its checkpoints record over every sitting, this call's share)
 
     configs, runs, games, ablations, memories = {}, {}, {}, {}, {}
     for name in variants:
@@ -93,7 +93,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         playing = time.time()
         run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, searched, cfg, out_dir=work / name,
                                  seed=seed, progress=progress, rollouts=LatentStore(latents), expert=expert)
-        sittings += max(0.0, sum(g.get("seconds", 0.0) for g in run.curve) - (time.time() - playing))  # games played before
+        stages.append((sum(g.get("seconds", 0.0) for g in run.curve), time.time() - playing))  # its games, every sitting
         runs[name] = run.summary()
         save_agent(work / agent_name(name), name, vae, searched, run, memory_cfg, git_commit())  # what `play` plays
         games[name] = evaluation_games(run, vision, searched, cfg, work / name, seed)
@@ -153,7 +153,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
     metrics["first_run_wall_seconds"] = first_run_seconds(  # an earlier file of other self-play keeps no time
-        out / "metrics.json", metrics["wall_seconds"] + sittings, lambda earlier: _played(earlier.get("runs", {})) == _played(runs))
+        out / "metrics.json", over_sittings(metrics["wall_seconds"], *stages), lambda earlier: _played(earlier.get("runs", {})) == _played(runs))
     write_json(out / "metrics.json", metrics, default=float)
     return metrics
 

@@ -102,7 +102,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
     }
     metrics["training_wall_seconds"] = training_seconds(runs["pixels"].history)  # its stages', over every sitting
     metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", over_sittings(
-        metrics["wall_seconds"], metrics["training_wall_seconds"], trained_at - started))
+        metrics["wall_seconds"], (metrics["training_wall_seconds"], trained_at - started)))
     metrics["search"] = evaluation_record(cfg)
     metrics["evaluation_wall_seconds"] = evaluation_seconds(read_json(out / "metrics.json"), metrics["search"],
                                                              time.time() - trained_at)

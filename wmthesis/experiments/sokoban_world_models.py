@@ -135,7 +135,7 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str
         "files": {"figures": [str(f) for f in figures], "recording": str(recording)},
     }
     metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json",
-                                                          over_sittings(metrics["wall_seconds"], trained + evolved, modelled))
+                                                          over_sittings(metrics["wall_seconds"], (trained + evolved, modelled)))
     metrics = jsonable(metrics)
     write_json(out / "metrics.json", metrics)
     return metrics

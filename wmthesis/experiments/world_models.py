@@ -17,8 +17,8 @@ from wmthesis.metrics import score_summary
 from wmthesis.references import published
 from wmthesis.rollouts import collect
 from wmthesis.stamp import git_commit
-from wmthesis.runs import (first_run_seconds, hold, read_json, releasing_holds, results_folder, run_header, work_folder,
-                           write_json)
+from wmthesis.runs import (first_run_seconds, hold, over_sittings, read_json, releasing_holds, results_folder, run_header,
+                           work_folder, write_json)
 from wmthesis.viz import image_rows, record_frames, save_figure
 from wmthesis.world_models.config import BoxingEvaluationConfig, ControllerConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.agent import save_agent
@@ -83,8 +83,9 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
         "files": {"figures": [str(f) for f in figures], "recording": str(recording), "agent": str(agent)},
     }
     evolved = json.loads(json.dumps(run.curve, default=float))  # an earlier file of another controller keeps no time
-    sittings = max(0.0, sum(g["seconds"] for g in run.curve) - evolving) + max(0.0, wm.trained_seconds - modelling)
-    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", metrics["wall_seconds"] + sittings,
+    seconds = over_sittings(metrics["wall_seconds"], (sum(g["seconds"] for g in run.curve), evolving),
+                            (wm.trained_seconds, modelling))
+    metrics["first_run_wall_seconds"] = first_run_seconds(out / "metrics.json", seconds,
                                                           lambda earlier: earlier.get("controller_curve") == evolved)
     write_json(out / "metrics.json", metrics, default=float)
     return metrics

@@ -129,7 +129,7 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
     value, unit = score_summary(returns), "bouts" if game == "boxing" else "episodes"
     seconds = time.time() - started
     # an earlier run's time counts if it fitted on the same frozen model (the thesis's CEM played it alike)
-    first = first_run_seconds(out / "metrics.json", over_sittings(seconds, run["seconds"], fitting),
+    first = first_run_seconds(out / "metrics.json", over_sittings(seconds, (run["seconds"], fitting)),
                               lambda earlier: earlier.get("planet") == baselines["planet"]["full"])
     metrics = {**run_header(experiment, profile, seed, seconds, env=game,
                              **({} if variant is None else {"variant": variant})),
