@@ -252,6 +252,7 @@ def test_self_play_trains_the_heads_and_keeps_the_latest_games(tmp_path):
     run = train_alphazero(Corridor, vision, small_memory(), config, out_dir=tmp_path, seed=0, progress=False)
     assert run.games == 5 and [g.index for g in run.replay] == [2, 3, 4]
     assert [r["game"] for r in run.rounds] == [2, 4] and [t["game"] for t in run.tests] == [2, 4]
+    assert all(1 <= t["steps"] <= config.max_steps * config.test_episodes for t in run.tests)  # the budget counts them
     for r in run.rounds:
         assert r["loss"] < r["loss_before"]
     assert [e["game"] for e in run.curve] == [1, 2, 3, 4, 5]

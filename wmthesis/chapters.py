@@ -1,5 +1,6 @@
 """Each notebook's opening box: the thesis's claim for its chapter, what we found over seeds (the
-summary's numbers, never typed), and a one-line verdict.
+summary's numbers, never typed) with the real environment steps it learned from beside the best
+published figure's (:mod:`wmthesis.budget`), and a one-line verdict.
 
 The verdict sets our interval (or our one seed's score) against the number the thesis's figure
 stands for (:class:`~wmthesis.headline.Headline`'s ``bar``): *beyond the thesis* where the whole
@@ -8,7 +9,7 @@ holds it (the box then says the bar lies within our interval: the seeds cannot t
 """
 from __future__ import annotations
 
-from wmthesis.headline import CHAPTER_ROWS, HEADLINES, headline_rows
+from wmthesis.headline import CHAPTER_ROWS, HEADLINES, headline_rows, steps_learned
 
 
 def verdict(headline, row: dict | None) -> str:
@@ -46,6 +47,10 @@ def chapter_box(notebook: str, profile: str = "quick", folder=None) -> str:
             ours = (f"{row['mean']:.1f}{interval} over {row['n']} seed{'s' * (row['n'] > 1)}"
                     + (" (95% interval)" if interval else ""))
         published = "" if h.published is None else f" · best published: {h.published.value} ({h.published.name})"
+        steps = steps_learned(row)
+        if steps:
+            budget = f"; best published: {h.published.budget}" if h.published is not None and h.published.budget else ""
+            published += f"  \n> **Learned from:** {steps} agent steps in the real game{budget}"
         said = verdict(h, row)
         if h.bar is not None and row is not None:
             held = said == "reproduced" and row["ci_low"] is not None

@@ -80,7 +80,9 @@ class Declaration:
     interval is clipped to it; None: none) and ``choice_seeds`` (``"module:NAME"`` of the seeds its
     recipe was chosen on: their runs form rows of their own, never the reported ones; None: none),
     ``published`` (``"module:NAME"`` of the :class:`~wmthesis.references.Reference` figures its
-    results are shown beside; None: none). A run without a variant runs its default."""
+    results are shown beside; None: none), ``agent_steps`` (``"module:function"`` reading from its
+    ``metrics.json`` the real environment steps it learned from, :mod:`wmthesis.budget`; None: none
+    recorded). A run without a variant runs its default."""
     name: str
     section: str
     recipe: str
@@ -94,6 +96,7 @@ class Declaration:
     bounds: tuple[float, float] | None = None
     choice_seeds: str | None = None
     published: str | None = None
+    agent_steps: str | None = None
 
     def registry(self):
         """Its :class:`~wmthesis.variants.Variants`, or None."""
@@ -102,29 +105,33 @@ class Declaration:
 
 DECLARATIONS = (  # the thesis's and ours, built in; DECLARED holds them and every one declare() adds
     Declaration(NAMES.sokoban_wm, "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models",
-                published="wmthesis.references:SOKOBAN_WM_FIGURES"),
+                published="wmthesis.references:SOKOBAN_WM_FIGURES",
+                agent_steps="wmthesis.budget:sokoban_world_models_steps"),
     Declaration(NAMES.boxing_wm, "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
-                published="wmthesis.references:BOXING_WM_FIGURES",
+                published="wmthesis.references:BOXING_WM_FIGURES", agent_steps="wmthesis.budget:world_models_steps",
                 variants="wmthesis.world_models.variants:BOXING_WM", levers="wmthesis.validation:boxing_wm_levers",
                 choice_seeds="wmthesis.world_models.variants:VALIDATION_SEEDS",
                 agent=AgentFile("{profile}/boxing-wm/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.world_models.trained:load_trained", "boxing")),
     Declaration(NAMES.boxing_wm_alphazero, "5.4.2", "wmthesis.experiments.alphazero:boxing_wm_alphazero",
-                published="wmthesis.references:ALPHAZERO_FIGURES",
+                published="wmthesis.references:ALPHAZERO_FIGURES", agent_steps="wmthesis.budget:alphazero_steps",
                 variants="wmthesis.alphazero.variants:VARIANTS", builds_on=(NAMES.boxing_wm,),
                 score="wmthesis.scores:alphazero_scores",
                 agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.alphazero.trained:load_trained", "boxing")),
     Declaration(NAMES.planet_sokoban, "5.5.1", "wmthesis.experiments.planet:planet_sokoban",
+                agent_steps="wmthesis.budget:store_steps",
                 variants="wmthesis.planet.variants:PLANET_SOKOBAN",
                 agent=AgentFile("{profile}/planet-sokoban/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "sokoban-small")),
     Declaration(NAMES.planet_boxing, "5.6.1-5.6.4", "wmthesis.experiments.planet:planet_boxing",
+                agent_steps="wmthesis.budget:store_steps",
                 published="wmthesis.references:BOXING_PLANET_FIGURES",
                 variants="wmthesis.planet.variants:PLANET_BOXING",
                 agent=AgentFile("{profile}/planet-boxing/{folder}seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration(NAMES.planet_freeway, "5.6.5-5.6.6", "wmthesis.experiments.planet:planet_freeway",
+                agent_steps="wmthesis.budget:store_steps",
                 published="wmthesis.references:FREEWAY_FIGURES",
                 variants="wmthesis.planet.variants:PLANET_FREEWAY",
                 agent=AgentFile("{profile}/planet-freeway/{folder}seed{seed}/agent.pt",
@@ -134,12 +141,14 @@ DECLARATIONS = (  # the thesis's and ours, built in; DECLARED holds them and eve
     Declaration(NAMES.planet_boxing_search, "5.6.3-5.6.4", "wmthesis.planet.search_run:planet_boxing_search",
                 measure="the best trial's open-loop error on held-out bouts x 1000 (lower is better)"),
     Declaration(NAMES.planet_boxing_agent, "5.6.4", "wmthesis.experiments.planet_boxing:planet_boxing_agent",
+                agent_steps="wmthesis.budget:store_steps",
                 published="wmthesis.references:BOXING_PLANET_FIGURES",
                 measure="full-bout score, CEM planner",
                 score="wmthesis.scores:agent_score",
                 agent=AgentFile("{profile}/planet-boxing-agent/seed{seed}/agent.pt",
                                 "wmthesis.planet.trained:load_trained", "boxing")),
     Declaration(NAMES.planet_boxing_value, "beyond", "wmthesis.experiments.planet_boxing_value:planet_boxing_value",
+                agent_steps="wmthesis.budget:value_steps",
                 published="wmthesis.references:BOXING_PLANET_FIGURES",
                 measure="full-bout score, the value's chosen round",
                 variants="wmthesis.value.variants:VALUE_VARIANTS", builds_on=(NAMES.planet_boxing_agent,),
@@ -148,6 +157,7 @@ DECLARATIONS = (  # the thesis's and ours, built in; DECLARED holds them and eve
                 agent=AgentFile("{profile}/planet-boxing-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.value.trained:load_trained", "boxing")),
     Declaration(NAMES.planet_freeway_value, "beyond", "wmthesis.experiments.planet_freeway_value:planet_freeway_value",
+                agent_steps="wmthesis.budget:value_steps",
                 published="wmthesis.references:FREEWAY_FIGURES",
                 measure="full-episode score, the value's chosen round",
                 variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=(NAMES.planet_freeway,),
@@ -155,6 +165,7 @@ DECLARATIONS = (  # the thesis's and ours, built in; DECLARED holds them and eve
                 agent=AgentFile("{profile}/planet-freeway-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.value.trained:load_trained", "freeway")),
     Declaration(NAMES.sokoban_search, "beyond (ch. 1)", "wmthesis.experiments.sokoban_search:sokoban_search",
+                agent_steps="wmthesis.budget:store_steps",
                 published="wmthesis.references:SOKOBAN_SEARCH_FIGURES",
                 measure="% of unseen 10x10 levels solved from pixels (generated; boxoban-*: Boxoban valid 005-009)",
                 bounds=(0.0, 100.0),

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
+from wmthesis.budget import short
 from wmthesis.declarations import NAMES
 from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.references import (BOXOBAN, RANDOM, THESIS_ALPHAZERO, THESIS_PLANET_BOXING, THESIS_PLANET_BOXING_SCORE,
@@ -115,6 +116,26 @@ def _minutes(row: dict | None) -> str:
     return f"{time}" + (f" ({'; '.join(machines)})" if machines else "")
 
 
+def steps_learned(row: dict | None) -> str:
+    """A row's real environment steps to learn over its seeds, ``"4.6M"`` or ``"4.6M-4.7M"``
+    (``"at most"`` where some stage is counted at full bouts; ``"(2 of 3 seeds)"`` where not every
+    seed's budget is known). Empty where none is."""
+    seeds = (row or {}).get("agent_steps", [])
+    known = [s for s in seeds if s is not None]
+    if not known:
+        return ""
+    low, high = short(min(known)), short(max(known))
+    ours = ("at most " if row.get("steps_at_most") else "") + (low if low == high else f"{low}-{high}")
+    return ours + (f" ({len(known)} of {len(seeds)} seeds)" if len(known) < len(seeds) else "")
+
+
+def agent_steps(row: dict | None, published: Reference | None = None) -> str:
+    """The table's cell: :func:`steps_learned` and, in brackets, the ``published`` figure's budget:
+    ``"4.6M (100k)"``."""
+    ours = steps_learned(row)
+    return ours + (f" ({published.budget})" if ours and published is not None and published.budget else "")
+
+
 def _range(walls: list[float]) -> str:
     """Wall times in seconds as minutes: ``"51"`` or ``"73-97"``."""
     low, high = f"{min(walls) / 60:.0f}", f"{max(walls) / 60:.0f}"
@@ -141,12 +162,13 @@ def headline_table(rows: list[dict], profile: str = "quick") -> str:
         return f"{ref.value} ({ref.name})[^{notes.index(ref.source) + 1}]"
 
     lines = [f"| experiment | thesis | the thesis's figure | ours, `{profile}`: mean [95% interval] (seeds) "
-             "| best published | notebook | minutes a seed (machine) |", "|---|---|---|---|---|---|---|"]
+             "| best published | agent steps to learn: ours (best published's) | notebook | minutes a seed (machine) |",
+             "|---|---|---|---|---|---|---|---|"]
     for entry in headline_rows(rows, profile):
         h, row = entry["headline"], entry["row"]
         thesis = "" if h.thesis is None else str(h.thesis.value)
-        lines.append(f"| {h.title} | {h.section} | {thesis} | {_ours(row)} | {cite(h.published)} | {h.notebook} "
-                     f"| {_minutes(row)} |")
+        lines.append(f"| {h.title} | {h.section} | {thesis} | {_ours(row)} | {cite(h.published)} "
+                     f"| {agent_steps(row, h.published)} | {h.notebook} | {_minutes(row)} |")
     lines += ["", *(f"[^{i + 1}]: {source}" for i, source in enumerate(notes))]
     return "\n".join(lines)
 

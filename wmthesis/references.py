@@ -14,10 +14,13 @@ IRIS = "eloialonso/iris results/data"
 
 
 class Reference(NamedTuple):
-    """A published figure: who, the number (or the words where the source gives none) and where."""
+    """A published figure: who, the number (or the words where the source gives none), where, and
+    the budget it was reached with (its agent steps in the real environment, in the source's words;
+    empty where it states none)."""
     name: str
     value: float | str
     source: str
+    budget: str = ""
 
 
 RANDOM = {"boxing": Reference("random", 0.1, f"{IRIS}/RANDOM.json"),
@@ -49,22 +52,23 @@ THESIS_SOKOBAN_WM = {
     "5.3.3 auxiliary heads": "reward and value not learned (sparse rewards); no improvement",
 }
 
+ATARI_100K_STEPS = "100k"  # agent steps (400k frames) each Atari-100k agent learns from
 ATARI_100K = {  # agents trained on 100k agent steps, on GPUs
-    "boxing": (Reference("SimPLe (Atari 100k)", 7.8, f"{IRIS}/SimPLe.json"),
-               Reference("EfficientZero (Atari 100k)", 52.7, f"{IRIS}/EfficientZero.json"),
-               Reference("IRIS (Atari 100k)", 70.1, f"{IRIS}/IRIS.json"),
-               Reference("DreamerV3 (Atari 100k)", 78.0, "danijar/dreamerv3 scores"),
-               Reference("STORM (Atari 100k)", 79.7, "weipu-zhang/STORM results/storm.json"),
-               Reference("DIAMOND (Atari 100k)", 86.9, "eloialonso/diamond results/data/DIAMOND.json"),
-               Reference("REM (Atari 100k)", 87.5, "leor-c/REM results/data/REM.json"),
-               Reference("Simulus (Atari 100k)", 93.5, "leor-c/Simulus results/data/atari/Simulus.json")),
-    "freeway": (Reference("SimPLe (Atari 100k)", 16.7, f"{IRIS}/SimPLe.json"),
-                Reference("EfficientZero (Atari 100k)", 21.8, f"{IRIS}/EfficientZero.json"),
-                Reference("IRIS (Atari 100k)", 31.1, f"{IRIS}/IRIS.json"),
-                Reference("Simulus (Atari 100k)", 31.9, "leor-c/Simulus results/data/atari/Simulus.json"),
-                Reference("REM (Atari 100k)", 32.3, "leor-c/REM results/data/REM.json"),
-                Reference("DIAMOND (Atari 100k)", 33.3, "eloialonso/diamond results/data/DIAMOND.json"),
-                Reference("DreamerV3 (Atari 100k)", 0.0, "danijar/dreamerv3 scores")),
+    "boxing": (Reference("SimPLe (Atari 100k)", 7.8, f"{IRIS}/SimPLe.json", ATARI_100K_STEPS),
+               Reference("EfficientZero (Atari 100k)", 52.7, f"{IRIS}/EfficientZero.json", ATARI_100K_STEPS),
+               Reference("IRIS (Atari 100k)", 70.1, f"{IRIS}/IRIS.json", ATARI_100K_STEPS),
+               Reference("DreamerV3 (Atari 100k)", 78.0, "danijar/dreamerv3 scores", ATARI_100K_STEPS),
+               Reference("STORM (Atari 100k)", 79.7, "weipu-zhang/STORM results/storm.json", ATARI_100K_STEPS),
+               Reference("DIAMOND (Atari 100k)", 86.9, "eloialonso/diamond results/data/DIAMOND.json", ATARI_100K_STEPS),
+               Reference("REM (Atari 100k)", 87.5, "leor-c/REM results/data/REM.json", ATARI_100K_STEPS),
+               Reference("Simulus (Atari 100k)", 93.5, "leor-c/Simulus results/data/atari/Simulus.json", ATARI_100K_STEPS)),
+    "freeway": (Reference("SimPLe (Atari 100k)", 16.7, f"{IRIS}/SimPLe.json", ATARI_100K_STEPS),
+                Reference("EfficientZero (Atari 100k)", 21.8, f"{IRIS}/EfficientZero.json", ATARI_100K_STEPS),
+                Reference("IRIS (Atari 100k)", 31.1, f"{IRIS}/IRIS.json", ATARI_100K_STEPS),
+                Reference("Simulus (Atari 100k)", 31.9, "leor-c/Simulus results/data/atari/Simulus.json", ATARI_100K_STEPS),
+                Reference("REM (Atari 100k)", 32.3, "leor-c/REM results/data/REM.json", ATARI_100K_STEPS),
+                Reference("DIAMOND (Atari 100k)", 33.3, "eloialonso/diamond results/data/DIAMOND.json", ATARI_100K_STEPS),
+                Reference("DreamerV3 (Atari 100k)", 0.0, "danijar/dreamerv3 scores", ATARI_100K_STEPS)),
 }
 
 
@@ -75,10 +79,10 @@ def best_atari_100k(game: str) -> Reference:
 
 DRC = "AlignmentResearch/learned-planner plot/data/drc33_*_success_across_thinking_steps.csv"
 BOXOBAN = {  # the best published agent on each kind of Boxoban level, 120-step episodes
-    "unfiltered": Reference("DRC(3,3), 2e9 steps, Boxoban unfiltered test", 99.3, DRC),
-    "medium": Reference("DRC(3,3), 2e9 steps, Boxoban medium valid", "76.6-81.3", DRC),
+    "unfiltered": Reference("DRC(3,3), 2e9 steps, Boxoban unfiltered test", 99.3, DRC, "2e9"),
+    "medium": Reference("DRC(3,3), 2e9 steps, Boxoban medium valid", "76.6-81.3", DRC, "2e9"),
 }
-THINKER = Reference("Thinker, 5e7 frames, Boxoban unfiltered train", 94.5, "Chung et al. 2023, Table 1")
+THINKER = Reference("Thinker, 5e7 frames, Boxoban unfiltered train", 94.5, "Chung et al. 2023, Table 1", "5e7")
 # The Boxoban table's published rows: (agent, unfiltered %, medium %, data, source). Not our
 # levels (their test sets; our report files are valid 005-009): given for scale.
 BOXOBAN_PUBLISHED = (

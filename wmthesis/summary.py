@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from wmthesis.budget import Steps
 from wmthesis.budget_curves import budget_markdown, read_budget_rows
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
 from wmthesis.declarations import NAMES, DECLARED, Of, resolve
@@ -48,7 +49,9 @@ def choice_seeds(experiment: str) -> tuple:
 
 class Run(NamedTuple):
     """One run's headline: which experiment, variant (None: it has none), profile and seed, its
-    score, wall time and file, the kind of machine and the torch threads it ran with."""
+    score, wall time and file, the kind of machine and the torch threads it ran with, its frozen
+    model's fingerprint, and the real environment steps it learned from (``agent_steps``, None where
+    not known; ``steps_at_most``: an upper bound, :mod:`wmthesis.budget`)."""
     experiment: str
     variant: str | None
     profile: str
@@ -59,6 +62,8 @@ class Run(NamedTuple):
     machine: str | None = None
     threads: int | None = None
     model: str | None = None
+    agent_steps: int | None = None
+    steps_at_most: bool = False
 
 
 def model_fingerprint(metrics: dict) -> str | None:
@@ -82,13 +87,55 @@ def run_scores(metrics: dict) -> dict[str | None, float]:
     return resolve(DECLARED[metrics["experiment"]].score)(metrics)
 
 
+def own_steps(metrics: dict) -> Steps | None:
+    """The real environment steps a run learned from, read as its declaration says
+    (:mod:`wmthesis.budget`), without the runs it builds on; None where it declares no reader or
+    its file predates what the reader needs."""
+    reader = DECLARED[metrics["experiment"]].agent_steps
+    try:
+        return None if reader is None else resolve(reader)(metrics)
+    except (KeyError, TypeError, IndexError):
+        return None
+
+
+def with_budgets(runs: list[Run], own: dict[str, Steps | None]) -> list[Run]:
+    """``runs`` with their ``agent_steps``: a run's own (``own``, by file; a Sokoban report run
+    keeps the one its report states) plus, for each experiment its declaration builds on, the
+    default variant's run of the same profile and seed (None where one of them is not known)."""
+    by_key = {(r.experiment, r.variant, r.profile, r.seed): r for r in runs}
+
+    def default(experiment: str, profile: str, seed: int) -> Run | None:
+        registry = VARIANTS.get(experiment)
+        return by_key.get((experiment, None if registry is None else registry.folder_name(None), profile, seed))
+
+    def budget(run: Run) -> Steps | None:
+        steps = own.get(run.path)
+        if steps is None and run.agent_steps is not None:  # a report's run: its agent's store
+            steps = Steps({"store": run.agent_steps})
+        for experiment in DECLARED[run.experiment].builds_on:
+            base = default(experiment, run.profile, run.seed)
+            base_steps = None if base is None else budget(base)
+            if steps is None or base_steps is None:
+                return None
+            steps = base_steps + steps
+        return steps
+
+    out = []
+    for run in runs:
+        steps = budget(run)
+        out.append(run if steps is None else run._replace(agent_steps=steps.total, steps_at_most=steps.at_most))
+    return out
+
+
 def read_runs(folder: str | Path | None = None) -> list[Run]:
     """Every run under ``folder`` (default ``data/results``), one :class:`Run` per variant in a
-    ``metrics.json``, and per kind of a Sokoban report evaluation (:func:`report_runs`). A file
-    that is not JSON or not a run's metrics is skipped with a warning naming it; when two files
-    hold the same run, the newer one counts."""
+    ``metrics.json``, and per kind of a Sokoban report evaluation (:func:`report_runs`), each with
+    the real environment steps it learned from (:func:`with_budgets`). A file that is not JSON or
+    not a run's metrics is skipped with a warning naming it; when two files hold the same run, the
+    newer one counts."""
     folder = Path(folder) if folder is not None else data_dir("results")
     runs: dict[tuple, Run] = {}
+    own: dict[str, Steps | None] = {}
     for path in sorted(folder.rglob("metrics.json"), key=lambda p: p.stat().st_mtime):
         try:
             metrics = json.loads(path.read_text())
@@ -114,13 +161,14 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
         machine, threads = machine_kind(metrics.get("machine")), metrics.get("threads")
         if header[1] in choice_seeds(metrics["experiment"]):  # the choice's evidence: a row apart
             scores = {f"{variant or 'first recipe'}, validation seeds": score for variant, score in scores.items()}
+        own[str(path)] = own_steps(metrics)
         for variant, score in scores.items():
             run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine, threads,
                       model_fingerprint(metrics))
             runs[run[:4]] = run
     for run in report_runs(folder):
         runs[run[:4]] = run
-    return sorted(runs.values(), key=lambda r: (r.experiment, str(r.variant), r.profile, r.seed))
+    return with_budgets(sorted(runs.values(), key=lambda r: (r.experiment, str(r.variant), r.profile, r.seed)), own)
 
 
 def report_runs(folder: Path) -> list[Run]:
@@ -134,7 +182,8 @@ def report_runs(folder: Path) -> list[Run]:
             report = json.loads(path.read_text())
             runs += [Run(NAMES.sokoban_search, f"boxoban-{kind}, {int(report['levels'])} report levels",
                          str(report["profile"]), int(report["seed"]), 100.0 * float(row["solve_rate"]),
-                         report_seconds(report, row), str(path), machine_kind(report.get("machine")))
+                         report_seconds(report, row), str(path), machine_kind(report.get("machine")),
+                         agent_steps=report.get("env_steps"))
                      for kind, row in report["rows"].items()]
         except (ValueError, KeyError, TypeError, AttributeError) as error:
             warnings.warn(f"{path}: skipped, not a Boxoban report ({type(error).__name__}: {error})", stacklevel=2)
@@ -167,7 +216,8 @@ def summarise(runs: list[Run]) -> list[dict]:
              **aggregate([r.score for r in group], BOUNDS.get(experiment)),
              "seeds": [r.seed for r in group], "scores": [r.score for r in group],
              "wall_seconds": [r.wall_seconds for r in group], "machines": [r.machine for r in group],
-             "threads": [r.threads for r in group], "models": [r.model for r in group]}
+             "threads": [r.threads for r in group], "models": [r.model for r in group],
+             "agent_steps": [r.agent_steps for r in group], "steps_at_most": any(r.steps_at_most for r in group)}
             for (experiment, variant, profile), group in groups.items()]
 
 
@@ -219,7 +269,7 @@ def summary_figure(rows: list[dict]):
                 ax.plot([row["ci_low"], row["ci_high"]], [y, y], color="black", lw=2)
             ax.scatter([row["mean"]], [y], marker="|", s=300, color="black", zorder=4)
         at: dict[float, list[str]] = {}  # published numbers, those at one value named together
-        for name, value, _ in published_figures(experiment):
+        for name, value, *_ in published_figures(experiment):
             if isinstance(value, (int, float)):
                 at.setdefault(float(value), []).append(name.split(" (")[0].split(",")[0])
         for value, names in at.items():

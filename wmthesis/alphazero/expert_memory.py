@@ -97,4 +97,11 @@ def train_expert_memory(make_env: Callable, expert: Callable, vision: Callable, 
                         progress=progress)
 
 
-__all__ = ["LATENTS_NAME", "memory_folder", "expert_latents", "train_expert_memory"]
+def expert_steps(work: Path, config, latents_path: str | Path) -> int:
+    """The real steps of the expert's bouts :func:`train_expert_memory` recorded (0 without them)."""
+    if not config.memory_games:
+        return 0
+    return LatentStore(memory_folder(work, config) / LATENTS_NAME).num_steps - LatentStore(latents_path).num_steps
+
+
+__all__ = ["LATENTS_NAME", "memory_folder", "expert_latents", "train_expert_memory", "expert_steps"]

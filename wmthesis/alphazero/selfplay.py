@@ -336,10 +336,11 @@ def train_alphazero(make_env: Callable, vision: Callable, memory, config, *, out
                     if config.reward_model:
                         _train_reward(run, rows, config, config.reward_epochs, seed)
                 if config.test_every and run.games % config.test_every == 0:
-                    returns = [play(env, mind, int(derive_seeds(seed, 1, k)[0]), k, train_mode=False,
-                                    max_steps=config.max_steps).score for k in range(config.test_episodes)]
-                    run.tests.append({"game": run.games, "mean": float(np.mean(returns)),
-                                      "std": float(np.std(returns)), "returns": returns})
+                    tests = [play(env, mind, int(derive_seeds(seed, 1, k)[0]), k, train_mode=False,
+                                  max_steps=config.max_steps) for k in range(config.test_episodes)]
+                    returns = [test.score for test in tests]
+                    run.tests.append({"game": run.games, "mean": float(np.mean(returns)), "std": float(np.std(returns)),
+                                      "returns": returns, "steps": int(sum(len(test) for test in tests))})
                 if checkpoint is not None and (trained or run.games == config.games):
                     save_run(run, checkpoint)
                 bar.update(1)

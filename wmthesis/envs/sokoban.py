@@ -21,6 +21,8 @@ from wmthesis.envs.levels import (BOX, BOX_ON_TARGET, CELL_NAMES, FLOOR, PLAYER,
                                   check_board, fit_board, parse_level)
 from wmthesis.envs.sokoban_generator import generate_level, reachable
 from wmthesis.utils import check_choice
+
+MAX_STEPS = 120  # an episode's steps before it is truncated
 ACTIONS = ("push up", "push down", "push left", "push right",
            "move up", "move down", "move left", "move right")
 MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # up, down, left, right: action % 4
@@ -64,7 +66,7 @@ class SokobanEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
 
-    def __init__(self, dim_room=(10, 10), num_boxes=4, max_steps=120, observation="rgb",
+    def __init__(self, dim_room=(10, 10), num_boxes=4, max_steps=MAX_STEPS, observation="rgb",
                  render_mode="rgb_array", tile_size=16, frame_size=None, levels=None):
         check_choice("observation", observation, OBSERVATIONS)
         check_choice("render_mode", render_mode, RENDER_MODES)

@@ -13,7 +13,7 @@ from wmthesis.alphazero.agent import agent_name, save_agent
 from wmthesis.alphazero.config import AlphaZeroConfig, DiagnosisConfig
 from wmthesis.alphazero.evaluation import (RECORDING_STEPS, boxing_baselines, controller_minds, evaluation_games,
                                            policy_head_returns, score_figure)
-from wmthesis.alphazero.expert_memory import train_expert_memory
+from wmthesis.alphazero.expert_memory import expert_steps, train_expert_memory
 from wmthesis.alphazero.latent_mdp import LatentMDP
 from wmthesis.alphazero.selfplay import train_alphazero
 from wmthesis.alphazero.variants import VARIANTS
@@ -94,7 +94,7 @@ def boxing_wm_alphazero(profile: str | None = None, seed: int = 0, variant: str 
         run = train_alphazero(lambda: boxing_env(cfg.noop_max), vision, searched, cfg, out_dir=work / name,
                                  seed=seed, progress=progress, rollouts=LatentStore(latents), expert=expert)
         stages.append((sum(g.get("seconds", 0.0) for g in run.curve), time.time() - playing))  # its games, every sitting
-        runs[name] = run.summary()
+        runs[name] = {**run.summary(), "memory_steps": expert_steps(work, cfg, latents)}
         save_agent(work / agent_name(name), name, vae, searched, run, memory_cfg, git_commit())  # what `play` plays
         games[name] = evaluation_games(run, vision, searched, cfg, work / name, seed)
         if cfg.expert_games:

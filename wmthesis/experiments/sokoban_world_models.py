@@ -106,6 +106,7 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str
     recording = sokoban_recording(out / "open_loop.rrd", evaluated)
     with EpisodeStore(stores["grid"]) as store:
         store_returns = [float(store.episode(i)["rewards"].sum()) for i in range(len(store))]
+        store_steps = store.num_steps
 
     metrics = {
         **run_header(NAMES.sokoban_wm, profile, seed, time.time() - started),
@@ -114,7 +115,7 @@ def sokoban_world_models(profile: str | None = None, seed: int = 0, variant: str
                                   "generations": c["run"].generation, "curve": c["run"].curve}
                         for variant, c in controllers.items()},
         "random_play": {"score": score_summary(random_returns), "solved": levels_solved(random_returns, random_steps)},
-        "random_play_in_store": score_summary(store_returns),
+        "random_play_in_store": {**score_summary(store_returns), "steps": store_steps},
         "levels": evaluation["levels"],
         "vision_history": vision_history,
         "vision": evaluated["vision"],

@@ -63,6 +63,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     with EpisodeStore(store) as episodes:
         episode = episodes.episode(len(episodes) - 1)  # a validation episode
         random_returns = [float(episodes.episode(i)["rewards"].sum()) for i in range(len(episodes))]
+        random_steps = episodes.num_steps
     scoring = for_profile(BoxingEvaluationConfig, profile)
     context, horizon = scoring.context, scoring.horizon
     rollout = open_loop(vae, memory, episode["observations"], episode["actions"], context=context, horizon=horizon)
@@ -75,7 +76,7 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
         **run_header(NAMES.boxing_wm, profile, seed, time.time() - started,
                      **({} if BOXING_WM.folder_name(chosen.name) is None else {"variant": chosen.name})),
         "score": score_summary(returns),
-        "random_play_in_store": score_summary(random_returns),
+        "random_play_in_store": {**score_summary(random_returns), "steps": random_steps},
         "reference": published(NAMES.boxing_wm),
         "controller_curve": run.curve, "vision_history": wm.vision_history, "memory_history": wm.memory_history,
         **{f"open_loop_{k}": v.tolist() if isinstance(v, np.ndarray) else v for k, v in errors.items()},

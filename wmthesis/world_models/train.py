@@ -149,6 +149,11 @@ class LatentStore:
     def __len__(self) -> int:
         return len(self.ends)
 
+    @property
+    def num_steps(self) -> int:
+        """Steps over every episode."""
+        return int(self.ends[-1]) if len(self.ends) else 0
+
     def returns(self, discount: float) -> torch.Tensor:
         """Discounted Monte-Carlo return from every step to its episode's end, (N,)."""
         rewards = self.data["rewards"].numpy().astype(np.float64)
