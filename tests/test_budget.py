@@ -95,6 +95,7 @@ def test_the_front_doors_column_states_ours_and_the_published_budget():
     assert all(ref.budget == "100k" for refs in ATARI_100K.values() for ref in refs)
     assert short(999) == "999" and short(35_720) == "36k" and Steps({"a": 1}) + Steps({"b": 2}, True) == Steps(
         {"a": 1, "b": 2}, True)
+    assert (Steps({"store": 5}) + Steps({"store": 7})).total == 12  # a stage named twice loses no steps
 
 
 def test_every_headline_row_states_its_budget():

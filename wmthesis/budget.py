@@ -33,7 +33,11 @@ class Steps(NamedTuple):
         return int(sum(self.parts.values()))
 
     def __add__(self, other: "Steps") -> "Steps":
-        return Steps({**self.parts, **other.parts}, self.at_most or other.at_most)
+        """Both budgets' stages; a stage both name counts the steps of both."""
+        parts = dict(self.parts)
+        for stage, steps in other.parts.items():
+            parts[stage] = parts.get(stage, 0) + steps
+        return Steps(parts, self.at_most or other.at_most)
 
 
 def _random_play(store: dict, game: str) -> int:
