@@ -95,10 +95,24 @@ def test_a_committed_notebook_ran_top_to_bottom_on_committed_code(path):
     check_notebook(path)
 
 
+def declared_headlines(path: Path) -> set[str]:
+    """The experiments whose headline (the front door's or a chapter's) ``path``'s notebook holds."""
+    from wmthesis.headline import CHAPTER_ROWS, HEADLINES
+
+    return {h.experiment for h in HEADLINES + CHAPTER_ROWS if path.stem.startswith(f"{h.notebook}_")}
+
+
+def missing_headlines(path: Path, outputs: str) -> set[str]:
+    """The declared headlines of ``path`` for which ``outputs`` print no headline line."""
+    return declared_headlines(path) - {line["experiment"] for line in HEADLINE_LINE.finditer(outputs)}
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_a_committed_notebook_s_headline_numbers_are_the_summary_s(path):
     summary = json.loads((ROOT / "data" / "results" / "summary.json").read_text())["rows"]
     rows = {(r["experiment"], r["variant"] or "default", r["profile"]): r for r in summary}
+    outputs = "\n".join(output_text(cell) for cell in code_cells(path))
+    assert not missing_headlines(path, outputs), f"{path.name}: declares {missing_headlines(path, outputs)} and prints no headline line for it"
     for cell in code_cells(path):
         for line in HEADLINE_LINE.finditer(output_text(cell)):
             key = (line["experiment"], line["variant"], line["profile"])
@@ -262,3 +276,19 @@ def test_a_chapters_verdict_sets_our_interval_against_the_thesiss_bar():
     assert ("**Verdict:** reproduced (the bar: 30, within our interval)" in value) == ("reproduced" in value)
     with pytest.raises(ValueError, match="holds no headline; those that do: 01, 02, 03, 04, 05, 06, 07, 08, 09, 10"):
         chapter_box("00", folder=ROOT / "data" / "results")
+
+
+def test_a_notebook_that_declares_a_headline_and_prints_none_fails(tmp_path):
+    path = tmp_path / "02_boxing_world_models.ipynb"  # notebook 02 holds World Models on Boxing's headline
+    assert declared_headlines(path) == {"boxing-wm"}
+    assert missing_headlines(path, "seed 0: 42.2") == {"boxing-wm"}
+    assert not missing_headlines(path, "headline · boxing-wm · separable-64 · quick: 34.4 [28.9, 40.0] over 10 seeds (0 1)")
+    assert declared_headlines(tmp_path / "00_environments.ipynb") == set()  # the setting: no headline
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_every_notebook_closes_with_what_it_means_for_the_next_chapter(path):
+    """Its last prose section says what the chapter means for what follows."""
+    prose = [("".join(c["source"])) for c in json.loads(path.read_text())["cells"] if c["cell_type"] == "markdown"]
+    assert re.search(r"^## .*(next chapter|what comes next|What this means)", prose[-1], re.M | re.I), \
+        f"{path.name}: its last section is not its closing one: {prose[-1][:80]!r}"

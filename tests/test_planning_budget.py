@@ -262,6 +262,8 @@ def test_the_chapters_box_gives_each_curve_its_largest_budgets_gain_and_verdict(
     rows += [row("sokoban-search", b, 0, 50.0 + 40 * (b > 0), 50.0) for b in (0, 1000)]  # one seed: no interval
     box = budget_box(rows, "quick").splitlines()
     assert box[1].startswith("> **The thesis:** \"planning carries the promise")
+    assert box[2].startswith("> **Learned from:** no steps of its own")
+    box = box[:2] + box[3:]  # each planner's line follows
     # by hand: mean 6, sample std 1, t_{0.975, 2} = 4.303: half width 2.48
     assert "mcts on g: 26.0 at budget 64, +6.0 [+3.5, +8.5] over no search on the same bouts or levels (3 seeds; the " \
            "interval lies above 0 at 1 of its 2 budgets); **Verdict:** reproduced" in box[2]

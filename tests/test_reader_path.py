@@ -1,7 +1,9 @@
 """The path a reader takes: a notebook opened on a fresh clone with ``TRAIN = False`` in ``quick``,
-reading only what the repository ships. The notebooks that open in under a minute run here, in
-full; each must run without an error, print no placeholder and, where it prints a headline line,
-print the summary's numbers (mean, interval and seeds)."""
+reading only what the repository ships. Every notebook runs in full, the quick ones here and the
+ones that play shipped agents for minutes in ``test_reader_path_slow.py`` (another file, so that
+the two test workers share them); each must run without an error, print no placeholder, print a
+headline line for every headline it declares, and print the summary's numbers there (mean,
+interval and seeds)."""
 from __future__ import annotations
 
 import json
@@ -16,8 +18,9 @@ from nbclient import NotebookClient
 from wmthesis.summary import HEADLINE_LINE
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST = ("00_environments", "01_sokoban_world_models", "02_boxing_world_models", "06_kl_scale_free_nats_search",
-        "07_sokoban_search", "09_planet_boxing_value", "11_planning_budget")
+FAST = ("00_environments", "01_sokoban_world_models", "02_boxing_world_models", "03_boxing_world_models_alphazero",
+        "04_planet_sokoban", "06_kl_scale_free_nats_search", "07_sokoban_search", "09_planet_boxing_value",
+        "11_planning_budget")
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +39,13 @@ def shipped(tmp_path_factory) -> Path:
 
 @pytest.mark.parametrize("name", FAST)
 def test_a_notebook_opens_from_what_ships_as_a_reader_opens_it(name, shipped, monkeypatch):
+    opens_as_a_reader_opens_it(name, shipped, monkeypatch)
+
+
+def opens_as_a_reader_opens_it(name: str, shipped: Path, monkeypatch) -> None:
+    """Run notebook ``name`` from ``shipped`` in quick and check what it printed (module docstring)."""
+    from test_notebooks import missing_headlines
+
     monkeypatch.setenv("WMTHESIS_DATA", str(shipped))
     monkeypatch.setenv("WMTHESIS_PROFILE", "quick")
     notebook = nbformat.read(ROOT / "notebooks" / f"{name}.ipynb", as_version=4)
@@ -44,6 +54,8 @@ def test_a_notebook_opens_from_what_ships_as_a_reader_opens_it(name, shipped, mo
     outputs = "\n".join("".join(o.get("text", "")) + "".join(o.get("data", {}).get("text/plain", ""))
                         for cell in notebook.cells if cell.cell_type == "code" for o in cell.get("outputs", []))
     assert "TRAIN = True" not in outputs
+    path = ROOT / "notebooks" / f"{name}.ipynb"
+    assert not missing_headlines(path, outputs), f"{name}: prints no headline line for {missing_headlines(path, outputs)}"
     summary = {(r["experiment"], r["variant"] or "default", r["profile"]): r
                for r in json.loads((ROOT / "data" / "results" / "summary.json").read_text())["rows"]}
     for line in HEADLINE_LINE.finditer(outputs):

@@ -982,18 +982,18 @@ def test_the_target_table_says_by_how_much_a_target_is_missed():
     measures = {"one_step": {"exact": 1.0, "transitions": 6000, "player_vanished": 0.0}, "open_loop": {"30": loop}}
     metrics = {"tables": {"sokoban": {"agent, learned model (pixels)": {"solve_rate": 0.88}}},
                "env_steps": {"pixels": 263_231}, "accuracy": {"sokoban": {"pixels": measures}},
-               "first_run_wall_seconds": 3_700}
+               "first_run_wall_seconds": 4_600}
     verdicts = {row[0]: row[2] for row in target_rows(metrics)}
     assert verdicts["sokoban from pixels: at least 90% solved"] == "missed by 2.0%"
     assert verdicts["sokoban from pixels, model exact open loop +30: at least 95.0%"] == "missed by 1.28%"
     assert verdicts["sokoban from pixels, model exact one step: at least 99.5%"] == "met"
     assert verdicts["sokoban from pixels: no player vanishes"] == "met"
     assert verdicts["pixels: fewer than 1,000,000 environment steps"] == "met"
-    assert verdicts["the whole experiment within 60 minutes (first run)"] == "missed by 1.7 min"
+    assert verdicts["the whole experiment within 75 minutes (first run)"] == "missed by 1.7 min"
     # A run trained elsewhere (validate sokoban-search): its stages' own wall times and the evaluation's.
     timed = {**metrics, "training_wall_seconds": 2_400.0, "evaluation_wall_seconds": 600.0}
     assert {row[0]: row[2] for row in target_rows(timed)}[
-        "the whole experiment within 60 minutes (training's stages + evaluation)"] == "met"
+        "the whole experiment within 75 minutes (training's stages + evaluation)"] == "met"
     measures["open_loop"] = {30: {"sequences": 0}}  # no plan 30 steps long (a smoke run)
     verdicts = {row[0]: row[2] for row in target_rows(metrics)}
     assert verdicts["sokoban from pixels, model exact open loop +30: at least 95.0%"] == "not measured"

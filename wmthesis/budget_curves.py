@@ -161,7 +161,9 @@ def budget_box(rows: list[dict], profile: str = DEFAULT_PROFILE) -> str:
     from wmthesis.references import THESIS_PLANNING
 
     lines = [f"> **Score against search budget** (beyond the thesis: its promise, chapter 1)  ",
-             f"> **The thesis:** \"{THESIS_PLANNING.value}\" ({THESIS_PLANNING.source})  "]
+             f"> **The thesis:** \"{THESIS_PLANNING.value}\" ({THESIS_PLANNING.source})  ",
+             "> **Learned from:** no steps of its own: each planner searches the model of an agent that ships "
+             "(notebooks 03, 07 and 10 state the agent steps each learned from)  "]
     table = budget_table(rows)
     for planner, game in dict.fromkeys((r["planner"], r["game"]) for r in table):
         top = max((r for r in table if (r["planner"], r["game"]) == (planner, game)), key=lambda r: r["budget"])

@@ -39,7 +39,12 @@ def chapter_box(notebook: str, profile: str = "quick", folder=None) -> str:
     blocks = []
     for entry in entries:
         h, row = entry["headline"], entry["row"]
-        thesis = "the thesis gives no figure" if h.thesis is None else f"\"{h.thesis.value}\" ({h.thesis.source})"
+        if h.thesis is None:
+            thesis = "the thesis gives no figure"
+        elif h.thesis.quote:  # its words, then the figure we read in them
+            thesis = f"\"{h.thesis.quote}\" ({h.thesis.source}); as a figure: {h.thesis.value}"
+        else:
+            thesis = f"\"{h.thesis.value}\" ({h.thesis.source})"
         if row is None:
             ours = "not run yet"
         else:

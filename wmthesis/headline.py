@@ -45,7 +45,7 @@ class Headline(NamedTuple):
 
 HEADLINES = (
     Headline(NAMES.sokoban_wm, None, "World Models on Sokoban (controller's return)", "5.3", "01", THESIS_SOKOBAN, None,
-             judged="reproduced", why="no controller of ours solves a level either (the controllers' table above)"),
+             judged="reproduced", why="no controller of ours solves a level either (the controllers' table below)"),
     Headline(NAMES.boxing_wm, BOXING_WM.folder_name(None), "World Models on Boxing", "5.4.1", "02", THESIS_WORLD_MODELS,
              best_atari_100k("boxing"), bar=18.0),
     Headline(NAMES.boxing_wm_alphazero, ALPHAZERO.default.name, "World Models + AlphaZero on Boxing", "5.4.2", "03",

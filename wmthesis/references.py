@@ -14,13 +14,14 @@ IRIS = "eloialonso/iris results/data"
 
 
 class Reference(NamedTuple):
-    """A published figure: who, the number (or the words where the source gives none), where, and
-    the budget it was reached with (its agent steps in the real environment, in the source's words;
-    empty where it states none)."""
+    """A published figure: who, the number (or the words where the source gives none), where, the
+    budget it was reached with (its agent steps in the real environment, in the source's words;
+    empty where it states none), and the source's own words where the figure is our reading of them."""
     name: str
     value: float | str
     source: str
     budget: str = ""
+    quote: str = ""  # the source's own words, where ``value`` is our reading of them
 
 
 RANDOM = {"boxing": Reference("random", 0.1, f"{IRIS}/RANDOM.json"),
@@ -33,7 +34,8 @@ THESIS_ALPHAZERO = Reference("thesis World Models + AlphaZero", "did not train t
 THESIS_PLANET_BOXING = Reference("thesis PlaNet", "around 30", "thesis 5.6.4 (KL scale 0.03, free nats 12)")
 THESIS_PLANET_BOXING_SCORE = 30.0  # "around 30", as a line in the figures
 THESIS_PLANET_FREEWAY = Reference("thesis PlaNet", "failed to solve the task", "thesis 5.6.5")
-THESIS_SOKOBAN = Reference("thesis", "0 levels solved", "thesis 5.3, 5.5")
+THESIS_SOKOBAN = Reference("thesis", "0 levels solved", "thesis 5.3, 5.5", quote="The controller model failed to learn "
+                           "how to solve any level, it behaved comparably to a random play")
 THESIS_PLANET_SOKOBAN = Reference("thesis PlaNet", "did not capture Sokoban dynamics: future predictions are blurred, "
                                   "multiple agents appear", "thesis 5.5.1 (Fig. 58)")
 THESIS_PLANET_SEARCH = Reference("thesis PlaNet", "Random search resulted in the best divergence scale being around 0.03 "
@@ -75,6 +77,17 @@ ATARI_100K = {  # agents trained on 100k agent steps, on GPUs
 def best_atari_100k(game: str) -> Reference:
     """The highest published Atari-100k score on ``game`` (:data:`ATARI_100K`)."""
     return max(ATARI_100K[game], key=lambda ref: float(ref.value))
+
+
+# PlaNet's public code: its defaults for every task (planet/scripts/configs.py; 64x64 frames and a
+# first convolution of 32 channels in its networks), the configuration a reader would start from.
+PLANET_PUBLIC = "google-research/planet planet/scripts/configs.py"
+PLANET_PUBLIC_DEFAULTS = {
+    "frames": "64x64, 5 bits", "encoder depth (first convolution's channels)": "32", "batch (chunks x steps)": "50 x 50",
+    "latent overshooting distance": "0", "random seed bouts": "5", "updates between collected bouts": "5,000",
+    "updates in all": "not capped (runs until stopped)", "agent steps collected": "not capped",
+    "CEM: candidates x horizon x iterations": "1000 x 12 x 10",
+}
 
 
 DRC = "AlignmentResearch/learned-planner plot/data/drc33_*_success_across_thinking_steps.csv"
@@ -132,4 +145,4 @@ __all__ = ["Reference", "RANDOM", "HUMAN", "ATARI_100K", "BOXOBAN", "BOXOBAN_PUB
            "BOXING_PLANET_FIGURES", "FREEWAY_FIGURES", "SOKOBAN_SEARCH_FIGURES", "SOKOBAN_WM_FIGURES", "published_figures",
            "THESIS_WORLD_MODELS", "THESIS_ALPHAZERO", "THESIS_PLANET_BOXING", "THESIS_PLANET_BOXING_SCORE",
            "THESIS_PLANET_FREEWAY", "THESIS_SOKOBAN", "THESIS_PLANET_SOKOBAN", "THESIS_PLANET_SEARCH", "THESIS_PLANNING",
-           "THESIS_SOKOBAN_WM", "published", "human", "random_play", "best_atari_100k"]
+           "THESIS_SOKOBAN_WM", "PLANET_PUBLIC", "PLANET_PUBLIC_DEFAULTS", "published", "human", "random_play", "best_atari_100k"]

@@ -73,10 +73,13 @@ def budget_table(config, metrics: dict, benchmark: dict | None = None) -> str:
     """Our PlaNet run's training budget beside the thesis's (Markdown): ``config``, the run's
     :class:`~wmthesis.planet.config.PlaNetConfig`, against the thesis's best Boxing setting (its
     defaults, 4.4.3-4.4.5, latent overshooting included, with the KL scale and free nats of
-    5.6.3-5.6.4; what it does not state, "not stated"); ``metrics``, the run's (agent steps and updates it
+    5.6.3-5.6.4; what it does not state, "not stated") and PlaNet's public defaults
+    (:data:`~wmthesis.references.PLANET_PUBLIC_DEFAULTS`); ``metrics``, the run's (agent steps and updates it
     spent); ``benchmark``, ``benchmarks/results/planet.json`` where given: what one update and one
     plan cost on the machine it measured, at both sizes."""
     import dataclasses
+
+    from wmthesis.references import PLANET_PUBLIC, PLANET_PUBLIC_DEFAULTS
 
     tuned = PLANET_BOXING.changes(PLANET_BOXING.default.name)
     thesis = dataclasses.replace(type(config)(), kl_scale=tuned["kl_scale"], free_nats=tuned["free_nats"])
@@ -102,9 +105,11 @@ def budget_table(config, metrics: dict, benchmark: dict | None = None) -> str:
         rows += [(f"one update ({where})", cost("update (quick)"), cost("update (thesis)")),
                  (f"one plan ({where})", cost("cem_plan (quick)"), cost("cem_plan (thesis)"))]
     changed = [f.name for f in dataclasses.fields(config) if getattr(config, f.name) != getattr(thesis, f.name)]
-    lines = ["| | ours | the thesis |", "|---|---|---|"]
-    lines += [f"| {name} | {ours} | {theirs} |" for name, ours, theirs in rows]
-    return "\n".join(lines) + f"\n\nEvery setting of ours that differs from the thesis's best Boxing setting: {', '.join(changed)}."
+    lines = ["| | ours | the thesis | PlaNet's public defaults |", "|---|---|---|---|"]
+    lines += [f"| {name} | {ours} | {theirs} | {PLANET_PUBLIC_DEFAULTS.get(name, 'as the thesis')} |"
+              for name, ours, theirs in rows]
+    return ("\n".join(lines) + f"\n\nEvery setting of ours that differs from the thesis's best Boxing setting: "
+            f"{', '.join(changed)}. PlaNet's public defaults: {PLANET_PUBLIC}.")
 
 
 __all__ = ["budget_table", "agent_table", "FIRST_STEPS", "play_bout", "bout_result", "bout_scores"]

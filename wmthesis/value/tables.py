@@ -96,8 +96,8 @@ def frozen_model_line(value_run: dict, agent_run: dict) -> str:
             f"{theirs['mean']:.1f} on notebook 05's agent of the same seed, over the same bouts: ")
     if same:
         return said + "the same model"
-    return said + (f"another training of that seed (this value run is of {value_run['date']}, the agent run of "
-                   f"{agent_run['date']}): each number is its own model's")
+    return said + ("another training of that seed, from before the agent was trained again (the value run's "
+                   "commit is older than the agent run's): each number is its own model's")
 
 
 def other_episodes_line(value_run: dict, planet_run: dict, name: str) -> str:
