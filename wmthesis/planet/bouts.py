@@ -106,7 +106,7 @@ def budget_table(config, metrics: dict, benchmark: dict | None = None) -> str:
                  (f"one plan ({where})", cost("cem_plan (quick)"), cost("cem_plan (thesis)"))]
     changed = [f.name for f in dataclasses.fields(config) if getattr(config, f.name) != getattr(thesis, f.name)]
     lines = ["| | ours | the thesis | PlaNet's public defaults |", "|---|---|---|---|"]
-    lines += [f"| {name} | {ours} | {theirs} | {PLANET_PUBLIC_DEFAULTS.get(name, 'as the thesis')} |"
+    lines += [f"| {name} | {ours} | {theirs} | {PLANET_PUBLIC_DEFAULTS.get(name, 'not measured')} |"
               for name, ours, theirs in rows]
     return ("\n".join(lines) + f"\n\nEvery setting of ours that differs from the thesis's best Boxing setting: "
             f"{', '.join(changed)}. PlaNet's public defaults: {PLANET_PUBLIC}.")
