@@ -44,15 +44,14 @@ def test_a_notebook_opens_from_what_ships_as_a_reader_opens_it(name, shipped, mo
 
 def opens_as_a_reader_opens_it(name: str, shipped: Path, monkeypatch) -> None:
     """Run notebook ``name`` from ``shipped`` in quick and check what it printed (module docstring)."""
-    from test_notebooks import missing_headlines
+    from test_notebooks import missing_headlines, output_text
 
     monkeypatch.setenv("WMTHESIS_DATA", str(shipped))
     monkeypatch.setenv("WMTHESIS_PROFILE", "quick")
     notebook = nbformat.read(ROOT / "notebooks" / f"{name}.ipynb", as_version=4)
     NotebookClient(notebook, timeout=600, kernel_name="python3",
                    resources={"metadata": {"path": str(ROOT / "notebooks")}}).execute()
-    outputs = "\n".join("".join(o.get("text", "")) + "".join(o.get("data", {}).get("text/plain", ""))
-                        for cell in notebook.cells if cell.cell_type == "code" for o in cell.get("outputs", []))
+    outputs = "\n".join(output_text(cell) for cell in notebook.cells if cell.cell_type == "code")
     assert "TRAIN = True" not in outputs
     path = ROOT / "notebooks" / f"{name}.ipynb"
     assert not missing_headlines(path, outputs), f"{name}: prints no headline line for {missing_headlines(path, outputs)}"
