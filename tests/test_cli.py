@@ -95,7 +95,8 @@ def test_sokoban_search_trains_then_solves_levels_from_a_text_file(tmp_path, cap
             assert row["levels"] == 2 and row["source"].startswith(f"boxoban-{kind}-valid:005-009")
             assert row["replayed"] == row["solved"] and len(row["failed_levels"]) == 2 - row["solved"]
         assert table["A* (reference)"]["solved"] == 2  # both first levels solve with the rules written in
-        assert table["random play"]["levels"] == 2 and table["thesis"]["solve_rate"] == 0.0
+        assert table["random play"]["levels"] == 2 and table["thesis"]["solve_rate"] is None  # it never played Boxoban
+    assert generated["thesis"] == {"solve_rate": 0.0} and metrics["tables"]["sokoban-small"]["thesis"]["solve_rate"] is None
     rows = {row[0]: row for row in boxoban_rows(metrics)}
     assert rows["A* (reference)"][1:3] == ["100.0", "100.0"] and "2e9 env steps" in rows["DRC(3,3), model-free"]
     assert metrics["boxoban"]["splits"]["validation"]["medium"] == "boxoban-medium-valid:000-001"

@@ -64,3 +64,19 @@ def test_record_frames_side_by_side(tmp_path):
     rows = recording_rows(record_frames(tmp_path / "r.rrd", {"truth": truth, "prediction": truth[:3]},
                                         {"error": np.arange(5.0)}))
     assert rows["/truth"] == 5 and rows["/prediction"] == 3 and rows["/error"] == 5
+
+
+@pytest.mark.parametrize("rows", [2, 3])
+def test_a_figure_of_image_rows_keeps_its_title_above_the_top_row(rows):
+    """Fig. 56 and 57 once drew their titles over the top row's frames (set after the layout)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from wmthesis.viz import image_grid, image_rows
+
+    frames = [np.zeros((64, 64, 3), np.uint8)] * 8
+    for fig in (image_rows({f"row {r}": frames for r in range(rows)}, suptitle="Fig. 56: vision reconstructions"),
+                image_grid(frames * rows, ncols=8, suptitle="a chunk")):
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        title = fig._suptitle.get_window_extent(renderer)
+        assert title.y0 >= max(ax.get_window_extent(renderer).y1 for ax in fig.axes)

@@ -441,6 +441,11 @@ def test_the_value_curve_is_drawn_from_a_run_s_metrics_alone():
     earlier = {**{k: v for k, v in metrics.items() if k != "agent_rounds"}, "best_round": 2}  # a run of 26 November
     ax = value_curve_figure(earlier, {}).axes[0]
     assert [list(line.get_ydata()) for line in ax.lines if line.get_marker() == "."] == [[4.0, 6.0]]  # one round: no mean
+    assert ax.get_title() == "Boxing: the value agent after each round"
+    lean = {**metrics, "curve": [{k: v for k, v in e.items() if k not in ("mean", "std")} for e in metrics["curve"]]}
+    ax = value_curve_figure(lean, {}).axes[0]  # a lean run scores no round: its agent, one point, titled so
+    assert [list(line.get_ydata()) for line in ax.lines if line.get_marker() == "."] == [[7.0]]
+    assert ax.get_title() == "Boxing: the value agent, the mean of rounds 2-3"
 
 
 def test_imagined_features_follow_the_actions_taken_from_each_posterior_and_their_signal_is_a_correlation():

@@ -265,10 +265,14 @@ def test_the_chapters_box_gives_each_curve_its_largest_budgets_gain_and_verdict(
     assert box[2].startswith("> **Learned from:** no steps of its own")
     box = box[:2] + box[3:]  # each planner's line follows
     # by hand: mean 6, sample std 1, t_{0.975, 2} = 4.303: half width 2.48
-    assert "mcts on g: 26.0 at budget 64, +6.0 [+3.5, +8.5] over no search on the same bouts or levels (3 seeds; the " \
-           "interval lies above 0 at 1 of its 2 budgets); **Verdict:** reproduced" in box[2]
-    assert box[3].endswith("(2 seeds; the interval lies above 0 at 0 of its 1 budgets); **Verdict:** not shown at this budget  ") \
-        and "-1.5 [" in box[3]
-    assert "sokoban-search on g: 90.0 at budget 1,000, +40.0 over no search" in box[4] and "not shown" in box[4]
+    assert "mcts on g: 26.0 at budget 64, +6.0 [+3.5, +8.5] over no search on the same bouts or levels (3 seeds); " \
+           "**Verdict** on the claim \"a gain above 0\", by budget: not settled at 3 seeds (the interval holds both " \
+           "the claim and its denial) at 4; not settled at 3 seeds (beyond needs 5 seeds" in box[2]
+    assert "-1.5 [" in box[3] and box[3].endswith("by budget: not settled at 2 seeds (the interval holds both the claim "
+                                                  "and its denial) at 300  ")
+    assert "sokoban-search on g: 90.0 at budget 1,000, +40.0 over no search" in box[4] and \
+        "not settled at 1 seed (one seed gives no interval) at 1,000" in box[4]
     hurt = [row("mcts", b, s, 10.0 - 3.0 * (b > 0) - 0.1 * s * (b > 0), 10.0) for s in (0, 1, 2) for b in (0, 8)]
-    assert budget_box(hurt).endswith("**Verdict:** search hurts")
+    assert "by budget: not reproduced at 8" in budget_box(hurt)
+    five = [row("mcts", b, s, 10.0 + (6.0 + 0.1 * s) * (b > 0), 10.0) for s in range(5) for b in (0, 8)]
+    assert "by budget: beyond at 8" in budget_box(five)

@@ -1018,6 +1018,25 @@ def test_the_boxoban_target_table_says_by_how_much_each_of_issue_30s_targets_is_
     assert len(boxoban_target_rows(untimed)) == len(verdicts) - 1
 
 
+def test_the_tables_give_the_thesis_a_figure_only_on_the_levels_it_played():
+    """The thesis played a generator's 10x10 levels (5.1.2), never our 7x7 ones nor Boxoban: its row
+    says so there, also for a run written when every table gave it 0."""
+    from wmthesis.sokoban_search.evaluation import NOT_PLAYED, thesis_row
+    from wmthesis.sokoban_search.figures import results_table
+    from wmthesis.sokoban_search.tables import boxoban_rows
+
+    assert thesis_row("sokoban") == {"solve_rate": 0.0}
+    assert thesis_row("sokoban-small")["solve_rate"] is None and thesis_row("medium")["note"] == NOT_PLAYED
+    agent = "agent, learned model (pixels)"
+    rows = {"thesis": {"solve_rate": 0.0}, agent: {"solve_rate": 0.5, "solved": 1, "levels": 2}}  # as runs wrote them
+    lines = {line.split(" | ")[0]: line for line in results_table(rows, "sokoban-small").splitlines()}
+    assert lines["| thesis"].startswith(f"| thesis | {NOT_PLAYED} |") and lines[f"| {agent}"].startswith(f"| {agent} | 0.5 | 1 | 2 |")
+    assert "| thesis | 0 |" in results_table(rows, "sokoban") and "| thesis | 0 |" in results_table(rows)
+    metrics = {"boxoban": {"tables": {kind: rows for kind in ("unfiltered", "medium")}}, "env_steps": {"pixels": 10}}
+    table = {row[0]: row for row in boxoban_rows(metrics)}
+    assert table["thesis"][1:3] == [NOT_PLAYED, NOT_PLAYED] and table[agent][1:3] == ["50.0", "50.0"]
+
+
 def test_a_batch_draws_its_special_fractions_among_the_rows_they_mark():
     rows = np.arange(1000)
     groups = {"5x5": {"states": np.zeros((1000, 5, 5), np.uint8), "rewards": (rows % 100 == 0).astype(np.float32),

@@ -154,29 +154,35 @@ def row_line(row: dict) -> str:
 
 
 def budget_box(rows: list[dict], profile: str = DEFAULT_PROFILE) -> str:
-    """The chapter's opening box (Markdown): the thesis's promise, and per planner and game its
-    largest budget's paired gain over no search with the 95% interval over seeds, at how many of its
-    budgets that interval lies above 0, and the verdict (on the largest budget): *reproduced* where the interval lies above 0, *search hurts* where it lies below,
-    *not shown at this budget* where it holds 0 (or one seed gives no interval)."""
+    """The chapter's opening box (Markdown): the thesis's promise, and per planner and game the
+    verdict (:mod:`wmthesis.verdicts`) on the claim that search pays, a paired gain over no search
+    above 0, at each of its budgets: the largest budget's gain with its 95% interval over seeds, then
+    the budgets by verdict."""
     from wmthesis.references import THESIS_PLANNING
+    from wmthesis.verdicts import RULE, Claim, verdict
 
+    pays = Claim("gain")
     lines = [f"> **Score against search budget** (beyond the thesis: its promise, chapter 1)  ",
              f"> **The thesis:** \"{THESIS_PLANNING.value}\" ({THESIS_PLANNING.source})  ",
              "> **Learned from:** no steps of its own: each planner searches the model of an agent that ships "
              "(notebooks 03, 07 and 10 state the agent steps each learned from)  "]
     table = budget_table(rows)
     for planner, game in dict.fromkeys((r["planner"], r["game"]) for r in table):
-        top = max((r for r in table if (r["planner"], r["game"]) == (planner, game)), key=lambda r: r["budget"])
-        low, high = top["gain_ci_low"], top["gain_ci_high"]
-        said = ("not shown at this budget" if low is None or low <= 0 <= high else
-                "reproduced" if low > 0 else "search hurts")
-        interval = "" if low is None else f" [{low:+.1f}, {high:+.1f}]"
         searched = [r for r in table if (r["planner"], r["game"]) == (planner, game) and r["budget"] != NO_SEARCH]
-        above = sum(r["gain_ci_low"] is not None and r["gain_ci_low"] > 0 for r in searched)
+        if not searched:
+            continue
+        said = {r["budget"]: verdict(pays, r["gain"], r["gain_ci_low"], r["gain_ci_high"], r["seeds"]) for r in searched}
+        top = max(searched, key=lambda r: r["budget"])
+        interval = "" if top["gain_ci_low"] is None else f" [{top['gain_ci_low']:+.1f}, {top['gain_ci_high']:+.1f}]"
+        by_word: dict[str, list[str]] = {}
+        for budget, v in said.items():
+            by_word.setdefault(str(v), []).append(f"{budget:,}")
+        verdicts = "; ".join(f"{word} at {', '.join(budgets)}" for word, budgets in by_word.items())
         lines.append(f"> **Ours** (`{profile}`), {planner} on {game}: {top['score']:.1f} at budget {top['budget']:,}, "
                      f"{top['gain']:+.1f}{interval} over no search on the same bouts or levels ({top['seeds']} "
-                     f"seed{'s' * (top['seeds'] > 1)}; the interval lies above 0 at {above} of its {len(searched)} "
-                     f"budgets); **Verdict:** {said}  ")
+                     f"seed{'s' * (top['seeds'] > 1)}); **Verdict** on the claim \"{pays.words()}\", by budget: "
+                     f"{verdicts}  ")
+    lines.append(f"> *The verdict's rule:* {RULE}")
     return "\n".join(lines).rstrip()
 
 

@@ -105,7 +105,8 @@ class Declaration:
 
 DECLARATIONS = (  # the thesis's and ours, built in; DECLARED holds them and every one declare() adds
     Declaration(NAMES.sokoban_wm, "5.3", "wmthesis.experiments.sokoban_world_models:sokoban_world_models",
-                published="wmthesis.references:SOKOBAN_WM_FIGURES",
+                published="wmthesis.references:SOKOBAN_WM_FIGURES", score="wmthesis.scores:sokoban_world_models_scores",
+                measure="percent of evaluation levels the controller solved", bounds=(0.0, 100.0),
                 agent_steps="wmthesis.budget:sokoban_world_models_steps"),
     Declaration(NAMES.boxing_wm, "5.4.1", "wmthesis.experiments.world_models:boxing_world_models",
                 published="wmthesis.references:BOXING_WM_FIGURES", agent_steps="wmthesis.budget:world_models_steps",

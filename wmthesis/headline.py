@@ -16,11 +16,14 @@ import numpy as np
 
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO
 from wmthesis.budget import short
-from wmthesis.declarations import NAMES
+from wmthesis.declarations import DECLARED, NAMES
+from wmthesis.scores import SOKOBAN_VISION
 from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.references import (BOXOBAN, RANDOM, THESIS_ALPHAZERO, THESIS_PLANET_BOXING, THESIS_PLANET_BOXING_SCORE,
                                  THESIS_PLANET_FREEWAY, THESIS_PLANET_SEARCH, THESIS_PLANET_SOKOBAN, THESIS_SOKOBAN,
+                                 THESIS_SOKOBAN_VISION,
                                  THESIS_WORLD_MODELS, Reference, best_atari_100k)
+from wmthesis.verdicts import Claim, verdict
 
 BEGIN, END = "<!-- results: written by `python -m wmthesis summary` -->", "<!-- end of results -->"
 
@@ -28,9 +31,10 @@ BEGIN, END = "<!-- results: written by `python -m wmthesis summary` -->", "<!-- 
 class Headline(NamedTuple):
     """A row of the front door: the summary row of ``experiment``'s ``variant`` (its key in the
     summary), what it is, the thesis section (or where beyond it), the notebook, the thesis's
-    figure and the best published one; for its chapter's verdict (:mod:`wmthesis.chapters`),
-    ``bar``, the number the thesis's figure stands for (None: the thesis gave none, and ``judged``
-    is the verdict), and ``why``, one line on what explains the verdict."""
+    figure and the best published one; ``claim``, what the row claims as a
+    :class:`~wmthesis.verdicts.Claim` (its verdict: :func:`judge`; None: the thesis judged it by
+    eye, and ``judged``, one of :data:`~wmthesis.verdicts.VERDICTS`, is ours by eye on the figure
+    beside it), and ``why``, one line on what explains the verdict."""
     experiment: str
     variant: str | None
     title: str
@@ -38,56 +42,94 @@ class Headline(NamedTuple):
     notebook: str
     thesis: Reference | None
     published: Reference | None
-    bar: float | None = None
+    claim: Claim | None = None
     judged: str = ""
     why: str = ""
 
 
 HEADLINES = (
-    Headline(NAMES.sokoban_wm, None, "World Models on Sokoban (controller's return)", "5.3", "01", THESIS_SOKOBAN, None,
-             judged="reproduced", why="no controller of ours solves a level either (the controllers' table below)"),
+    Headline(NAMES.sokoban_wm, None, "World Models on Sokoban: % of levels its controller solves", "5.3", "01",
+             THESIS_SOKOBAN, None, Claim("failed", 0.0),
+             why="no controller of ours solves a level either (the controllers' table below)"),
     Headline(NAMES.boxing_wm, BOXING_WM.folder_name(None), "World Models on Boxing", "5.4.1", "02", THESIS_WORLD_MODELS,
-             best_atari_100k("boxing"), bar=18.0),
+             best_atari_100k("boxing"), Claim("above", 18.0)),
     Headline(NAMES.boxing_wm_alphazero, ALPHAZERO.default.name, "World Models + AlphaZero on Boxing", "5.4.2", "03",
-             THESIS_ALPHAZERO, best_atari_100k("boxing"), bar=RANDOM["boxing"].value,
-             why="the thesis's coupling did not learn to plan, so its bar is random play's score"),
+             THESIS_ALPHAZERO, best_atari_100k("boxing"), Claim("failed", RANDOM["boxing"].value),
+             why="the thesis's coupling did not learn to plan, so its failure is random play's score"),
     Headline(NAMES.planet_boxing_agent, None, "PlaNet on Boxing (KL scale 0.03, free nats 12)", "5.6.4", "05",
-             THESIS_PLANET_BOXING, best_atari_100k("boxing"), bar=30.0,
-             why="trained at far smaller sizes than the thesis's (the table below sets the two side by side); a learned "
-                 "value on a frozen PlaNet model comes nearer (notebooks 09 and 10)"),
+             THESIS_PLANET_BOXING, best_atari_100k("boxing"), Claim("around", THESIS_PLANET_BOXING_SCORE),
+             why="trained at far smaller sizes than the thesis's, as this CPU affords (the table below sets them "
+                 "side by side with what an update and a plan cost at each); a learned value on a frozen PlaNet "
+                 "model comes nearer (notebooks 09 and 10)"),
     Headline(NAMES.planet_freeway, "freeway-tuned", "PlaNet on Freeway", "5.6.5", "08", THESIS_PLANET_FREEWAY,
-             best_atari_100k("freeway"), bar=0.0,
-             why="the bar is our reading of the thesis's words, no crossing; a player pressing UP at every step scores "
-                 "nearly as much as ours (below): what a planner adds over it is cars dodged"),
+             best_atari_100k("freeway"), Claim("failed", 0.0),
+             why="the failure is our reading of the thesis's words, no crossing; a player pressing UP at every step "
+                 "scores nearly as much as ours (below): what a planner adds over it is cars dodged"),
     Headline(NAMES.planet_boxing_value, "lean-value-rewards-0.7, cem-with-value",
              "Boxing: CEM with a learned value on PlaNet's model", "beyond", "10", THESIS_PLANET_BOXING,
-             best_atari_100k("boxing"), bar=30.0),
+             best_atari_100k("boxing"), Claim("around", THESIS_PLANET_BOXING_SCORE)),
     Headline(NAMES.planet_freeway_value, "cem-with-value", "Freeway: CEM with a learned value on PlaNet's model", "beyond",
-             "08", THESIS_PLANET_FREEWAY, best_atari_100k("freeway"), bar=0.0),
+             "08", THESIS_PLANET_FREEWAY, best_atari_100k("freeway"), Claim("failed", 0.0)),
     Headline(NAMES.sokoban_search, "boxoban-unfiltered, 1000 report levels",
              "Sokoban by search in a learned model: Boxoban unfiltered, % solved", "beyond (ch. 1)", "07",
-             THESIS_SOKOBAN, BOXOBAN["unfiltered"], bar=0.0),
+             THESIS_SOKOBAN, BOXOBAN["unfiltered"], Claim("failed", 0.0)),
     Headline(NAMES.sokoban_search, "boxoban-medium, 1000 report levels",
              "Sokoban by search in a learned model: Boxoban medium, % solved", "beyond (ch. 1)", "07", THESIS_SOKOBAN,
-             BOXOBAN["medium"], bar=0.0),
+             BOXOBAN["medium"], Claim("failed", 0.0)),
 )
 
 # Rows that open a chapter without standing in the front door's table: a figure the thesis judged
 # by eye, a search's measure, a step on the way to another chapter's headline.
 CHAPTER_ROWS = (
+    Headline(NAMES.sokoban_wm, SOKOBAN_VISION, "World Models on Sokoban: the vision, % of reconstructions showing "
+             "one player", "5.3.1", "01", THESIS_SOKOBAN_VISION, None, Claim("above", 50.0),
+             why="its reconstructions keep the walls and floor and lose the player and the boxes (Fig. 5.4 and the "
+                 "table below): a 16-number latent spends itself on the level's layout"),
     Headline(NAMES.planet_sokoban, "unchanged", "PlaNet on Sokoban-small (greedy return)", "5.5.1", "04",
              THESIS_PLANET_SOKOBAN, None, judged="reproduced",
-             why="its open-loop predictions blur and lose the player from the first imagined steps on (Fig. 58 "
-                 "below), as the thesis's did"),
+             why="its open-loop predictions blur and lose the player from the first "
+                 "imagined steps on (Fig. 5.8 below), as the thesis's did"),
     Headline(NAMES.planet_boxing_search, None, "KL scale x free nats: the best trial's open-loop error x 1000 on held-out "
              "bouts (lower is better)", "5.6.3-5.6.5", "06", THESIS_PLANET_SEARCH, None,
-             judged="not reproduced at this budget",
+             judged="not reproduced",
              why="its best and worst settings differ by less than one setting's two seeds do (below), so its trials "
                  "choose no setting"),
     Headline(NAMES.planet_boxing_value, None, "Boxing: a learned value alone on PlaNet's model (the round chosen on "
              "validation bouts)", "beyond", "09", THESIS_PLANET_BOXING, best_atari_100k("boxing"),
-             bar=THESIS_PLANET_BOXING_SCORE),
+             Claim("around", THESIS_PLANET_BOXING_SCORE)),
 )
+
+
+def seed_hours(row: dict | None, rows: list[dict]) -> float | None:
+    """What another seed of ``row`` costs, in hours of one core: its seeds' mean wall time, plus
+    that of the default row of each experiment it builds on, of the same profile (a new seed
+    trains those too). None where a time is not recorded."""
+    def hours(r: dict | None) -> float | None:
+        walls = [w for w in (r or {}).get("wall_seconds", []) if w is not None]
+        return None if not walls else float(np.mean(walls)) / 3600
+
+    own = hours(row)
+    if row is None or own is None:
+        return None
+    by_key = {(r["experiment"], r["variant"], r["profile"]): r for r in rows}
+    for experiment in DECLARED[row["experiment"]].builds_on:
+        registry = DECLARED[experiment].registry()
+        base = hours(by_key.get((experiment, None if registry is None else registry.folder_name(None), row["profile"])))
+        if base is None:
+            return None
+        own += base
+    return own
+
+
+def judge(headline: Headline, row: dict | None, rows: list[dict] = ()) -> str:
+    """``headline``'s verdict on its summary ``row`` (:mod:`wmthesis.verdicts`), as the summary, the
+    README and every chapter print it; ``rows``, the summary's, price another seed where the
+    verdict is not settled. ``"not run yet"`` where no seed ran."""
+    if row is None:
+        return "not run yet"
+    if headline.claim is None:
+        return f"{headline.judged} (by eye)"
+    return str(verdict(headline.claim, row["mean"], row["ci_low"], row["ci_high"], row["n"], seed_hours(row, list(rows))))
 
 
 def _ours(row: dict | None) -> str:
@@ -162,12 +204,14 @@ def headline_table(rows: list[dict], profile: str = "quick") -> str:
         return f"{ref.value} ({ref.name})[^{notes.index(ref.source) + 1}]"
 
     lines = [f"| experiment | thesis | the thesis's figure | ours, `{profile}`: mean [95% interval] (seeds) "
-             "| best published | agent steps to learn: ours (best published's) | notebook | minutes a seed (machine) |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| the claim: verdict | best published | agent steps to learn: ours (best published's) | notebook "
+             "| minutes a seed (machine) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for entry in headline_rows(rows, profile):
         h, row = entry["headline"], entry["row"]
         thesis = "" if h.thesis is None else str(h.thesis.value)
-        lines.append(f"| {h.title} | {h.section} | {thesis} | {_ours(row)} | {cite(h.published)} "
+        said = (f"{h.claim.words()}: " if h.claim is not None else "") + judge(h, row, rows)
+        lines.append(f"| {h.title} | {h.section} | {thesis} | {_ours(row)} | {said} | {cite(h.published)} "
                      f"| {agent_steps(row, h.published)} | {h.notebook} | {_minutes(row)} |")
     lines += ["", *(f"[^{i + 1}]: {source}" for i, source in enumerate(notes))]
     return "\n".join(lines)
@@ -267,5 +311,5 @@ def readme_with_table(readme: str, table: str, begin: str = BEGIN, end: str = EN
     return pattern.sub(lambda _: f"{begin}\n{table}\n{end}", readme, count=1)
 
 
-__all__ = ["Headline", "HEADLINES", "BEGIN", "END", "headline_rows", "headline_table", "ablation_rows",
+__all__ = ["Headline", "HEADLINES", "CHAPTER_ROWS", "judge", "seed_hours", "BEGIN", "END", "headline_rows", "headline_table", "ablation_rows",
            "ablation_table", "readme_with_table"]

@@ -34,8 +34,11 @@ THESIS_ALPHAZERO = Reference("thesis World Models + AlphaZero", "did not train t
 THESIS_PLANET_BOXING = Reference("thesis PlaNet", "around 30", "thesis 5.6.4 (KL scale 0.03, free nats 12)")
 THESIS_PLANET_BOXING_SCORE = 30.0  # "around 30", as a line in the figures
 THESIS_PLANET_FREEWAY = Reference("thesis PlaNet", "failed to solve the task", "thesis 5.6.5")
-THESIS_SOKOBAN = Reference("thesis", "0 levels solved", "thesis 5.3, 5.5", quote="The controller model failed to learn "
+THESIS_SOKOBAN = Reference("thesis", "0 levels solved", "thesis 5.3.1", quote="The controller model failed to learn "
                            "how to solve any level, it behaved comparably to a random play")
+THESIS_SOKOBAN_VISION = Reference("thesis", "reconstructions that show the frame, its player included (most frames)",
+                                  "thesis 5.3.1 (Fig. 54)", quote="The vision model successfully learned to encode high "
+                                  "dimensional observations into low dimensional latent states")
 THESIS_PLANET_SOKOBAN = Reference("thesis PlaNet", "did not capture Sokoban dynamics: future predictions are blurred, "
                                   "multiple agents appear", "thesis 5.5.1 (Fig. 58)")
 THESIS_PLANET_SEARCH = Reference("thesis PlaNet", "Random search resulted in the best divergence scale being around 0.03 "

@@ -32,6 +32,19 @@ def agent_score(metrics: dict) -> dict:
     return {None: float(metrics["agent"]["full"]["mean"])}
 
 
+def sokoban_world_models_scores(metrics: dict) -> dict:
+    """World Models on Sokoban: the percent of evaluation levels its controller solved (the thesis's
+    measure: "failed to learn how to solve any level"), and its vision's, the percent of frames
+    whose reconstruction shows exactly one player (Fig. 5.4's claim: the vision "successfully learned")."""
+    episodes = int(metrics["score"]["episodes"])
+    one_player = metrics["baselines"]["vae reconstruction"]["at_cutoff"]["one_player"]
+    return {None: 100.0 * int(metrics["controllers"]["mdn"]["solved"]) / episodes,
+            SOKOBAN_VISION: 100.0 * float(one_player)}
+
+
+SOKOBAN_VISION = "vision, reconstructions showing one player (%)"  # the summary's key of the vision's row
+
+
 def sokoban_scores(metrics: dict) -> dict:
     """Percent solved of the generated levels, and of Boxoban's report files where measured."""
     boxoban = metrics.get("boxoban", {}).get("tables", {})
@@ -40,4 +53,4 @@ def sokoban_scores(metrics: dict) -> dict:
                for kind, rows in boxoban.items()}}
 
 
-__all__ = ["variant_score", "no_score", "alphazero_scores", "value_scores", "agent_score", "sokoban_scores"]
+__all__ = ["SOKOBAN_VISION", "sokoban_world_models_scores", "variant_score", "no_score", "alphazero_scores", "value_scores", "agent_score", "sokoban_scores"]

@@ -27,7 +27,7 @@ from wmthesis.budget import Steps
 from wmthesis.budget_curves import budget_markdown, read_budget_rows
 from wmthesis.experiments import EXPERIMENTS, VARIANTS
 from wmthesis.declarations import NAMES, DECLARED, Of, resolve
-from wmthesis.headline import BEGIN, END, ablation_table, headline_rows, headline_table, readme_with_table
+from wmthesis.headline import BEGIN, END, ablation_table, headline_rows, headline_table, judge, readme_with_table
 from wmthesis.metrics import aggregate
 from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
 from wmthesis.references import published_figures
@@ -306,7 +306,8 @@ def headlines(profile: str = "quick", folder=None) -> list[dict]:
     """Every headline as plain data (floats, lists, strings): ``experiment``, ``variant``,
     ``title``, ``section``, ``notebook``, the ``thesis``'s figure and the best ``published`` one
     (each ``{"name", "value", "source"}`` or None), and ``ours`` over seeds (``mean``, ``ci_low``,
-    ``ci_high``, ``n``, ``seeds``, ``scores``; None where not run yet), read from every run's
+    ``ci_high``, ``n``, ``seeds``, ``scores``; None where not run yet) with its ``verdict``
+    (:func:`wmthesis.headline.judge`), read from every run's
     ``metrics.json`` under ``folder`` (default ``data/results``) as ``summary`` reads them."""
     def plain(value):
         return None if value is None else float(value)
@@ -315,7 +316,8 @@ def headlines(profile: str = "quick", folder=None) -> list[dict]:
         return None if ref is None else {"name": ref.name, "value": ref.value, "source": ref.source}
 
     out = []
-    for entry in headline_rows(summarise(read_runs(folder)), profile):
+    rows = summarise(read_runs(folder))
+    for entry in headline_rows(rows, profile):
         h, row = entry["headline"], entry["row"]
         ours = None if row is None else {"mean": plain(row["mean"]), "ci_low": plain(row["ci_low"]),
                                          "ci_high": plain(row["ci_high"]), "n": int(row["n"]),
@@ -323,7 +325,7 @@ def headlines(profile: str = "quick", folder=None) -> list[dict]:
                                          "scores": [plain(s) for s in row["scores"]]}
         out.append({"experiment": h.experiment, "variant": h.variant, "title": h.title, "section": h.section,
                     "notebook": h.notebook, "thesis": reference(h.thesis), "published": reference(h.published),
-                    "ours": ours})
+                    "ours": ours, "verdict": judge(h, row, rows)})
     return out
 
 

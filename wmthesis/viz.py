@@ -38,13 +38,15 @@ def image_grid(images: Sequence[np.ndarray], ncols: int = 8, titles: Sequence[st
     return fig
 
 
-def image_rows(rows: dict[str, Sequence[np.ndarray]], scale: float = 1.1):
-    """One labelled row of images per entry, e.g. ``{"raw": frames, "world_models": small}``.
+def image_rows(rows: dict[str, Sequence[np.ndarray]], scale: float = 1.1, suptitle: str | None = None):
+    """One labelled row of images per entry, e.g. ``{"raw": frames, "world_models": small}``,
+    under ``suptitle`` where given (laid out with the figure, so it stays above the top row).
 
     Rows may hold images of different sizes; columns line up by index.
     """
     ncols = max(len(images) for images in rows.values())
-    fig, axes = plt.subplots(len(rows), ncols, figsize=(scale * ncols, scale * len(rows)), squeeze=False)
+    fig, axes = plt.subplots(len(rows), ncols, figsize=(scale * ncols, scale * len(rows) + (0.3 if suptitle else 0)),
+                             squeeze=False)
     for (label, images), row in zip(rows.items(), axes):
         for index, ax in enumerate(row):
             ax.set_xticks([])
@@ -54,6 +56,8 @@ def image_rows(rows: dict[str, Sequence[np.ndarray]], scale: float = 1.1):
             else:
                 ax.axis("off")
         row[0].set_ylabel(label, fontsize=8)
+    if suptitle:
+        fig.suptitle(suptitle, fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -18,8 +18,8 @@ from wmthesis.sokoban_search import accuracy
 from wmthesis.sokoban_search.agent import EVAL_PURPOSE, level_seeds, random_play
 from wmthesis.sokoban_search.cells import code_table, render_cells
 from wmthesis.sokoban_search.config import SokobanEvaluationConfig, SokobanSearchConfig
-from wmthesis.sokoban_search.evaluation import (THESIS_SOLVED, agent_row, astar_board_row, astar_row, check_solutions,
-                                                random_board_row, random_row, replay_states)
+from wmthesis.sokoban_search.evaluation import (agent_row, astar_board_row, astar_row, check_solutions,
+                                                random_board_row, random_row, replay_states, THESIS_ROW, thesis_row)
 from wmthesis.sokoban_search.figures import plot_plan, plot_rounds, record_solution
 from wmthesis.sokoban_search.iteration import (evaluation_search, load_run, policy_afterwards, schedule,
                                                train_search_agent)
@@ -70,7 +70,7 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
         played = {name: merged_parts([read_json(evaluations[name, variant, part][0]) for part in range(EVAL_PARTS)], seeds)
                   for name in agents}
         tables[variant] = {"random play": cached(work / f"random-{variant}.json", random_row, variant, seeds),
-                           "thesis": {"solve_rate": THESIS_SOLVED},
+                           THESIS_ROW: thesis_row(variant),
                            "agent, learned model (pixels)": played["pixels"]["row"],
                            "agent, true simulator (pixels)": played["simulator"]["row"],
                            "A* (reference)": cached(work / f"astar-{variant}-{len(played_on['simulator'])}.json",
@@ -219,7 +219,7 @@ def _boxoban_table(kind: str, jobs: dict, profile: str) -> dict:
     source, rows = BOXOBAN_SPLITS["report"][kind], {}
     boards = load_levels(source)
     rows["random play"] = read_json(jobs["random", kind, 0][0])
-    rows["thesis"] = {"solve_rate": THESIS_SOLVED}
+    rows[THESIS_ROW] = thesis_row(kind)  # the thesis never played Boxoban
     for name, title in BOXOBAN_AGENTS.items():
         rows[title] = boxoban_row(level_plays(jobs, name, kind), source, boards)
     rows["A* (reference)"] = read_json(jobs["astar", kind, 0][0])

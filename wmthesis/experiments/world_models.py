@@ -174,11 +174,11 @@ def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float =
 
 def _boxing_figures(out: Path, frames, reconstructions, rollout, curve) -> list[Path]:
     paths = []
-    fig = image_rows({"original": list(frames[::25][:8]), "reconstruction": list(reconstructions)})
-    fig.suptitle("Fig. 56: vision reconstructions")
+    fig = image_rows({"original": list(frames[::25][:8]), "reconstruction": list(reconstructions)},
+                     suptitle="Fig. 56: vision reconstructions")
     paths.append(save_figure(fig, out / "fig56_reconstructions.png"))
-    fig = image_rows({"truth": list(rollout["truth"][::3]), "memory": list(rollout["prediction"][::3])})
-    fig.suptitle("Fig. 57: open-loop memory rollout (every 3rd step)")
+    fig = image_rows({"truth": list(rollout["truth"][::3]), "memory": list(rollout["prediction"][::3])},
+                     suptitle="Fig. 57: open-loop memory rollout (every 3rd step)")
     paths.append(save_figure(fig, out / "fig57_open_loop.png"))
     fig, ax = plt.subplots(figsize=(5, 3))
     plot_learning_curve(curve, ax=ax, title="CMA-ES fitness per generation")

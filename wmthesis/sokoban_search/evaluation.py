@@ -1,6 +1,7 @@
 """The table of the Sokoban search's targets: solve rates on unseen levels within the environment's 120 steps.
 
-Rows: random play; the thesis (0 levels, 5.3 and 5.5); the search agent in its learned model;
+Rows: random play; the thesis (0 levels, 5.3 and 5.5, on the levels it played: a generator's 10x10
+rooms with 4 boxes, 5.1.2; none on levels it never played); the search agent in its learned model;
 the same agent, same budget, with the true rules in place of the model (the upper bound: the gap
 to it is the model's fault); A* over pushes (``envs.sokoban.solve``, a reference with the rules
 and a heuristic written in, not an agent).
@@ -17,6 +18,18 @@ from wmthesis.sokoban_search.agent import Play, grid_env, grid_state, random_pla
 from wmthesis.utils import derive_seeds
 
 THESIS_SOLVED = 0.0  # 5.3 and 5.5: no level solved
+# The levels the thesis played (5.1.2: a generator's 10x10 rooms with 4 boxes): our generator's ``sokoban``.
+# It never played our 7x7 ``sokoban-small`` nor Boxoban's files, so it has no figure there.
+THESIS_LEVELS = ("sokoban",)
+NOT_PLAYED = "not played by the thesis"
+THESIS_ROW = "thesis"  # the thesis's row's name in a table of levels solved
+
+
+def thesis_row(levels: str) -> dict:
+    """The thesis's row in a table of ``levels`` (a variant of our generator, or a Boxoban kind):
+    no level solved where it played such levels, else no figure (``solve_rate`` None) and a ``note``
+    saying so."""
+    return {"solve_rate": THESIS_SOLVED} if levels in THESIS_LEVELS else {"solve_rate": None, "note": NOT_PLAYED}
 
 
 def play_levels(agent, variant: str, seeds, desc: str = "levels", progress: bool = True) -> list[Play]:
@@ -162,4 +175,4 @@ def check_solutions(variant: str, records: list[dict]) -> list[bool]:
 
 __all__ = ["play_levels", "solve_boards", "check_board_solutions", "agent_row", "random_row", "astar_row",
            "random_board_row", "astar_board_row", "replay_states", "check_solutions",
-           "THESIS_SOLVED", "random_play", "board_env"]
+           "THESIS_SOLVED", "THESIS_LEVELS", "NOT_PLAYED", "THESIS_ROW", "thesis_row", "random_play", "board_env"]

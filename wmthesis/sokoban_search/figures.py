@@ -8,6 +8,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmthesis.sokoban_search.agent import grid_env
+from wmthesis.sokoban_search.evaluation import THESIS_ROW, thesis_row
 from wmthesis.envs.sokoban import make_tiles, render_board
 from wmthesis.viz import image_grid, image_rows, markdown_table, record_frames
 
@@ -48,8 +49,11 @@ def plot_rounds(runs: dict[str, list[dict]]):
     return fig
 
 
-def results_table(rows: dict[str, dict]) -> str:
-    """Markdown table of evaluation rows (name -> measures)."""
+def results_table(rows: dict[str, dict], levels: str | None = None) -> str:
+    """Markdown table of evaluation rows (name -> measures). ``levels``, the table's (a variant of
+    our generator, or a Boxoban kind): its thesis row is then :func:`thesis_row`'s, a run's own
+    or not (runs written before it gave the thesis 0 on levels it never played); a row without a
+    solve rate shows its ``note`` there."""
     def cell(value):
         if value is None:
             return ""
@@ -57,7 +61,10 @@ def results_table(rows: dict[str, dict]) -> str:
             return f"{value:.3g}"
         return str(value)
 
-    return markdown_table([[name] + [cell(row.get(c)) for c in TABLE_COLUMNS] for name, row in rows.items()],
+    if levels is not None and THESIS_ROW in rows:
+        rows = {name: thesis_row(levels) if name == THESIS_ROW else row for name, row in rows.items()}
+    return markdown_table([[name, row.get("note", "") if row.get("solve_rate") is None else cell(row["solve_rate"]),
+                            *(cell(row.get(c)) for c in TABLE_COLUMNS[1:])] for name, row in rows.items()],
                           ["", *TABLE_COLUMNS])
 
 

@@ -12,6 +12,7 @@ from wmthesis.metrics import aggregate
 from wmthesis.references import BOXOBAN_PUBLISHED
 from wmthesis.runs import read_json, results_folder
 from wmthesis.sokoban_search.config import SokobanSearchConfig
+from wmthesis.sokoban_search.evaluation import THESIS_ROW, thesis_row
 from wmthesis.sokoban_search.report import BOXOBAN_AGENTS, evaluation_record
 from wmthesis.utils import data_dir
 
@@ -102,6 +103,9 @@ def boxoban_rows(metrics: dict) -> list[list]:
     steps = metrics["env_steps"]
     data = {title: steps.get("pixels") for title in BOXOBAN_AGENTS.values()}
     for title in tables["unfiltered"]:
+        if title == THESIS_ROW:  # a run's own row or not (runs written before gave it 0): it never played Boxoban
+            rows.append([title, *(thesis_row(k).get("note", "") for k in ("unfiltered", "medium")), "", "", ""])
+            continue
         measured = {kind: tables[kind][title] for kind in tables}
         levels = {m.get("levels") for m in measured.values()} - {None}
         rows.append([title, *(f"{100 * measured[k]['solve_rate']:.1f}" for k in ("unfiltered", "medium")),

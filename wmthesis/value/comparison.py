@@ -157,14 +157,19 @@ def fit_and_compare(experiment: str, game: str, planet_run: Path, work: Path, ou
 
 def value_curve_figure(metrics: dict, references: dict[str, float]):
     """The value agent after each round of a value run (its ``metrics``, :func:`fit_and_compare`'s):
-    the rounds that were scored, the agent where it is a mean of rounds, and as lines the baselines,
-    CEM with the value and ``references`` (label -> score)."""
+    the rounds that were scored, the agent where it is a mean of rounds (a run that scored no round:
+    that one point, titled so), and as lines the baselines, CEM with the value and ``references``
+    (label -> score)."""
     planner = metrics["value_planner"]
     lines = {BASELINE_LABELS[name]: b["full"]["mean"] for name, b in metrics["baselines"].items()}
     lines.update({f"CEM, H{planner['config']['horizon']}, with the value at its end": planner["full"]["mean"], **references})
-    return learning_curve_figure(_value_curves(metrics["curve"], chosen_rounds(metrics), metrics["value"]),
+    rounds = chosen_rounds(metrics)
+    scored = any("mean" in entry for entry in metrics["curve"])  # a lean run scores no round: one point, its agent
+    return learning_curve_figure(_value_curves(metrics["curve"], rounds, metrics["value"]),
                                  references=lines, x="episodes",
-                                 title=f"{metrics['env'].capitalize()}: the value agent after each round")
+                                 title=f"{metrics['env'].capitalize()}: the value agent" + (
+                                     " after each round" if scored else f", the mean of rounds {rounds[0]}-{rounds[-1]}"
+                                     if len(rounds) > 1 else f" of round {rounds[0]}"))
 
 
 def _value_curves(curve: list[dict], rounds: list[int], value: dict) -> dict[str, dict]:
