@@ -108,13 +108,6 @@ def test_memory_resume_with_changed_config_fails(trained, boxing_store, tmp_path
         train_memory(path, tmp_path, dataclasses.replace(config, hidden_size=64), n_actions=18, progress=False)
 
 
-def test_boxing_dream_refuses_a_non_positive_temperature():
-    from wmthesis.experiments import boxing_dream
-
-    with pytest.raises(ValueError, match="temperature must be positive, got 0"):
-        boxing_dream("smoke", temperature=0)
-
-
 def test_boxing_wm_variants_share_the_world_model_and_each_evolves_in_a_folder_of_its_own(tmp_path):
     from wmthesis.experiments import reproduce
     from wmthesis.world_models.variants import BOXING_WM, ROOT, controller_config, controller_folder

@@ -53,6 +53,11 @@ def world_models_steps(metrics: dict) -> Steps:
                   "CMA-ES": int(metrics["controller_curve"][-1]["agent_steps"])})
 
 
+def dream_steps(metrics: dict) -> Steps:
+    """World Models learning in the dream: every real step its budget spent, by stage."""
+    return Steps({stage: int(steps) for stage, steps in metrics["budget"]["spent"].items()})
+
+
 def sokoban_world_models_steps(metrics: dict) -> Steps:
     """World Models on Sokoban: the random rollouts (recorded, or at most an episode's limit each) and
     every controller's CMA-ES."""
@@ -107,5 +112,5 @@ def short(steps: int) -> str:
     return f"{steps / 1e3:.0f}k" if steps >= 1e3 else str(steps)
 
 
-__all__ = ["FULL_BOUT", "Steps", "world_models_steps", "sokoban_world_models_steps", "alphazero_steps", "store_steps",
+__all__ = ["FULL_BOUT", "Steps", "world_models_steps", "dream_steps", "sokoban_world_models_steps", "alphazero_steps", "store_steps",
            "value_steps", "short"]

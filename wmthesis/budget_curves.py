@@ -162,7 +162,7 @@ def budget_box(rows: list[dict], profile: str = DEFAULT_PROFILE) -> str:
     from wmthesis.verdicts import RULE, Claim, verdict
 
     pays = Claim("gain")
-    lines = [f"> **Score against search budget** (beyond the thesis: its promise, chapter 1)  ",
+    lines = ["> **Score against search budget** (beyond the thesis: its promise, chapter 1)  ",
              f"> **The thesis:** \"{THESIS_PLANNING.value}\" ({THESIS_PLANNING.source})  ",
              "> **Learned from:** no steps of its own: each planner searches the model of an agent that ships "
              "(notebooks 03, 07 and 10 state the agent steps each learned from)  "]

@@ -73,6 +73,8 @@ OVERRIDES: dict[str, dict[str, dict]] = {
         "SokobanEvaluationConfig": dict(report_levels=2, reference_levels=2, validation_levels=2),
         "DiagnosisConfig": dict(depth=5),
         "BoxingEvaluationConfig": dict(bouts=2, context=10, horizon=10),
+        "DreamConfig": dict(budget=400, random_bouts=2, bouts=2, memory_updates=3, generations=2, population=8,
+                            starts=4, warmup=4, dream_length=8),
         "SokobanWorldModelsConfig": dict(sequence_length=None, levels=4, episodes=2, context=10, horizon=10, cutoff=5),
         "PlanetEvaluationConfig": dict(episodes=2, sokoban_open_loop=(4, 8, 4), atari_open_loop=(4, 8, 4), study_held_out=2,
                                        study_sequences=4, study_context=4, study_horizon=4, agent_bouts=2, figure_sequences=1),

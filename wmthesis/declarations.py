@@ -29,6 +29,7 @@ class Names:
     sokoban_wm: str = "sokoban-wm"
     boxing_wm: str = "boxing-wm"
     boxing_wm_alphazero: str = "boxing-wm-alphazero"
+    boxing_wm_dream: str = "boxing-wm-dream"
     planet_sokoban: str = "planet-sokoban"
     planet_boxing: str = "planet-boxing"
     planet_freeway: str = "planet-freeway"
@@ -120,6 +121,13 @@ DECLARATIONS = (  # the thesis's and ours, built in; DECLARED holds them and eve
                 score="wmthesis.scores:alphazero_scores",
                 agent=AgentFile("{profile}/boxing-wm-alphazero/seed{seed}/agent-{variant}.pt",
                                 "wmthesis.alphazero.trained:load_trained", "boxing")),
+    Declaration(NAMES.boxing_wm_dream, "beyond", "wmthesis.experiments.world_models_dream:boxing_wm_dream",
+                published="wmthesis.references:BOXING_DREAM_FIGURES", agent_steps="wmthesis.budget:dream_steps",
+                variants="wmthesis.world_models.variants:DREAM_VARIANTS",
+                choice_seeds="wmthesis.world_models.variants:DREAM_VALIDATION_SEEDS",
+                measure="mean return over 10 full bouts, after at most 100k real agent steps",
+                agent=AgentFile("{profile}/boxing-wm-dream/{folder}seed{seed}/agent.pt",
+                                "wmthesis.world_models.trained:load_trained", "boxing")),
     Declaration(NAMES.planet_sokoban, "5.5.1", "wmthesis.experiments.planet:planet_sokoban",
                 agent_steps="wmthesis.budget:store_steps",
                 variants="wmthesis.planet.variants:PLANET_SOKOBAN",

@@ -113,6 +113,9 @@ BOXOBAN_PUBLISHED = (
 
 # The figures each experiment's results are shown beside, named by its declaration's ``published``.
 BOXING_WM_FIGURES = (RANDOM["boxing"], HUMAN["boxing"], THESIS_WORLD_MODELS)
+# learning in the dream: beside the agents that learn in a model from Atari 100k's budget
+BOXING_DREAM_FIGURES = (RANDOM["boxing"], HUMAN["boxing"], *(r for r in ATARI_100K["boxing"]
+                                                             if r.name.split(" ")[0] in ("SimPLe", "IRIS")))
 ALPHAZERO_FIGURES = (RANDOM["boxing"], HUMAN["boxing"], THESIS_ALPHAZERO)
 BOXING_PLANET_FIGURES = (RANDOM["boxing"], HUMAN["boxing"], THESIS_PLANET_BOXING, *ATARI_100K["boxing"])
 FREEWAY_FIGURES = (RANDOM["freeway"], HUMAN["freeway"], THESIS_PLANET_FREEWAY, *ATARI_100K["freeway"])
@@ -144,7 +147,7 @@ def random_play(game: str) -> float:
     return float(RANDOM[game].value)
 
 
-__all__ = ["Reference", "RANDOM", "HUMAN", "ATARI_100K", "BOXOBAN", "BOXOBAN_PUBLISHED", "THINKER", "BOXING_WM_FIGURES", "ALPHAZERO_FIGURES",
+__all__ = ["Reference", "RANDOM", "HUMAN", "ATARI_100K", "BOXOBAN", "BOXOBAN_PUBLISHED", "THINKER", "BOXING_WM_FIGURES", "BOXING_DREAM_FIGURES", "ALPHAZERO_FIGURES",
            "BOXING_PLANET_FIGURES", "FREEWAY_FIGURES", "SOKOBAN_SEARCH_FIGURES", "SOKOBAN_WM_FIGURES", "published_figures",
            "THESIS_WORLD_MODELS", "THESIS_ALPHAZERO", "THESIS_PLANET_BOXING", "THESIS_PLANET_BOXING_SCORE",
            "THESIS_PLANET_FREEWAY", "THESIS_SOKOBAN", "THESIS_PLANET_SOKOBAN", "THESIS_PLANET_SEARCH", "THESIS_PLANNING",

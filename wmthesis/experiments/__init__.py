@@ -26,7 +26,8 @@ from wmthesis.experiments.sokoban_search import sokoban_search
 from wmthesis.experiments.sokoban_world_models import (SOKOBAN_FRAME_SIZE, SOKOBAN_WM_CONTROLLERS,
                                                        SOKOBAN_WM_VARIANTS, sokoban_wm_configs,
                                                        sokoban_world_models)
-from wmthesis.experiments.world_models import DREAM_CHANGES, boxing_dream, boxing_world_models
+from wmthesis.experiments.world_models import boxing_world_models
+from wmthesis.experiments.world_models_dream import boxing_wm_dream
 from wmthesis.alphazero.variants import VARIANTS as ALPHAZERO_VARIANTS
 from wmthesis.world_models.variants import BOXING_WM
 from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
@@ -117,7 +118,7 @@ def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int 
 __all__ = ["EXPERIMENTS", "VARIANTS", "DEFAULT_RESULTS", "reproduce", "reproduce_all", "seed_runs", "sokoban_search", 
            "sokoban_world_models", "sokoban_wm_configs", "SOKOBAN_WM_VARIANTS", "SOKOBAN_WM_CONTROLLERS",
            "SOKOBAN_FRAME_SIZE",
-           "boxing_world_models", "boxing_dream", "DREAM_CHANGES",
+           "boxing_world_models", "boxing_wm_dream",
            "boxing_wm_alphazero", "RECORDING_STEPS",
            "planet_experiment", "planet_variants", "planet_boxing_study", "planet_boxing_agent", "planet_boxing_value",
            "planet_freeway_value",

@@ -12,7 +12,6 @@ import numpy as np
 from wmthesis.config import CollectConfig, for_profile, profile_name
 from wmthesis.data import EpisodeStore
 from wmthesis.declarations import NAMES
-from wmthesis.envs.vector import make_game
 from wmthesis.metrics import score_summary
 from wmthesis.references import published
 from wmthesis.rollouts import collect
@@ -20,9 +19,9 @@ from wmthesis.stamp import git_commit
 from wmthesis.runs import (first_run_seconds, hold, over_sittings, read_json, releasing_holds, results_folder, run_header,
                            work_folder, write_json)
 from wmthesis.viz import image_rows, record_frames, save_figure
-from wmthesis.world_models.config import BoxingEvaluationConfig, ControllerConfig, MemoryConfig, VisionConfig
+from wmthesis.world_models.config import BoxingEvaluationConfig, MemoryConfig, VisionConfig
 from wmthesis.world_models.agent import save_agent
-from wmthesis.world_models.evolution import evaluate_population, final_bout_seeds, train_controller
+from wmthesis.world_models.evolution import score_bouts, train_controller
 from wmthesis.world_models.figures import plot_learning_curve
 from wmthesis.world_models.prediction import open_loop, open_loop_errors
 from wmthesis.training import trained_seconds
@@ -57,7 +56,8 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
                                                 cached["files"].get("agent", "")])):
         return cached  # this controller's evaluation, figures and recording, made before
 
-    returns = _final_score(run, vision, memory, controller_cfg, profile)
+    returns = score_bouts(run.mean_params, vision, memory, for_profile(BoxingEvaluationConfig, profile).bouts,
+                          controller_cfg.noop_max, controller_cfg.max_steps)
     agent = save_agent(agent_path(work, chosen.name), vae, memory, run, for_profile(MemoryConfig, profile), git_commit())
 
     with EpisodeStore(store) as episodes:
@@ -92,19 +92,6 @@ def boxing_world_models(profile: str | None = None, seed: int = 0, variant: str 
     return metrics
 
 
-def _final_score(run, vision, memory, cfg, profile: str) -> np.ndarray:
-    """The CMA-ES mean's returns (n,) over 10 full bouts (2 short ones in smoke), the same
-    seeded no-op starts for every controller and seed."""
-    n_eval = for_profile(BoxingEvaluationConfig, profile).bouts
-    game = make_game("boxing", n_eval, noop_max=cfg.noop_max)
-    try:
-        returns, _ = evaluate_population(run.mean_params[None], game, vision, memory, seeds=final_bout_seeds(n_eval),
-                                         max_steps=cfg.max_steps)
-    finally:
-        game.close()
-    return returns[0]
-
-
 class BoxingWorldModel(NamedTuple):
     """The Boxing world model of a profile and seed: its folders (``work``: artifacts,
     ``out``: results), the random rollouts' store path, the VAE and its
@@ -137,39 +124,6 @@ def _world_model(profile: str, seed: int, progress: bool) -> BoxingWorldModel:
     trained = trained_seconds(work / "vision.pt") + trained_seconds(work / f"memory-{memory_cfg.kind}.pt")
     return BoxingWorldModel(work, results_folder(NAMES.boxing_wm, profile, seed), store, vae,
                             VAEVision(vae), memory, vision_history, memory_history, trained)
-
-
-# Dreams are cheap in real steps, so the dream controller keeps the thesis's population and episodes.
-DREAM_CHANGES = dict(dream=True, population=64, episodes=5)
-
-
-@releasing_holds
-def boxing_dream(profile: str | None = None, seed: int = 0, temperature: float = 1.0,
-                 progress: bool = True) -> dict:
-    """Beyond the thesis: evolve the Boxing controller inside the memory's dream, as Ha &
-    Schmidhuber did for VizDoom, on the world model of :func:`boxing_world_models` (same
-    ``profile`` and ``seed``; its cached steps are reused).
-
-    The memory is the environment: it samples the next latent at ``temperature`` and predicts
-    reward and done. Every ``eval_every`` generations the CMA-ES mean plays ``eval_episodes``
-    real episodes. Returns (and writes to ``dream-t<temperature>.json`` beside the Boxing
-    metrics) the learning curve, whose ``mean``/``best`` are dream returns and ``eval_return``
-    real ones, and the real score of the final mean over 10 full bouts.
-    """
-    if not temperature > 0:
-        raise ValueError(f"the dream's temperature must be positive, got {temperature}")
-    profile = profile_name(profile)
-    started = time.time()
-    wm = _world_model(profile, seed, progress)
-    vision, memory = wm.vision, wm.memory
-    cfg = for_profile(ControllerConfig, profile, seed=seed, temperature=temperature, **DREAM_CHANGES)
-    run = train_controller("boxing", vision, memory, cfg, out_dir=wm.work / f"controller-dream-t{temperature:g}",
-                           progress=progress)
-    returns = _final_score(run, vision, memory, cfg, profile)
-    metrics = {**run_header("boxing-wm-dream", profile, seed, time.time() - started, temperature=temperature),
-               "score": score_summary(returns), "controller_curve": run.curve}
-    write_json(wm.out / f"dream-t{temperature:g}.json", metrics, default=float)
-    return metrics
 
 
 def _boxing_figures(out: Path, frames, reconstructions, rollout, curve) -> list[Path]:

@@ -119,4 +119,40 @@ class SokobanWorldModelsConfig:
         return dict(levels=self.levels, episodes=self.episodes, context=self.context, horizon=self.horizon,
                     cutoff=self.cutoff)
 
-__all__ = ["VisionConfig", "MemoryConfig", "ControllerConfig", "BoxingEvaluationConfig", "SokobanWorldModelsConfig"]
+@dataclass(frozen=True)
+class DreamConfig:
+    """Learning inside the dream (beyond the thesis: World Models' iterative procedure, after Ha &
+    Schmidhuber 2018 and SimPLe, Kaiser et al. 2019) under a budget of real agent steps.
+
+    ``budget``: real agent steps the run may spend (Atari 100k's 100,000 = 400k frames; the final
+    evaluation bouts do not count); ``random_bouts``: the first random-play bouts; then, while the
+    budget lasts, each iteration fine-tunes the memory on every real step so far for
+    ``memory_updates`` updates, evolves the controller in the dream for ``generations`` CMA-ES
+    generations (``population`` candidates, ``starts`` dreams each, all from the same real states
+    of the store: the memory warmed on ``warmup`` real steps, then ``dream_length`` dreamed steps
+    at ``temperature``), and plays ``bouts`` real bouts with the CMA-ES mean, which join the
+    store. ``reward_weight``: a rewarded step's weight in the memory's reward term (1: as the
+    thesis). ``disagreement``: the weight of the penalty where ``ensemble`` memories disagree on
+    the next latent (0 with one memory: none). The controller kept is the iteration's mean whose
+    real bouts scored best."""
+
+    budget: int = 100_000
+    random_bouts: int = 10
+    bouts: int = 5
+    memory_updates: int = 300
+    generations: int = 20
+    population: int = 64
+    starts: int = 16
+    warmup: int = 20
+    dream_length: int = 50
+    temperature: float = 1.0
+    sigma: float = 0.1
+    reward_weight: float = 1.0
+    ensemble: int = 1
+    disagreement: float = 0.0
+    noop_max: int = 30
+    seed: int = 0
+
+
+__all__ = ["VisionConfig", "MemoryConfig", "ControllerConfig", "BoxingEvaluationConfig", "SokobanWorldModelsConfig",
+           "DreamConfig"]

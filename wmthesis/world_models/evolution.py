@@ -67,7 +67,8 @@ def _population(params, in_features: int, n_actions: int, device) -> tuple[torch
 
 @torch.inference_mode()
 def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, max_steps: int | None = None,
-                        timings: dict | None = None, frames: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+                        timings: dict | None = None, frames: list | None = None,
+                        moves: list | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Play every candidate on the same E seeded episodes in the real game, all at once.
 
     ``params``: (P, D) flat controllers; ``game``: N = P * E envs (:func:`make_game`), env
@@ -78,7 +79,7 @@ def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, m
     steps. Returns returns and steps, each (P, E). ``timings`` (a dict of floats) accumulates
     seconds under ``vision``, ``memory`` and ``controller``; ``frames`` (a list) gets every
     step's frames, (N, 64, 64, 3) uint8 each, the first the starts' (env n's episode ends at
-    its ``steps``).
+    its ``steps``); ``moves`` (a list) gets every step's actions and rewards, (N,) each, as pairs.
     """
     P, E = len(params), len(seeds)
     if game.num_envs != P * E:
@@ -105,6 +106,8 @@ def evaluate_population(params, game, vision: Callable, memory=None, *, seeds, m
         shown, rewards, done = game.step(actions.cpu().numpy())
         if frames is not None:
             frames.append(shown.copy())
+        if moves is not None:
+            moves.append((actions.cpu().numpy(), np.asarray(rewards, np.float32) * alive))
         returns += rewards
         steps += alive
         if done.all():
@@ -121,6 +124,18 @@ def final_bout_seeds(n: int) -> np.ndarray:
     """The seeds of the ``n`` bouts a finished controller is scored on (the same for every
     controller and seed, apart from every generation's): (n,)."""
     return np.arange(n) + FINAL_SEEDS
+
+
+def score_bouts(params, vision: Callable, memory, bouts: int, noop_max: int, max_steps: int | None = None) -> np.ndarray:
+    """A finished controller ``params`` (D,) over the first ``bouts`` bouts every controller is
+    scored on (:func:`final_bout_seeds`; full bouts unless ``max_steps``): its returns, (bouts,)."""
+    game = make_game("boxing", bouts, noop_max=noop_max)
+    try:
+        returns, _ = evaluate_population(np.asarray(params)[None], game, vision, memory, seeds=final_bout_seeds(bouts),
+                                         max_steps=max_steps)
+    finally:
+        game.close()
+    return returns[0]
 
 
 def random_play(game, seeds, *, seed: int = 0, max_steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -154,19 +169,27 @@ def next_latent(prediction: Mixture | torch.Tensor, temperature: float, generato
 @torch.inference_mode()
 def dream_population(params, memory, start_latents: torch.Tensor, *, temperature: float = 1.0,
                      max_steps: int = 1000, noops=None, generator: torch.Generator | None = None,
-                     timings: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     timings: dict | None = None, start_state: tuple | None = None,
+                     penalty=None) -> tuple[np.ndarray, np.ndarray]:
     """Play every candidate on E dreamed episodes, all at once, with the memory as environment.
 
-    ``params``: (P, D); ``start_latents``: (E, L), the encoded first frames of E real episodes;
-    ``noops``: (E,) leading no-op actions, as in the real game. Each step: the controller acts
-    on ``[z h]``; the memory reads ``(z, a)`` and predicts the reward, done (``P(done) > 0.5``)
-    and the next latent, sampled at ``temperature``. Returns returns and steps, each (P, E).
+    ``params``: (P, D); ``start_latents``: (E, L), the encoded first frames of E real episodes,
+    or real states met later in them, with the memory's LSTM state there (``start_state``, each
+    (1, E, H); None: an episode's start); ``noops``: (E,) leading no-op actions, as in the real
+    game. Each step: the controller acts on ``[z h]``; the memory reads ``(z, a)`` and predicts
+    the reward, done (``P(done) > 0.5``) and the next latent, sampled at ``temperature``;
+    ``penalty`` (where given), a function of ``(z, actions)`` (N, L), (N,) -> (N,), is taken off
+    each step's reward. Returns returns and steps, each (P, E).
     """
     P, E = len(params), len(start_latents)
     z = start_latents.repeat(P, 1)  # (P * E, L): row p * E + e
     weight, bias = _population(params, z.shape[-1] + memory.hidden_size, memory.n_actions, z.device)
-    state = memory.initial_state(P * E, z.device)
-    h = torch.zeros(P * E, memory.hidden_size, device=z.device)
+    if start_state is None:
+        state = memory.initial_state(P * E, z.device)
+        h = torch.zeros(P * E, memory.hidden_size, device=z.device)
+    else:
+        state = tuple(part.repeat(1, P, 1) for part in start_state)
+        h = state[0][0]
     noops = torch.as_tensor(np.zeros(E) if noops is None else noops, device=z.device).repeat(P)
     alive = torch.ones(P * E, dtype=torch.bool, device=z.device)
     returns = torch.zeros(P * E, dtype=torch.float64, device=z.device)
@@ -176,7 +199,8 @@ def dream_population(params, memory, start_latents: torch.Tensor, *, temperature
             actions = torch.where(noops > t, 0, _act(weight, bias, z, h))
         with timed(timings, "memory"):
             out = memory.step(z, actions, state)
-            returns += out.reward.double() * alive
+            reward = out.reward if penalty is None else out.reward - penalty(z, actions)
+            returns += reward.double() * alive
             steps += alive
             alive &= out.done_logit <= 0
             if not alive.any():

@@ -65,26 +65,23 @@ def plot_seed_curves(curves: dict, human: float | None = None, thesis: float | N
     return fig
 
 
-def plot_dream(curves: dict, ax=None):
-    """Dream fitness (CMA-ES mean of the population, line) and the real-game return of the
-    CMA-ES mean (points, mean +- std) per generation, one colour per temperature.
-    ``curves``: ``{temperature: controller curve}``. Returns the figure."""
-    if ax is None:
-        _, ax = plt.subplots(figsize=(6, 3.5))
-    for temperature, curve in curves.items():
-        line, = ax.plot([e["generation"] for e in curve], [e["mean"] for e in curve], lw=1.5,
-                        label=f"dream return, tau={temperature:g}")
-        evals = [e for e in curve if "eval_return" in e]
-        ax.errorbar([e["generation"] for e in evals], [e["eval_return"] for e in evals],
-                    [e["eval_std"] for e in evals], fmt="o", ms=4, capsize=2, color=line.get_color(),
-                    label=f"real return, tau={temperature:g}")
-    ax.axhline(0, color="grey", lw=0.5)
-    ax.set_xlabel("generation")
-    ax.set_ylabel("return")
-    ax.set_title("Controller evolved in the dream, played in the real game")
-    ax.legend(fontsize=7)
-    ax.figure.tight_layout()
-    return ax.figure
+def dream_and_reality(iterations: list[dict], dream_length: int):
+    """Each iteration's controller in its dream and in the real game, by the real steps spent: its
+    dream return and the real reward per as many steps (left), its real bouts' returns (right)."""
+    steps = [i["real_steps"] / 1000 for i in iterations]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3))
+    left.plot(steps, [i["dream_return"] for i in iterations], "o-", label="in the dream")
+    left.plot(steps, [i["real_per_dream"] for i in iterations], "s-", label="in the real game")
+    left.set_title(f"reward per {dream_length} steps", fontsize=9)
+    right.errorbar(steps, [i["real_return"] for i in iterations], [np.std(i["real_returns"]) for i in iterations],
+                   fmt="o-", capsize=3)
+    right.set_title("the real bouts' return (mean, std)", fontsize=9)
+    for ax in (left, right):
+        ax.set_xlabel("real agent steps spent (thousands)")
+        ax.axhline(0, color="gray", lw=0.5)
+    left.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
 
 
 def sokoban_figures(out: Path, evaluated: dict, memory_histories: dict, controllers: dict, random_returns,

@@ -124,20 +124,30 @@ def sample_mixture(mixture: Mixture, temperature: float = 1.0,
     return mu + sigma * eps
 
 
+def _weighted_mse(prediction: torch.Tensor, target: torch.Tensor, weight: float) -> torch.Tensor:
+    """Mean squared error where steps with a nonzero ``target`` weigh ``weight`` times the others."""
+    if weight == 1.0:
+        return F.mse_loss(prediction, target)
+    weights = torch.where(target != 0, weight, 1.0)
+    return (weights * (prediction - target).pow(2)).sum() / weights.sum()
+
+
 def memory_loss(out: MemoryOutput, next_z: torch.Tensor, rewards: torch.Tensor, terminals: torch.Tensor,
-                returns: torch.Tensor | None = None) -> dict:
+                returns: torch.Tensor | None = None, reward_weight: float = 1.0) -> dict:
     """Training loss on a chunk, averaged over batch and time.
 
     ``next_z``: (B, T, L) the latents that followed; ``rewards``, ``terminals``: (B, T);
     ``returns``: (B, T) Monte-Carlo returns for the auxiliary value head. The latent term is
-    the mixture NLL (``mdn``) or the squared error summed over L (``deterministic``).
+    the mixture NLL (``mdn``) or the squared error summed over L (``deterministic``). The
+    reward term weighs a step with a reward ``reward_weight`` times one without (rare rewards
+    balanced; the weights are normalised to average 1 over the chunk).
     """
     if isinstance(out.next_latent, Mixture):
         latent = mixture_nll(out.next_latent, next_z).mean()
     else:
         latent = (out.next_latent - next_z).pow(2).sum(-1).mean()
     terms = {"latent": latent,
-             "reward": F.mse_loss(out.reward, rewards),
+             "reward": _weighted_mse(out.reward, rewards, reward_weight),
              "done": F.binary_cross_entropy_with_logits(out.done_logit, terminals.float())}
     if out.value is not None:
         if returns is None:

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from wmthesis.data import EpisodeStore, chunk_starts
 from wmthesis.runs import atomic_path
 from wmthesis.training import train
-from wmthesis.utils import device
+from wmthesis.utils import device, fingerprint
 from wmthesis.world_models.config import MemoryConfig, VisionConfig
 from wmthesis.world_models.memory import Memory, memory_loss
 from wmthesis.world_models.vision import VAE, elbo_loss, frames_to_input, input_to_frames, sample_latent
@@ -187,9 +187,12 @@ def make_memory(latent_size: int, n_actions: int, config: MemoryConfig) -> Memor
 
 
 def train_memory(latents_path: str | Path, run_dir: str | Path, config: MemoryConfig, n_actions: int, *,
-                 seed: int = 0, progress: bool = True) -> tuple[Memory, list[dict]]:
+                 seed: int = 0, progress: bool = True, initial: Memory | None = None,
+                 reward_weight: float = 1.0) -> tuple[Memory, list[dict]]:
     """Train the memory on encoded chunks, sampling z ~ N(mu, exp(logvar)) for every batch
-    (as the author did). Input (z_t, a_t) predicts z_{t+1}, r_{t+1}, done_{t+1}.
+    (as the author did). Input (z_t, a_t) predicts z_{t+1}, r_{t+1}, done_{t+1}. ``initial``: a
+    memory whose weights it starts from (None: fresh ones); ``reward_weight``: the weight of a
+    step with a reward in the reward and done terms, against 1 for the rest (rare rewards balanced).
 
     Checkpoint: ``run_dir/memory-{kind}.pt``.
     """
@@ -199,6 +202,8 @@ def train_memory(latents_path: str | Path, run_dir: str | Path, config: MemoryCo
     returns = latents.returns(config.discount) if config.auxiliary else None
     torch.manual_seed(seed)
     memory = make_memory(latents.latent_size, n_actions, config).to(dev)
+    if initial is not None:
+        memory.load_state_dict(initial.state_dict())
     optimiser = torch.optim.Adam(memory.parameters(), lr=config.lr, eps=config.adam_eps)
 
     def sample(split, rng):
@@ -209,9 +214,11 @@ def train_memory(latents_path: str | Path, run_dir: str | Path, config: MemoryCo
         z = sample_latent(chunk["mu"], chunk["logvar"])
         out = memory(z[:, :-1], chunk["actions"][:, :-1])
         aux = chunk["returns"][:, :-1] if "returns" in chunk else None
-        return memory_loss(out, z[:, 1:], chunk["rewards"][:, :-1], chunk["terminals"][:, :-1], aux)
+        return memory_loss(out, z[:, 1:], chunk["rewards"][:, :-1], chunk["terminals"][:, :-1], aux, reward_weight)
 
-    identity = {**latents.identity, "n_actions": n_actions}
+    identity = {**latents.identity, "n_actions": n_actions, **({"reward_weight": reward_weight} if reward_weight != 1.0
+                                                              else {}), **({"warm_start": fingerprint(initial)}
+                                                                          if initial is not None else {})}
     history = train(memory, optimiser, loss_fn, sample, steps=config.steps,
                     checkpoint=Path(run_dir) / f"memory-{config.kind}.pt",
                     config={**dataclasses.asdict(config), **identity}, seed=seed,

@@ -17,7 +17,7 @@ from pathlib import Path
 from wmthesis.config import for_variant
 from wmthesis.declarations import NAMES
 from wmthesis.variants import Variant, Variants
-from wmthesis.world_models.config import ControllerConfig
+from wmthesis.world_models.config import ControllerConfig, DreamConfig
 
 BOXING_WM = Variants(
     NAMES.boxing_wm,
@@ -34,6 +34,25 @@ ROOT = BOXING_WM.root
 # The seeds a recipe is chosen on: their runs are the choice's evidence, never a reported number
 # (the summary tables them apart); the recipe is reported on other seeds (5-9, and 0-4 beside them).
 VALIDATION_SEEDS = (10, 11, 12)
+
+
+DREAM_VARIANTS = Variants(
+    NAMES.boxing_wm_dream,
+    Variant("short-dreams", "dreams of 50 steps from real states, the memory fine-tuned on the controller's bouts "
+            "each iteration, the kept controller the one whose bouts scored best", default=True),
+    Variant("temperature-1.15", "the dream sampled at temperature 1.15 (Ha & Schmidhuber's VizDoom setting)",
+            dict(temperature=1.15), builds_on="short-dreams"),
+    Variant("long-dreams", "dreams of 400 steps from real states", dict(dream_length=400), builds_on="short-dreams"),
+    Variant("balanced-rewards", "the memory's reward term weighs a rewarded step 10 times the others",
+            dict(reward_weight=10.0), builds_on="short-dreams"),
+)
+# The seeds the dream's levers are chosen on: their runs are the choice's evidence, never a reported number.
+DREAM_VALIDATION_SEEDS = VALIDATION_SEEDS
+
+
+def dream_config(profile: str, seed: int, variant: str | None = None) -> DreamConfig:
+    """The :class:`~wmthesis.world_models.config.DreamConfig` of ``variant`` (None: the default)."""
+    return for_variant(DreamConfig, profile, DREAM_VARIANTS.changes(DREAM_VARIANTS.check(variant).name), seed=seed)
 
 
 def controller_config(profile: str, seed: int, variant: str | None = None) -> ControllerConfig:
@@ -57,4 +76,4 @@ def agent_path(work: Path, variant: str | None = None) -> Path:
     return Path(work) / ("agent.pt" if name is None else f"agent-{name}.pt")
 
 
-__all__ = ["BOXING_WM", "ROOT", "VALIDATION_SEEDS", "agent_path", "controller_config", "controller_folder"]
+__all__ = ["BOXING_WM", "DREAM_VARIANTS", "DREAM_VALIDATION_SEEDS", "dream_config", "ROOT", "VALIDATION_SEEDS", "agent_path", "controller_config", "controller_folder"]
