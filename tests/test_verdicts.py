@@ -116,3 +116,32 @@ def test_the_summarys_json_carries_each_headlines_verdict(tmp_path):
     assert rows["boxing-wm", "separable-64"]["verdict"] == "reproduced"
     assert rows["planet-boxing-agent", None]["verdict"] == "not reproduced"
     assert json.dumps(rows["boxing-wm", "separable-64"])  # plain data
+
+
+@pytest.mark.parametrize("field, value", [("score", True), ("score", "34.4"), ("score", float("nan")),
+                                          ("seed", -5), ("seed", 5.7), ("seed", True)])
+def test_a_metrics_file_with_a_wrong_score_or_seed_is_skipped_and_never_reaches_the_readme(tmp_path, field, value):
+    """A score of ``true`` once read as 1.0 and moved the README's main number: such a file is
+    refused by name, and the summary's rows stand on the good files alone."""
+    import warnings
+
+    from wmthesis.summary import read_runs, summarise
+
+    for seed, score in ((0, 30.0), (1, 40.0)):
+        folder = tmp_path / "boxing-wm" / f"quick-seed{seed}" / "separable-64"
+        folder.mkdir(parents=True)
+        (folder / "metrics.json").write_text(json.dumps({"experiment": "boxing-wm", "profile": "quick", "seed": seed,
+                                                         "variant": "separable-64", "score": {"mean": score}}))
+    bad = {"experiment": "boxing-wm", "profile": "quick", "seed": 2, "variant": "separable-64", "score": {"mean": 50.0}}
+    if field == "score":
+        bad["score"]["mean"] = value
+    else:
+        bad["seed"] = value
+    folder = tmp_path / "boxing-wm" / "quick-seed2" / "separable-64"
+    folder.mkdir(parents=True)
+    (folder / "metrics.json").write_text(json.dumps(bad))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rows = summarise(read_runs(tmp_path))
+    assert [(r["seeds"], r["scores"]) for r in rows] == [([0, 1], [30.0, 40.0])]
+    assert any(str(folder / "metrics.json") in str(w.message) and field in str(w.message) for w in caught)

@@ -31,6 +31,7 @@ from wmthesis.headline import BEGIN, END, ablation_table, headline_rows, headlin
 from wmthesis.metrics import aggregate
 from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
 from wmthesis.references import published_figures
+from wmthesis.scores import number
 from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir
 from wmthesis.viz import save_figure
@@ -141,7 +142,7 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             metrics = json.loads(path.read_text())
             if metrics["experiment"] not in EXPERIMENTS:
                 raise ValueError(f"unknown experiment {metrics['experiment']!r}")
-            header = (str(metrics["profile"]), int(metrics["seed"]),
+            header = (str(metrics["profile"]), run_seed(metrics["seed"]),
                       metrics.get("first_run_wall_seconds", metrics.get("wall_seconds")))
             scores = run_scores(metrics)
         except (ValueError, KeyError, TypeError, AttributeError, IndexError) as error:
@@ -171,6 +172,14 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
     return with_budgets(sorted(runs.values(), key=lambda r: (r.experiment, str(r.variant), r.profile, r.seed)), own)
 
 
+def run_seed(seed) -> int:
+    """A run's seed: a whole number from 0 (JSON's ``5``, never ``5.7``, ``-5`` or ``true``);
+    ValueError otherwise."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"its seed is {seed!r}, not a whole number from 0")
+    return seed
+
+
 def report_runs(folder: Path) -> list[Run]:
     """The Sokoban agent's closing evaluations on Boxoban's report files (``evaluate-sokoban``
     writes ``sokoban-search/PROFILE-seedS/boxoban-report-N.json``): one :class:`Run` per kind,
@@ -181,7 +190,7 @@ def report_runs(folder: Path) -> list[Run]:
         try:
             report = json.loads(path.read_text())
             runs += [Run(NAMES.sokoban_search, f"boxoban-{kind}, {int(report['levels'])} report levels",
-                         str(report["profile"]), int(report["seed"]), 100.0 * float(row["solve_rate"]),
+                         str(report["profile"]), run_seed(report["seed"]), 100.0 * number(row["solve_rate"]),
                          report_seconds(report, row), str(path), machine_kind(report.get("machine")),
                          agent_steps=report.get("env_steps"))
                      for kind, row in report["rows"].items()]
