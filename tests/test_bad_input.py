@@ -379,3 +379,17 @@ def test_a_seed_out_of_range_is_refused_before_any_folder_is_made(tmp_path, monk
         with pytest.raises(ValueError, match=says):
             reproduce("sokoban-wm", "smoke", seed, progress=False)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("url", ["postgresql://me:s3cr3t-pw@db.example:5432/studies",
+                                 "mysql+pymysql://me:s3cr3t-pw@db.example/studies"])
+def test_a_storage_password_never_appears_in_what_the_command_line_says(url, capsys):
+    from wmthesis.__main__ import main
+    from wmthesis.utils import masked, secret_free
+
+    assert masked(url).count("***") == 1 and "s3cr3t-pw" not in masked(url)
+    assert masked("sqlite:///data/search/x.db") == "sqlite:///data/search/x.db"
+    assert "s3cr3t-pw" not in secret_free(f"could not connect to {url} (password s3cr3t-pw rejected)", url)
+    main(["search", "planet-boxing", "--trials", "1", "--storage", url.replace("postgresql", "oracle").replace("mysql+pymysql", "oracle")])
+    said = capsys.readouterr()
+    assert "s3cr3t-pw" not in said.out + said.err and "me:***@db.example" in said.err

@@ -23,7 +23,7 @@ import os
 from dataclasses import dataclass
 
 from wmthesis.declarations import EXPERIMENTS as DECLARED_EXPERIMENTS
-from wmthesis.utils import check_choice
+from wmthesis.utils import check_choice, masked
 
 PROFILES = ("smoke", "quick", "thesis")
 PLANNERS = ("sokoban-search", "mcts", "cem")  # the planners of a budget curve, in the order a run measures them
@@ -126,7 +126,7 @@ def check_storage(url: str | None) -> None:
     """A ``--storage`` URL of a database optuna stores studies in; ValueError naming those otherwise."""
     scheme = url.split("://", 1)[0].split("+", 1)[0] if url and "://" in url else None
     if url is not None and scheme not in STORAGE_SCHEMES:
-        raise ValueError(f"--storage {url!r}: name a database URL of {', '.join(s + '://...' for s in STORAGE_SCHEMES)} "
+        raise ValueError(f"--storage {masked(url)!r}: name a database URL of {', '.join(s + '://...' for s in STORAGE_SCHEMES)} "
                          "(e.g. sqlite:///data/search/mine.db)")
 
 

@@ -34,7 +34,7 @@ from wmthesis.declarations import DECLARED, NO_SCORE
 from wmthesis.experiments import DEFAULT_RESULTS, EXPERIMENTS, VARIANTS, reproduce
 from wmthesis.runs import atomic_path
 from wmthesis.summary import run_scores
-from wmthesis.utils import MAX_SEED, MAX_SEEDS, check_choice, data_dir, parse_seeds, process_alive
+from wmthesis.utils import MAX_SEED, MAX_SEEDS, check_choice, data_dir, masked, parse_seeds, process_alive
 
 
 
@@ -147,11 +147,11 @@ def check_address(address: str, timeout: float = 5.0) -> None:
         return
     match = re.fullmatch(r"(?:ray://)?\[?([^\]/]+?)\]?:(\d+)/?", address)
     if match is None:
-        raise ValueError(f"--address {address!r}: expected auto, HOST:PORT or ray://HOST:PORT")
+        raise ValueError(f"--address {masked(address)!r}: expected auto, HOST:PORT or ray://HOST:PORT")
     try:
         socket.create_connection((match[1], int(match[2])), timeout=timeout).close()
     except OSError as error:
-        raise ValueError(f"--address {address!r}: no Ray cluster answers there ({error})") from None
+        raise ValueError(f"--address {masked(address)!r}: no Ray cluster answers there ({error})") from None
 
 
 JOIN_TIMEOUT_S = 30.0
@@ -163,14 +163,14 @@ def check_joinable(address: str, timeout: float = JOIN_TIMEOUT_S) -> None:
     leaves ``ray.init`` retrying for minutes, printing a warning every few seconds)."""
     import subprocess
 
-    probe = f"import ray; ray.init(address={address!r}, log_to_driver=False); ray.shutdown()"
+    probe = f"import ray; ray.init(address={masked(address)!r}, log_to_driver=False); ray.shutdown()"
     try:
         done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
-        raise ValueError(f"--address {address!r}: no Ray cluster could be joined there within {timeout:.0f} s") from None
+        raise ValueError(f"--address {masked(address)!r}: no Ray cluster could be joined there within {timeout:.0f} s") from None
     if done.returncode != 0:
         last = (done.stderr.strip().splitlines() or ["no message"])[-1]
-        raise ValueError(f"--address {address!r}: no Ray cluster could be joined there ({last})")
+        raise ValueError(f"--address {masked(address)!r}: no Ray cluster could be joined there ({last})")
 
 
 class RayStartFailed(RuntimeError):
@@ -207,7 +207,7 @@ def start_ray(address: str | None, cpus: int | None = None, attempts: int = 3, w
         try:
             ray.init(address=address, log_to_driver=False)
         except ConnectionError as error:
-            raise ValueError(f"--address {address!r}: {error}") from None
+            raise ValueError(f"--address {masked(address)!r}: {error}") from None
     return True
 
 

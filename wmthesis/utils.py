@@ -178,6 +178,34 @@ def timed(timings: dict | None, key: str):
         timings[key] += time.perf_counter() - start
 
 
+def masked(url: str) -> str:
+    """``url`` with the password of its user part replaced by ``***`` (any scheme:
+    ``postgresql://me:secret@host/db`` -> ``postgresql://me:***@host/db``); other text as is."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    try:
+        parts = urlsplit(url)
+        if parts.password is None:
+            return url
+    except ValueError:
+        return url
+    user, host = parts.netloc.rsplit("@", 1)
+    return urlunsplit(parts._replace(netloc=f"{user.split(':', 1)[0]}:***@{host}"))
+
+
+def secret_free(text: str, url: str) -> str:
+    """``text`` with ``url`` masked (:func:`masked`) and any other copy of its password too (an
+    error a driver wrote with it)."""
+    from urllib.parse import urlsplit
+
+    try:
+        password = urlsplit(url).password
+    except ValueError:
+        password = None
+    text = text.replace(url, masked(url))
+    return text.replace(password, "***") if password else text
+
+
 def fingerprint(model) -> str | None:
     """A hash of a module's weights (None for anything else, e.g. a plain function)."""
     import torch  # heavy: loaded when first needed (the command line starts without it)

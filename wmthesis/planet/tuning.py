@@ -65,7 +65,7 @@ from wmthesis.planet.profiles import planet_config
 from wmthesis.planet.study import held_out_store, scene, score_run
 from wmthesis.planet.train import train_planet
 from wmthesis.runs import atomic_path, write_json
-from wmthesis.utils import check_choice, data_dir, parallel_calls
+from wmthesis.utils import check_choice, data_dir, parallel_calls, secret_free
 
 
 @dataclass(frozen=True)
@@ -166,7 +166,7 @@ def make_storage(url: str, cfg: SearchConfig) -> optuna.storages.RDBStorage:
             return optuna.storages.RDBStorage(url, engine_kwargs=engine, heartbeat_interval=cfg.heartbeat_interval,
                                               grace_period=cfg.grace_period)
         except (sqlalchemy.exc.SQLAlchemyError, ImportError) as error:  # one line, not the driver's traceback
-            raise OSError(f"cannot open the optuna storage {url}: {str(error).splitlines()[0]}") from None
+            raise OSError(secret_free(f"cannot open the optuna storage {url}: {str(error).splitlines()[0]}", url)) from None
 
 
 def study_name(name: str, profile: str, objective: str) -> str:
