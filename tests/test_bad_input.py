@@ -393,3 +393,21 @@ def test_a_storage_password_never_appears_in_what_the_command_line_says(url, cap
     main(["search", "planet-boxing", "--trials", "1", "--storage", url.replace("postgresql", "oracle").replace("mysql+pymysql", "oracle")])
     said = capsys.readouterr()
     assert "s3cr3t-pw" not in said.out + said.err and "me:***@db.example" in said.err
+
+
+@pytest.mark.parametrize("bouts", [0, -1, 1001, 10**6, 2.5, True, "3"])
+def test_a_count_of_bouts_is_bounded_before_any_game_is_built(bouts, monkeypatch):
+    import time
+    from pathlib import Path
+
+    import wmthesis
+    from wmthesis.play import play
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(Path(__file__).resolve().parents[1] / "data"))  # the shipped agent
+    agent = wmthesis.load("boxing-wm")
+    started = time.perf_counter()
+    with pytest.raises(ValueError, match="must be a whole number from 1 to 1,000"):
+        agent.play(bouts=bouts)
+    with pytest.raises(ValueError, match="--bouts must be a whole number from 1 to 1,000"):
+        play("boxing-wm", bouts=bouts)
+    assert time.perf_counter() - started < 1.0  # refused at once, no game built

@@ -22,7 +22,7 @@ from typing import Callable
 
 from wmthesis.config import PROFILES
 from wmthesis.declarations import AGENTS, DECLARED, resolve
-from wmthesis.utils import check_choice
+from wmthesis.utils import check_bouts, check_choice
 
 
 def agent_file(experiment: str, variant: str | None = None, profile: str = "quick", seed: int = 0) -> Path:
@@ -207,8 +207,7 @@ class TrainedAgent:
         """Returns of the first ``bouts`` scored bouts (or levels: 1.0 solved, 0.0 not, for
         Sokoban): played by the agent as its evaluation did, or by ``policy`` (observation ->
         action, an int) through :meth:`env` on the same starts, ``max_steps`` steps at most."""
-        if isinstance(bouts, bool) or not isinstance(bouts, int) or bouts < 1:
-            raise ValueError(f"bouts must be a positive integer, got {bouts!r}")
+        check_bouts(bouts)
         if policy is None and max_steps is None:
             return self.play_scored(bouts)
         return self.loop_bouts(bouts, policy, max_steps)

@@ -22,7 +22,7 @@ from wmthesis.agents import agent_file
 from wmthesis.config import EXPERIMENTS, profile_name
 from wmthesis.declarations import AGENTS as PLAYABLE
 from wmthesis.runs import check_writable
-from wmthesis.utils import check_choice
+from wmthesis.utils import check_bouts, check_choice
 
 
 def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
@@ -41,8 +41,7 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
     check_choice("experiment", experiment, EXPERIMENTS)
     if experiment not in PLAYABLE:
         raise ValueError(f"play shows {', '.join(PLAYABLE)}; {experiment} has no agent that plays")
-    if bouts < 1:
-        raise ValueError(f"--bouts must be 1 or more, got {bouts}")
+    check_bouts(bouts, "--bouts")
     record, video = check_output(record, ".rrd"), check_output(video, ".mp4")
     profile = profile_name(profile)
     agent_file(experiment, variant, profile, seed)  # a bad variant is refused before anything loads

@@ -178,6 +178,16 @@ def timed(timings: dict | None, key: str):
         timings[key] += time.perf_counter() - start
 
 
+MAX_BOUTS = 1000  # the most bouts (or levels) one call plays: a bout is ~1,800 steps, so 1,000 is half an hour
+
+
+def check_bouts(bouts, name: str = "bouts") -> int:
+    """``bouts``, a whole number from 1 to :data:`MAX_BOUTS`; ValueError naming the range otherwise."""
+    if isinstance(bouts, bool) or not isinstance(bouts, int) or not 1 <= bouts <= MAX_BOUTS:
+        raise ValueError(f"{name} must be a whole number from 1 to {MAX_BOUTS:,}, got {bouts!r}")
+    return bouts
+
+
 def masked(url: str) -> str:
     """``url`` with the password of its user part replaced by ``***`` (any scheme:
     ``postgresql://me:secret@host/db`` -> ``postgresql://me:***@host/db``); other text as is."""
