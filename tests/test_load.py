@@ -283,3 +283,15 @@ def test_a_step_limited_play_seeds_each_bout_as_the_evaluation_did():
             total, done = total + reward, terminated or truncated
         by_hand.append(total)
     assert played == by_hand
+
+
+def test_a_shipped_agent_loads_whatever_the_data_folder_and_one_trained_there_comes_first(tmp_path, monkeypatch):
+    monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))  # outputs elsewhere: the shipped agents still load
+    agent = wmthesis.load("boxing-wm")
+    assert agent.path == SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt"
+    assert not any(tmp_path.rglob("*.pt"))
+    target = wmthesis.agent_file("boxing-wm")  # where a run here writes its agent: the data folder
+    assert target == tmp_path / "quick/boxing-wm/seed0/agent-separable-64.pt"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", target)
+    assert wmthesis.load("boxing-wm").path == target

@@ -46,11 +46,17 @@ def agent_file(experiment: str, variant: str | None = None, profile: str = "quic
 
 
 def load(experiment: str, *, variant: str | None = None, profile: str = "quick", seed: int = 0):
-    """The trained agent of ``experiment`` (see the module docstring). Nothing is trained or
-    downloaded: an agent that is not there raises FileNotFoundError naming the command that
-    trains it; a file that is truncated, of another experiment or of an older format raises
+    """The trained agent of ``experiment`` (see the module docstring): the one trained in the data
+    folder, else the one the repository ships (whatever ``$WMTHESIS_DATA`` says). Nothing is
+    trained or downloaded: an agent that is not there raises FileNotFoundError naming the command
+    that trains it; a file that is truncated, of another experiment or of an older format raises
     ValueError naming the file."""
+    from wmthesis.utils import data_dir, shipped_dir
+
     path = agent_file(experiment, variant, profile, seed)
+    shipped = None if shipped_dir() is None else shipped_dir() / path.relative_to(data_dir())
+    if not path.is_file() and shipped is not None and shipped.is_file():
+        path = shipped
     if not path.is_file():
         flag = f" --variant {variant}" if variant else ""
         raise FileNotFoundError(f"no trained {experiment} agent at {path}: train it with `python -m wmthesis "

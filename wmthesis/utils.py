@@ -154,6 +154,13 @@ def data_dir(*parts: str) -> Path:
     return path
 
 
+def shipped_dir() -> Path | None:
+    """The checkout's ``data/``, where what the repository ships lies whatever ``$WMTHESIS_DATA``
+    says (None outside a checkout)."""
+    checkout = Path(__file__).resolve().parents[1]
+    return checkout / "data" if (checkout / "pyproject.toml").exists() else None
+
+
 def shown_path(path: str | os.PathLike) -> str:
     """``path`` as a reader should see it: under the data folder as ``data/...``, else as given
     (no machine's own folders in a notebook's outputs)."""
