@@ -145,7 +145,8 @@ def dream_starts(memory, latents: LatentStore, n: int, warmup: int, rng: np.rand
 def learn_in_dream(work: Path, cfg: DreamConfig, vision_cfg: VisionConfig, memory_cfg: MemoryConfig, *,
                    progress: bool = True, on_iteration=None) -> DreamRun:
     """The procedure of the module docstring in the folder ``work``, emptied first (a run cut off
-    starts again; a lock file stays); ``on_iteration(record)`` is called after each iteration."""
+    starts again; a lock file stays); ``on_iteration(record)`` is called after each iteration
+    (with ``progress``, a line is printed)."""
     work.mkdir(parents=True, exist_ok=True)
     for stale in (path for path in work.iterdir() if path.name != LOCK_NAME):
         shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
@@ -178,6 +179,9 @@ def learn_in_dream(work: Path, cfg: DreamConfig, vision_cfg: VisionConfig, memor
         iterations.append(record.record(cfg.dream_length))
         if np.mean(returns) > best[0]:
             best = (float(np.mean(returns)), mean.copy(), copy.deepcopy(memory), i)
+        if progress:
+            print(f"iteration {i}: {budget.used:,} real steps, dream {dream_return:+.2f}, real {np.mean(returns):+.1f}",
+                  flush=True)
         if on_iteration is not None:
             on_iteration(iterations[-1])
         if budget.remaining // cfg.bouts < 1:
