@@ -283,6 +283,11 @@ def test_a_store_that_cannot_be_created_or_read_says_which_and_what_to_do(tmp_pa
     (["reproduce", "sokoban-wm", "--seed", str(10**20)], "out of range (valid: 0 to 2,147,483,647)"),
     (["play", "boxing-wm", "--seed", "-1"], "out of range (valid: 0 to 2,147,483,647)"),
     (["summary", "--results", "/no/such/folder"], "--results /no/such/folder: no such folder"),
+    (["budget-curve", "mcts", "--budgets", "99999999999999999999"], "above the most one run takes (16,384)"),
+    (["budget-curve", "cem", "--budgets", "6x1000000x3"], "above the most one run takes"),
+    (["budget-curve", "mcts", "--validation", "--search", "c_scale=-1"], "c_scale='-1': it must be a finite number above 0"),
+    (["budget-curve", "mcts", "--validation", "--search", "c_scale=nan"], "c_scale='nan': it must be a finite number"),
+    (["budget-curve", "mcts", "--validation", "--search", "considered=2.5"], "considered='2.5' is not a whole number"),
 ])
 def test_the_command_line_checks_its_arguments_before_torch_ray_or_ale_py_load(argv, says):
     import subprocess
@@ -411,3 +416,54 @@ def test_a_count_of_bouts_is_bounded_before_any_game_is_built(bouts, monkeypatch
     with pytest.raises(ValueError, match="--bouts must be a whole number from 1 to 1,000"):
         play("boxing-wm", bouts=bouts)
     assert time.perf_counter() - started < 1.0  # refused at once, no game built
+
+
+@pytest.mark.parametrize("games", [0, -2, 2.5, 5000])
+def test_a_batched_game_refuses_a_count_it_cannot_build_before_the_emulator(games):
+    from wmthesis.envs.vector import make_game
+
+    with pytest.raises(ValueError, match=r"num_envs \(games played at once\) must be a whole number from 1 to 4,096"):
+        make_game("boxing", games)
+
+
+@pytest.mark.parametrize("seeds, says", [([3, -2], "seeds are from 0 to"), ([1.5, 2], "a seed is an integer"),
+                                         ([1], "one seed per game: 2 games, 1 seeds")])
+def test_a_batched_game_refuses_seeds_it_cannot_take(seeds, says):
+    from wmthesis.envs.vector import make_game
+
+    game = make_game("sokoban", 2)
+    with pytest.raises(ValueError, match=says):
+        game.reset(seeds)
+    assert game.reset(np.array([3, 4])).shape[0] == 2  # numpy integers are seeds too
+
+
+def test_an_empty_data_folder_setting_is_refused_not_read_as_the_current_folder(monkeypatch, tmp_path):
+    from wmthesis.utils import data_dir
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("WMTHESIS_DATA", " ")
+    with pytest.raises(ValueError, match="WMTHESIS_DATA is set but empty"):
+        data_dir("results")
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("scored, asked, played", [(3, None, 3), (None, None, 10), (3, 2, 2), (40, None, 10)])
+def test_play_plays_by_default_ten_bouts_or_every_scored_one_where_fewer(scored, asked, played, monkeypatch):
+    import wmthesis.agents
+    from wmthesis.play import play
+
+    class Scored:
+        variant, scored_bouts, experiment, profile, seed = "stand-in", scored, "boxing-wm", "quick", 0
+
+        def play_bouts(self, bouts, on_bout=None):
+            if scored is not None and bouts > scored:
+                raise ValueError(f"scored on {scored} bouts, not {bouts}")
+            return [{"bout": k, "return": 1.0, "steps": 1} for k in range(bouts)]
+
+        def score_line(self, plays):
+            return f"{len(plays)} bouts"
+
+    monkeypatch.setattr(wmthesis.agents, "load", lambda *a, **k: Scored())
+    lines = []
+    play("boxing-wm", bouts=asked, on_play=lines.append)
+    assert lines == [f"{played} bouts"]

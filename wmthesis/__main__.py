@@ -373,7 +373,8 @@ def parser() -> argparse.ArgumentParser:
     player.add_argument("--profile", choices=PROFILES)
     player.add_argument("--seed", type=SEED, default=0, help="the seed of the trained run")
     player.add_argument("--variant", help="a variant of the experiment (default: its default)")
-    player.add_argument("--bouts", type=at_least(1), default=10, help="bouts or levels to play (default 10)")
+    player.add_argument("--bouts", type=at_least(1), help="bouts or levels to play (default 10, or all its scored "
+                                                          "bouts where it was scored on fewer)")
     player.add_argument("--record", help="a rerun recording (.rrd) of every step: the real frame beside what the "
                                          "agent saw, imagined and weighed (open with: rerun FILE.rrd)")
     player.add_argument("--video", help="an mp4 of the same panels side by side: reality, the model's view, "

@@ -128,6 +128,11 @@ class TrainedAgent:
     shown = (1, 4, 8)  # the steps ahead whose imagined frames a recording decodes (where decoding is costly)
     max_steps: int | None = None  # the step limit its scored bouts were played with
 
+    @property
+    def scored_bouts(self) -> int | None:
+        """How many scored bouts its file holds (None: its bouts are drawn afresh, as many as asked)."""
+        return None
+
     def scored_minds(self, bouts: int) -> list[tuple[int, object]]:
         """``(reset seed, mind)`` of each of the first ``bouts`` scored bouts, the mind seeded as
         the evaluation seeded it."""

@@ -66,6 +66,9 @@ def parse_budgets(planner: str, text: str) -> tuple:
     return tuple(dict.fromkeys(budgets))  # each once, in the order given
 
 
+# the largest budget a curve takes: 64 times the largest measured (256 simulations, 160,000 nodes;
+# CEM: horizon, candidates, iterations)
+MOST = {"mcts": 16_384, "sokoban-search": 10_000_000, "cem": (100, 100_000, 100)}
 _EXAMPLES = {"sokoban-search": "1000,5000,40000", "mcts": "16,64,256", "cem": "6x100x3,12x100x3"}
 
 
@@ -82,6 +85,11 @@ def _budget(planner: str, item: str):
     if any(n < 0 for n in numbers):
         raise ValueError(f"{planner} budget {item!r} is negative: a budget counts "
                          f"{'imagined steps' if planner == 'cem' else 'simulations' if planner == 'mcts' else 'nodes'}")
+    most = MOST[planner]
+    if any(n > m for n, m in zip(numbers, most if planner == "cem" else (most,))):
+        raise ValueError(f"{planner} budget {item!r} is above the most one run takes "
+                         f"({'x'.join(f'{m:,}' for m in most) if planner == 'cem' else f'{most:,}'}): "
+                         "a search that large would not end")
     if planner == "cem":
         if 0 in numbers:
             raise ValueError(f"cem budget {item!r} has a 0: horizon, candidates and iterations are 1 or more")

@@ -32,22 +32,28 @@ def check_output(path: str | os.PathLike | None, suffix: str) -> Path | None:
     return None if path is None else check_writable(path, suffix)
 
 
-def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant: str | None = None, bouts: int = 10,
-         record=None, video=None, on_play=print) -> dict:
+DEFAULT_BOUTS = 10  # bouts play plays unless told (fewer where the agent was scored on fewer)
+
+
+def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant: str | None = None,
+         bouts: int | None = None, record=None, video=None, on_play=print) -> dict:
     """``bouts`` plays of ``experiment``'s trained agent (``seed``'s run of ``profile``; ``variant``:
     one of its variants, None the default), loaded by :func:`wmthesis.load` and played as its
-    evaluation played them; returns ``plays`` (one dict each) and ``score`` (their mean: the solve
-    rate for Sokoban)."""
+    evaluation played them (``bouts`` None: :data:`DEFAULT_BOUTS`, or all its scored bouts where
+    fewer); returns ``plays`` (one dict each) and ``score`` (their mean: the solve rate for Sokoban)."""
     check_choice("experiment", experiment, EXPERIMENTS)
     if experiment not in PLAYABLE:
         raise ValueError(f"play shows {', '.join(PLAYABLE)}; {experiment} has no agent that plays")
-    check_bouts(bouts, "--bouts")
+    if bouts is not None:
+        check_bouts(bouts, "--bouts")
     record, video = check_output(record, ".rrd"), check_output(video, ".mp4")
     profile = profile_name(profile)
     agent_file(experiment, variant, profile, seed)  # a bad variant is refused before anything loads
     from wmthesis.agents import load
 
     agent = load(experiment, variant=variant, profile=profile, seed=seed)
+    if bouts is None:
+        bouts = min(DEFAULT_BOUTS, agent.scored_bouts or DEFAULT_BOUTS)
     on_bout = lambda p: on_play(agent.bout_line(p))  # noqa: E731
     if record is None and video is None:
         plays = agent.play_bouts(bouts, on_bout=on_bout)

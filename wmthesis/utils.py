@@ -146,6 +146,8 @@ def data_dir(*parts: str) -> Path:
     Extra ``parts`` are joined on and the folder is created.
     """
     root = os.environ.get("WMTHESIS_DATA")
+    if root is not None and not root.strip():
+        raise ValueError("WMTHESIS_DATA is set but empty: unset it (the checkout's data/) or name a folder")
     if root is None:
         checkout = Path(__file__).resolve().parents[1]
         root = checkout / "data" if (checkout / "pyproject.toml").exists() else Path.cwd() / "data"
@@ -188,11 +190,16 @@ def timed(timings: dict | None, key: str):
 MAX_BOUTS = 1000  # the most bouts (or levels) one call plays: a bout is ~1,800 steps, so 1,000 is half an hour
 
 
+def check_count(count, name: str, most: int) -> int:
+    """``count``, a whole number from 1 to ``most``; ValueError naming ``name`` and the range otherwise."""
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 1 <= count <= most:
+        raise ValueError(f"{name} must be a whole number from 1 to {most:,}, got {count!r}")
+    return int(count)
+
+
 def check_bouts(bouts, name: str = "bouts") -> int:
     """``bouts``, a whole number from 1 to :data:`MAX_BOUTS`; ValueError naming the range otherwise."""
-    if isinstance(bouts, bool) or not isinstance(bouts, int) or not 1 <= bouts <= MAX_BOUTS:
-        raise ValueError(f"{name} must be a whole number from 1 to {MAX_BOUTS:,}, got {bouts!r}")
-    return bouts
+    return check_count(bouts, name, MAX_BOUTS)
 
 
 def masked(url: str) -> str:

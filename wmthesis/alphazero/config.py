@@ -2,6 +2,8 @@
 values as defaults (profiles: :mod:`wmthesis.config`)."""
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 
@@ -130,9 +132,22 @@ def search_settings(profile: str | None, text: str | None = None) -> dict:
         if len(pair) != 2 or pair[0].strip() not in SEARCH_FIELDS:
             raise ValueError(f"search setting {'='.join(pair)!r} is not NAME=VALUE of {', '.join(SEARCH_FIELDS)}")
         name, value = pair[0].strip(), str(pair[1]).strip()
-        settings[name] = value if name in ("root", "tie_break") else int(value) if name == "considered" else float(value)
+        settings[name] = value if name in ("root", "tie_break") else _number(name, value)
     AlphaZeroConfig(simulations=2, **settings)  # refuses an unknown root or a setting it cannot run with
     return settings
+
+
+def _number(name: str, text: str) -> float | int:
+    """A numeric root setting from ``text``: ``considered`` a whole number, the others finite and at
+    least 0 (``c_scale`` above 0); ValueError in one line otherwise, whichever root is asked for."""
+    try:
+        value = int(text) if name == "considered" else float(text)
+    except ValueError:
+        raise ValueError(f"search setting {name}={text!r} is not {'a whole number' if name == 'considered' else 'a number'}") from None
+    if not math.isfinite(value) or value < 0 or (name == "c_scale" and value == 0):
+        raise ValueError(f"search setting {name}={text!r}: it must be a finite number "
+                         f"{'above 0' if name == 'c_scale' else 'of at least 0'}")
+    return value
 
 
 SEARCH_FIELDS = ("root", "tie_break", "considered", "gumbel_scale", "c_scale", "c_visit")

@@ -16,7 +16,9 @@ import numpy as np
 from wmthesis.envs import ATARI_GAMES, make_env
 from wmthesis.envs.actions import check_actions
 from wmthesis.envs.preprocessing import CROPS, crop_resize
-from wmthesis.utils import check_choice, timed
+from wmthesis.utils import check_choice, check_count, check_seed, timed
+
+MAX_GAMES = 4096  # games one batch steps at once: 64 candidates x 64 episodes; more would not fit in memory
 
 
 class AtariGame:
@@ -52,9 +54,10 @@ class AtariGame:
         self.timings: dict = defaultdict(float)
 
     def reset(self, seeds: np.ndarray) -> np.ndarray:
+        seeds = check_episode_seeds(seeds, self.num_envs)
         with timed(self.timings, "env"):
             raw, _ = self.env.reset()
-        self.noops = np.array([np.random.default_rng(int(s)).integers(max(self.noop_max, 1)) for s in seeds])
+        self.noops = np.array([np.random.default_rng(s).integers(max(self.noop_max, 1)) for s in seeds])
         self.done[:] = False
         return self._preprocess(raw)
 
@@ -90,8 +93,9 @@ class ListGame:
         self.timings: dict = defaultdict(float)
 
     def reset(self, seeds: np.ndarray) -> np.ndarray:
+        seeds = check_episode_seeds(seeds, self.num_envs)
         with timed(self.timings, "env"):
-            self.observations = np.stack([env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds)])
+            self.observations = np.stack([env.reset(seed=s)[0] for env, s in zip(self.envs, seeds)])
         self.done[:] = False
         return self.observations
 
@@ -109,6 +113,15 @@ class ListGame:
             env.close()
 
 
+def check_episode_seeds(seeds, num_envs: int) -> list[int]:
+    """``seeds``, one whole number from 0 to 2**31 - 1 per game, as ints; ValueError in one line otherwise
+    (the emulator and the level generator are never reached with a seed they cannot take)."""
+    seeds = list(np.asarray(seeds).reshape(-1)) if not isinstance(seeds, (list, tuple)) else list(seeds)
+    if len(seeds) != num_envs:
+        raise ValueError(f"reset needs one seed per game: {num_envs} games, {len(seeds)} seeds")
+    return [check_seed(s) for s in seeds]
+
+
 def make_game(name: str, num_envs: int, *, noop_max: int = 30, num_threads: int | None = None, **options):
     """``num_envs`` copies of game ``name`` for batched evaluation.
 
@@ -116,6 +129,7 @@ def make_game(name: str, num_envs: int, *, noop_max: int = 30, num_threads: int 
     Sokoban: :class:`ListGame` of ``make_env(name, **options)`` (``noop_max`` is unused).
     """
     check_choice("environment", name, tuple(ATARI_GAMES) + ("sokoban", "sokoban-small"))
+    num_envs = check_count(num_envs, "num_envs (games played at once)", MAX_GAMES)
     if name in ATARI_GAMES:
         unknown = sorted(set(options) - {"action_repeat"})
         if unknown:

@@ -72,6 +72,10 @@ class PlanetAgent(TrainedAgent):
         self.check_bouts(bouts)
         return [(int(env_seed), self.mind(int(mind_seed))) for env_seed, mind_seed in self.info["bouts"][:bouts]]
 
+    @property
+    def scored_bouts(self) -> int:
+        return len(self.info["bouts"])
+
     def check_bouts(self, bouts: int) -> None:
         if bouts > len(self.info["bouts"]):
             raise ValueError(f"{self.path} was scored on {len(self.info['bouts'])} bouts, not {bouts}")
@@ -113,8 +117,7 @@ class PlanetAgent(TrainedAgent):
         return open_loop_figure(result, sequences=len(outs), title=title)
 
     def play_bouts(self, bouts: int, frames: list | None = None, on_bout=None) -> list[dict]:
-        if bouts > len(self.info["bouts"]):
-            raise ValueError(f"{self.path} was scored on {len(self.info['bouts'])} bouts, not {bouts}")
+        self.check_bouts(bouts)
         plays = []
         for k, (env_seed, mind_seed) in enumerate(self.info["bouts"][:bouts]):
             shown = [] if frames is not None else None
