@@ -295,3 +295,20 @@ def test_a_shipped_agent_loads_whatever_the_data_folder_and_one_trained_there_co
     target.parent.mkdir(parents=True, exist_ok=True)
     shutil.copy(SHIPPED / "quick/boxing-wm/seed0/agent-separable-64.pt", target)
     assert wmthesis.load("boxing-wm").path == target
+
+
+def test_the_headlines_read_the_committed_results_whatever_the_data_folder_and_say_when_none_are_there(tmp_path, monkeypatch):
+    import warnings
+
+    from wmthesis.summary import headlines
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        committed_rows = {h["title"]: h["ours"] for h in headlines()}
+        monkeypatch.setenv("WMTHESIS_DATA", str(tmp_path))
+        assert {h["title"]: h["ours"] for h in headlines()} == committed_rows  # the repository's, not None
+    assert committed_rows["World Models on Boxing"]["n"] >= 10
+    assert not any(tmp_path.iterdir())  # reading made no folder
+    with pytest.warns(UserWarning, match=rf"no results under {tmp_path}: every headline reads 'not run yet'"):
+        empty = headlines(folder=tmp_path)
+    assert all(h["ours"] is None for h in empty)

@@ -33,7 +33,7 @@ from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_E
 from wmthesis.references import published_figures
 from wmthesis.scores import number
 from wmthesis.runs import atomic_path
-from wmthesis.utils import data_dir
+from wmthesis.utils import data_dir, shipped_dir
 from wmthesis.viz import save_figure
 
 INTERVAL = "95% Student-t interval of the mean over seeds (scipy.stats.t)"
@@ -128,16 +128,27 @@ def with_budgets(runs: list[Run], own: dict[str, Steps | None]) -> list[Run]:
     return out
 
 
+def result_folders(folder: str | Path | None = None) -> list[Path]:
+    """The folders runs are read from: ``folder`` alone where given; else the repository's
+    committed ``data/results`` and, where ``$WMTHESIS_DATA`` names another folder, its ``results``
+    (those that exist; none is created)."""
+    if folder is not None:
+        return [Path(folder)]
+    shipped, own = shipped_dir(), data_dir() / "results"
+    found = [own] if shipped is None or (shipped / "results").resolve() == own.resolve() else [shipped / "results", own]
+    return [f for f in found if f.is_dir()]
+
+
 def read_runs(folder: str | Path | None = None) -> list[Run]:
-    """Every run under ``folder`` (default ``data/results``), one :class:`Run` per variant in a
+    """Every run under ``folder`` (default: :func:`result_folders`), one :class:`Run` per variant in a
     ``metrics.json``, and per kind of a Sokoban report evaluation (:func:`report_runs`), each with
     the real environment steps it learned from (:func:`with_budgets`). A file that is not JSON or
     not a run's metrics is skipped with a warning naming it; when two files hold the same run, the
     newer one counts."""
-    folder = Path(folder) if folder is not None else data_dir("results")
+    folders = result_folders(folder)
     runs: dict[tuple, Run] = {}
     own: dict[str, Steps | None] = {}
-    for path in sorted(folder.rglob("metrics.json"), key=lambda p: p.stat().st_mtime):
+    for path in sorted((p for f in folders for p in f.rglob("metrics.json")), key=lambda p: p.stat().st_mtime):
         try:
             metrics = json.loads(path.read_text())
             if metrics["experiment"] not in EXPERIMENTS:
@@ -167,7 +178,7 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
             run = Run(metrics["experiment"], variant, *header[:2], score, header[2], str(path), machine, threads,
                       model_fingerprint(metrics))
             runs[run[:4]] = run
-    for run in report_runs(folder):
+    for run in (run for f in folders for run in report_runs(f)):
         runs[run[:4]] = run
     return with_budgets(sorted(runs.values(), key=lambda r: (r.experiment, str(r.variant), r.profile, r.seed)), own)
 
@@ -317,7 +328,8 @@ def headlines(profile: str = "quick", folder=None) -> list[dict]:
     (each ``{"name", "value", "source"}`` or None), and ``ours`` over seeds (``mean``, ``ci_low``,
     ``ci_high``, ``n``, ``seeds``, ``scores``; None where not run yet) with its ``verdict``
     (:func:`wmthesis.headline.judge`), read from every run's
-    ``metrics.json`` under ``folder`` (default ``data/results``) as ``summary`` reads them."""
+    ``metrics.json`` under ``folder`` (default: the committed results and the data folder's,
+    :func:`result_folders`) as ``summary`` reads them; a warning in one line where there are none."""
     def plain(value):
         return None if value is None else float(value)
 
@@ -326,6 +338,9 @@ def headlines(profile: str = "quick", folder=None) -> list[dict]:
 
     out = []
     rows = summarise(read_runs(folder))
+    if not rows:
+        where = ", ".join(map(str, result_folders(folder))) or f"{data_dir() / 'results'} (no such folder)"
+        warnings.warn(f"no results under {where}: every headline reads 'not run yet'", stacklevel=2)
     for entry in headline_rows(rows, profile):
         h, row = entry["headline"], entry["row"]
         ours = None if row is None else {"mean": plain(row["mean"]), "ci_low": plain(row["ci_low"]),
