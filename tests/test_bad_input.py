@@ -467,3 +467,31 @@ def test_play_plays_by_default_ten_bouts_or_every_scored_one_where_fewer(scored,
     lines = []
     play("boxing-wm", bouts=asked, on_play=lines.append)
     assert lines == [f"{played} bouts"]
+
+
+def test_an_agents_dream_open_loop_and_replay_refuse_nan_frames_and_bad_actions_naming_the_range(monkeypatch):
+    from pathlib import Path
+
+    import wmthesis
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(Path(__file__).resolve().parents[1] / "data"))
+    agent = wmthesis.load("boxing-wm")
+    frames, actions = np.zeros((12, 64, 64, 3), np.uint8), np.zeros(12, np.int64)
+    with pytest.raises(ValueError, match="frames are uint8 images"):
+        agent.dream(np.full((12, 64, 64, 3), np.nan), actions, context=4, horizon=4)
+    with pytest.raises(ValueError, match=r"not integers; a valid action is an integer in \[0, 17\]"):
+        agent.dream(frames, actions + 0.5, context=4, horizon=4)
+    with pytest.raises(ValueError, match=r"action 18 of game 3 is out of range; a valid action is an integer in \[0, 17\]"):
+        agent.dream(frames, np.where(np.arange(12) == 3, 18, 0), context=4, horizon=4)
+    assert agent.dream(frames, actions, context=4, horizon=4)["prediction"].shape == (4, 64, 64, 3)
+    planet = wmthesis.load("planet-boxing-agent")
+    size = planet.config.frame_size
+    with pytest.raises(ValueError, match=r"not integers"):
+        planet.open_loop(np.zeros((8, size, size, 3), np.uint8), np.full(8, 1.5), context=3)
+    sokoban = wmthesis.load("sokoban-search")
+    board = "#####\n#@$.#\n#####"
+    with pytest.raises(ValueError, match=r"not integers; a valid action is an integer in \[0, 7\]"):
+        sokoban.replay(board, [1.5])
+    with pytest.raises(ValueError, match=r"action 9 of game 1 is out of range; a valid action is an integer in \[0, 7\]"):
+        sokoban.replay(board, [3, 9])
+    assert sokoban.replay(board, [])["frames"].shape[0] == 1

@@ -242,15 +242,25 @@ class TrainedAgent:
         return returns
 
 
-def check_episode(frames, actions, needed: int) -> None:
-    """One action per frame (``actions[t]`` taken at ``frames[t]``) and at least ``needed`` of each;
-    ValueError saying what to pass otherwise."""
+def check_episode(frames, actions, needed: int, n_actions: int) -> np.ndarray:
+    """One action per frame (``actions[t]`` taken at ``frames[t]``), each an integer in
+    ``[0, n_actions)``, at least ``needed`` of each, and uint8 frames; ValueError saying what to
+    pass otherwise. Returns the actions as int64 (T,)."""
+    import numpy as np
+
+    from wmthesis.envs.actions import check_actions
+
+    if str(getattr(frames, "dtype", "")) not in ("uint8", "torch.uint8"):  # a numpy array or a torch tensor
+        raise ValueError(f"frames are uint8 images (T, H, W, 3) as the agent's env() gives them, got "
+                         f"{getattr(frames, 'dtype', type(frames).__name__)}")
+    actions = check_actions(np.asarray(actions), n_actions, len(actions))
     if len(actions) != len(frames):
         raise ValueError(f"pass one action per frame (actions[t] is the action taken at frames[t]): got {len(frames)} "
                          f"frames and {len(actions)} actions")
     if len(frames) < needed:
         raise ValueError(f"{len(frames)} frames are too few: context + horizon needs {needed} (pass more frames, or a "
                          "shorter context or horizon)")
+    return actions
 
 
 class PolicyMind:

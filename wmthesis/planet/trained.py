@@ -137,8 +137,7 @@ class PlanetAgent(TrainedAgent):
         from wmthesis.planet.prediction import open_loop
 
         frames = check_planet_frames(frames, self.config.frame_size, many=True)
-        actions = torch.as_tensor(np.asarray(actions), dtype=torch.long)
-        check_episode(frames, actions, context + 1)
+        actions = torch.from_numpy(check_episode(frames, actions, context + 1, self.model.n_actions))
         generator = torch.Generator(next(self.model.parameters()).device).manual_seed(seed)
         out = open_loop(self.model, frames[None], actions[None], context=context, bits=self.config.bits,
                         generator=generator)

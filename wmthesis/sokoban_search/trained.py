@@ -183,8 +183,12 @@ class SokobanAgent(TrainedAgent):
         (T + 1, H, W, 3) uint8 and whether they ``solved`` it."""
         from wmthesis.sokoban_search.evaluation import board_env
 
+        from wmthesis.envs.actions import check_actions
+
         board = as_board(board)
         env = board_env(board, max_steps, observation="rgb")
+        actions = check_actions(np.asarray(actions, dtype=None if len(actions) else np.int64), env.action_space.n,
+                                len(actions))
         frame, _ = env.reset(options={"board": board})
         frames, solved = [frame], False
         for action in actions:

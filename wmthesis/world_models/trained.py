@@ -125,8 +125,8 @@ class WorldModelsAgent(TrainedAgent):
         ``pixel_error`` and ``latent_error`` per step."""
         from wmthesis.world_models.prediction import open_loop
 
-        frames, actions = np.asarray(frames), np.asarray(actions)
-        check_episode(frames, actions, context + horizon)
+        frames = np.asarray(frames)
+        actions = check_episode(frames, actions, context + horizon, self.memory.n_actions)
         return open_loop(self.vision.vae, self.memory, frames, actions, context, horizon)
 
 
