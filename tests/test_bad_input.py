@@ -495,3 +495,23 @@ def test_an_agents_dream_open_loop_and_replay_refuse_nan_frames_and_bad_actions_
     with pytest.raises(ValueError, match=r"action 9 of game 1 is out of range; a valid action is an integer in \[0, 7\]"):
         sokoban.replay(board, [3, 9])
     assert sokoban.replay(board, [])["frames"].shape[0] == 1
+
+
+def test_play_plays_the_controller_as_changed_and_refuses_nan_weights_naming_the_part(monkeypatch):
+    from pathlib import Path
+
+    import torch
+
+    import wmthesis
+
+    monkeypatch.setenv("WMTHESIS_DATA", str(Path(__file__).resolve().parents[1] / "data"))
+    agent = wmthesis.load("boxing-wm")
+    scored = agent.play(bouts=1)
+    with torch.no_grad():
+        for p in agent.controller.parameters():
+            p.zero_()  # every action scores 0: argmax plays action 0 (no-op) all bout
+    assert scored[0] > 20 and agent.play(bouts=1)[0] <= 0  # the changed controller plays, not the file's
+    with torch.no_grad():
+        next(agent.memory.parameters()).view(-1)[0] = float("nan")
+    with pytest.raises(ValueError, match=r"the memory's weights hold NaN or infinity \(lstm\.weight_ih_l0"):
+        agent.play(bouts=1)

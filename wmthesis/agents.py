@@ -219,9 +219,24 @@ class TrainedAgent:
         Sokoban): played by the agent as its evaluation did, or by ``policy`` (observation ->
         action, an int) through :meth:`env` on the same starts, ``max_steps`` steps at most."""
         check_bouts(bouts)
+        if policy is None:
+            self.check_weights()
         if policy is None and max_steps is None:
             return self.play_scored(bouts)
         return self.loop_bouts(bouts, policy, max_steps)
+
+    def check_weights(self) -> None:
+        """ValueError naming the part (``vision``, ``memory``, ``controller``, ...) whose weights hold
+        NaN or infinity: a damaged agent is refused, not played."""
+        import torch
+
+        for part in ("vision", "memory", "controller", "model", "value", "search"):
+            module = getattr(self, part)
+            if isinstance(module, torch.nn.Module):
+                broken = [name for name, p in module.named_parameters() if not torch.isfinite(p).all()]
+                if broken:
+                    raise ValueError(f"{self.path}: the {part}'s weights hold NaN or infinity ({broken[0]}"
+                                     f"{f' and {len(broken) - 1} more' if len(broken) > 1 else ''}); train it again")
 
     def loop_bouts(self, bouts: int, policy: Callable | None = None, max_steps: int | None = None) -> list[float]:
         """The returns of the agent's scored minds (:meth:`scored_minds`: each bout's as the

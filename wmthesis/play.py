@@ -54,6 +54,7 @@ def play(experiment: str, *, profile: str | None = None, seed: int = 0, variant:
     agent = load(experiment, variant=variant, profile=profile, seed=seed)
     if bouts is None:
         bouts = min(DEFAULT_BOUTS, agent.scored_bouts or DEFAULT_BOUTS)
+    agent.check_weights()
     on_bout = lambda p: on_play(agent.bout_line(p))  # noqa: E731
     if record is None and video is None:
         plays = agent.play_bouts(bouts, on_bout=on_bout)

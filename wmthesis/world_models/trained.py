@@ -47,7 +47,7 @@ class WorldModelsAgent(TrainedAgent):
         super().__init__(path, experiment, variant, profile, seed, loaded.info)
         task = loaded.info["task"]
         self.vision, self.memory, self.game = loaded.vision, loaded.memory, task["env"]
-        self.params = loaded.params  # the controller's flat parameters, as CMA-ES evolved them
+        self.params = loaded.params  # the controller's flat parameters as CMA-ES evolved them (play plays `controller`)
         self.controller = Controller.from_flat(loaded.params, task["latent_size"], task["hidden_size"],
                                                task["n_actions"]).eval()
         self.decoder_info = shipped_decoder(self.vision, Path(path).parent)
@@ -77,7 +77,7 @@ class WorldModelsAgent(TrainedAgent):
         cfg = self.info["controller_config"]
         game, shown = make_game("boxing", bouts, noop_max=cfg["noop_max"]), [] if frames is not None else None
         try:
-            returns, steps = evaluate_population(self.params[None], game, self.vision, self.memory,
+            returns, steps = evaluate_population(self.controller.get_flat()[None], game, self.vision, self.memory,
                                                  seeds=final_bout_seeds(bouts), max_steps=cfg["max_steps"],
                                                  frames=shown)
         finally:
