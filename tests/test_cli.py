@@ -277,7 +277,7 @@ def test_planet_boxing_study_then_agent_from_the_command_line(tmp_path, capsys, 
     own = tmp_path / "data/smoke/planet-boxing-value/lean-value-rewards-0.7-seed0/planner-validation"
     assert sorted(p.name for p in own.iterdir()) == sorted(slug(lever) for lever in levers)
     # the command line's validate: the same levers, one more played and saved where validate_planners finds it
-    from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
+    from wmthesis.value.variants import BOXING_PLANNER_LEVERS as PLANNER_LEVERS
     from wmthesis.value.tables import planner_lever_rows
 
     capsys.readouterr()

@@ -99,7 +99,7 @@ def test_a_planner_variant_keeps_the_defaults_value_and_episodes_and_a_value_var
     import json
 
     from wmthesis.experiments import reproduce
-    from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS
+    from wmthesis.value.variants import FREEWAY_VALUE_VARIANTS as VALUE_VARIANTS
     from wmthesis.summary import run_scores
 
     tmp_path = default_run
@@ -189,7 +189,8 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     assert json.loads(saved.read_text())["score"]["errors"] == check["errors"]
     assert check["diagnostics"]["embedding_spread"] >= 0
     # a value variant on that model: its baselines copied from freeway-adam's run, its own td value
-    from wmthesis.experiments.planet_freeway_value import VALUE_VARIANTS, base_variant, model_variant
+    from wmthesis.experiments.planet_freeway_value import base_variant, model_variant
+    from wmthesis.value.variants import FREEWAY_VALUE_VARIANTS as VALUE_VARIANTS
 
     assert base_variant("adam-td") == base_variant("freeway-adam") == "freeway-adam" and base_variant("td") is None
     for name in VALUE_VARIANTS:  # a base plays its own baselines, on the same model
@@ -209,7 +210,7 @@ def test_a_model_variant_fits_its_value_on_that_model_and_plays_its_own_baseline
     module = importlib.import_module("wmthesis.experiments.planet_freeway_value")
     planner_only = Variant("adam-horizon-12", "freeway-adam's value, 12 steps", dict(planner=dict(horizon=12)),
                            builds_on="freeway-adam")
-    monkeypatch.setattr(module, "VALUE_VARIANTS", Variants("planet-freeway-value", *VALUE_VARIANTS.values(), planner_only))
+    monkeypatch.setattr(module, "FREEWAY_VALUE_VARIANTS", Variants("planet-freeway-value", *VALUE_VARIANTS.values(), planner_only))
     longer = module.planet_freeway_value("smoke", 0, "adam-horizon-12", progress=False)
     assert longer["value_planner"]["config"]["horizon"] == 12 != adam["value_planner"]["config"]["horizon"]
     assert longer["curve"] == adam["curve"] and longer["best_round"] == adam["best_round"]  # the same value

@@ -347,7 +347,7 @@ def test_groups_of_bouts_play_in_one_pool_each_saved_in_its_own_file(tmp_path):
 
 def test_the_planner_levers_table_is_paired_against_the_first_lever():
     from wmthesis.value.config import ValuePlannerConfig
-    from wmthesis.experiments.planet_boxing_value import PLANNER_LEVERS
+    from wmthesis.value.variants import BOXING_PLANNER_LEVERS as PLANNER_LEVERS
     from wmthesis.value.tables import planner_lever_rows
     from wmthesis.metrics import score_summary
 

@@ -20,6 +20,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from wmthesis.config import PROFILES
 from wmthesis.declarations import AGENTS, DECLARED, resolve
 from wmthesis.utils import check_bouts, check_choice
@@ -261,8 +263,6 @@ def check_episode(frames, actions, needed: int, n_actions: int) -> np.ndarray:
     """One action per frame (``actions[t]`` taken at ``frames[t]``), each an integer in
     ``[0, n_actions)``, at least ``needed`` of each, and uint8 frames; ValueError saying what to
     pass otherwise. Returns the actions as int64 (T,)."""
-    import numpy as np
-
     from wmthesis.envs.actions import check_actions
 
     if str(getattr(frames, "dtype", "")) not in ("uint8", "torch.uint8"):  # a numpy array or a torch tensor

@@ -169,7 +169,7 @@ DECLARATIONS = (  # the thesis's and ours, built in; DECLARED holds them and eve
                 agent_steps="wmthesis.budget:value_steps",
                 published="wmthesis.references:FREEWAY_FIGURES",
                 measure="full-episode score, the value's chosen round",
-                variants="wmthesis.experiments.planet_freeway_value:VALUE_VARIANTS", builds_on=(NAMES.planet_freeway,),
+                variants="wmthesis.value.variants:FREEWAY_VALUE_VARIANTS", builds_on=(NAMES.planet_freeway,),
                 score="wmthesis.scores:value_scores", levers="wmthesis.validation:freeway_value_levers",
                 agent=AgentFile("{profile}/planet-freeway-value/{folder}seed{seed}/agent.pt",
                                 "wmthesis.value.trained:load_trained", "freeway")),

@@ -53,21 +53,23 @@ def agent_lever_lines(results: dict[str, dict]) -> list[str]:
     return [solved_line(lever, result["rows"]) for lever, result in results.items()]
 
 
-def planner_levers(module: str) -> Levers:
-    """A value experiment's planner levers (``module``'s ``PLANNER_LEVERS`` and ``validate_planners``),
-    every seed's validation bouts in one pool of ``workers`` processes."""
+def planner_levers(module: str, levers: dict) -> Levers:
+    """A value experiment's planner ``levers`` (name -> the planner's changes), measured by
+    ``module``'s ``validate_planners`` (imported when they run), every seed's validation bouts in
+    one pool of ``workers`` processes."""
     import importlib
 
-    from wmthesis.value.tables import planner_lever_rows
-
-    recipe = importlib.import_module(module)
-
-    def run(levers, *, profile=None, seeds=(0,), variant=None, count=None, workers=None, progress=True):
-        return over_seeds(lambda seed, pool: recipe.validate_planners(profile, seed, tuple(levers), count, progress,
+    def run(names, *, profile=None, seeds=(0,), variant=None, count=None, workers=None, progress=True):
+        recipe = importlib.import_module(module)
+        return over_seeds(lambda seed, pool: recipe.validate_planners(profile, seed, tuple(names), count, progress,
                                                                       variant=variant, executor=pool), seeds, workers)
 
-    return Levers(recipe.PLANNER_LEVERS, run,
-                  lambda results: [" | ".join(row) for row in planner_lever_rows(results, recipe.PLANNER_LEVERS)])
+    def lines(results):
+        from wmthesis.value.tables import planner_lever_rows
+
+        return [" | ".join(row) for row in planner_lever_rows(results, levers)]
+
+    return Levers(levers, run, lines)
 
 
 def boxing_wm_levers() -> Levers:
@@ -77,17 +79,21 @@ def boxing_wm_levers() -> Levers:
 
 
 def sokoban_levers() -> Levers:
-    from wmthesis.experiments.sokoban_search import LEVERS
+    from wmthesis.sokoban_search.variants import LEVERS
 
     return Levers({name: LEVERS.changes(name) for name in LEVERS}, validate_agent_levers, agent_lever_lines)
 
 
 def boxing_value_levers() -> Levers:
-    return planner_levers("wmthesis.experiments.planet_boxing_value")
+    from wmthesis.value.variants import BOXING_PLANNER_LEVERS
+
+    return planner_levers("wmthesis.experiments.planet_boxing_value", BOXING_PLANNER_LEVERS)
 
 
 def freeway_value_levers() -> Levers:
-    return planner_levers("wmthesis.experiments.planet_freeway_value")
+    from wmthesis.value.variants import FREEWAY_PLANNER_LEVERS
+
+    return planner_levers("wmthesis.experiments.planet_freeway_value", FREEWAY_PLANNER_LEVERS)
 
 
 WITH_LEVERS = Declared(lambda d: d.levers is not None)

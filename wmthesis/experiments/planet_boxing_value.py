@@ -18,7 +18,7 @@ from wmthesis.planet.train import load_planet
 from wmthesis.value.bouts import value_bout
 from wmthesis.value.play import validation_seeds
 from wmthesis.value.rounds import agent_rounds, round_values
-from wmthesis.value.variants import GAME, VALUE_VARIANTS, results_folder, value_folder
+from wmthesis.value.variants import BOXING_PLANNER_LEVERS, GAME, VALUE_VARIANTS, results_folder, value_folder
 from wmthesis.value.comparison import (checked_levers, compare_plans, fit_and_compare, frozen_agent,
                                         lever_scores, slug, start_from)
 from wmthesis.references import THESIS_PLANET_BOXING_SCORE, human
@@ -70,24 +70,11 @@ def value_plan_choices(profile: str | None = None, seed: int = 0, progress: bool
                          metrics, for_profile(ValueEvaluationConfig, profile).plan_steps, seed)
 
 
-# Levers on CEM with the value, each measured on the value's validation bouts (never on the
-# evaluation bouts), stated against the default planner (``{}``: the value seeding CEM); the first
-# lever played is the row the others are paired against. H1 is the value agent's own choice. The
-# lever chosen became ``lean-value-rewards-0.7``'s planner; the levers that lost, with their
-# numbers: docs/findings/planet-boxing-value.md.
-PLANNER_LEVERS = {"value seeds CEM": {}, "the value's rewards, discount 0.7": dict(rewards="value", discount=0.7),
-                  "the value's rewards, discount 0.7, shared noise": dict(rewards="value", discount=0.7, imagine="shared"),
-                  "the value's rewards, discount 0.7, pessimism 1": dict(rewards="value", discount=0.7, pessimism=1.0),
-                  "the value's rewards, discount 0.7, 4 particles of 25": dict(rewards="value", discount=0.7, candidates=25, particles=4),
-                  "H1: the value agent": dict(horizon=1), "the reward head refit on own bouts": dict(reward_head="own"),
-                  "the reward head refit on own bouts, H6": dict(reward_head="own", horizon=6)}
-
-
 def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
                       bouts: int | None = None, progress: bool = True, variant: str | None = None,
                       executor=None, metrics: dict | None = None) -> dict[str, dict]:
     """CEM with the value agent of ``variant``'s run (:func:`planet_boxing_value`, run first if
-    need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default), on
+    need be) under each of ``levers`` (names in :data:`BOXING_PLANNER_LEVERS`; all by default), on
     ``bouts`` (the profile's ``ValueEvaluationConfig.lever_bouts`` by default) of the value's validation bouts
     (:func:`~wmthesis.value.play.validation_seeds`: apart from the evaluation bouts), each
     lever cached in the value's folder (a variant that changes the planner alone plays on the
@@ -99,11 +86,11 @@ def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[s
     Returns lever -> the
     planner's ``config`` and its ``full`` and ``first``-500-step :func:`~wmthesis.metrics.score_summary`."""
     profile = profile_name(profile)
-    levers, bouts = checked_levers("planner lever", levers, PLANNER_LEVERS, bouts, for_profile(ValueEvaluationConfig, profile).lever_bouts)
+    levers, bouts = checked_levers("planner lever", levers, BOXING_PLANNER_LEVERS, bouts, for_profile(ValueEvaluationConfig, profile).lever_bouts)
     metrics = planet_boxing_value(profile, seed, variant, progress) if metrics is None else metrics
     planet_run = run_store.work_folder(profile, NAMES.planet_boxing_agent, seed)
     work = value_folder(profile, seed, variant)  # the run's value: fitted there, or copied from the run it builds on
-    planners = {lever: for_profile(ValuePlannerConfig, profile, **PLANNER_LEVERS[lever]) for lever in levers}
+    planners = {lever: for_profile(ValuePlannerConfig, profile, **BOXING_PLANNER_LEVERS[lever]) for lever in levers}
     return lever_scores(planet_run, work, metrics, planners, [validation_seeds(seed, k) for k in range(bouts)],
                         progress, executor=executor)
 
@@ -141,5 +128,5 @@ def validate_agents(profile: str | None = None, seed: int = 0, variant: str | No
     return results
 
 
-__all__ = ["planet_boxing_value", "REFERENCES", "value_plan_choices", "validate_planners", "PLANNER_LEVERS",
+__all__ = ["planet_boxing_value", "REFERENCES", "value_plan_choices", "validate_planners",
            "AGENT_RULES", "validate_agents"]

@@ -48,59 +48,38 @@ from wmthesis.runs import (built_on, hold, played_bouts, read_json, releasing_ho
                            write_json)
 from wmthesis.training import with_added_defaults
 from wmthesis.utils import data_dir
-from wmthesis.variants import Variant, Variants
+from wmthesis.value.variants import FREEWAY_MODEL, FREEWAY_PLANNER_LEVERS, FREEWAY_VALUE_VARIANTS
 from wmthesis.viz import save_figure
 
-GAME, VARIANT = "freeway", "freeway-tuned"
+GAME = "freeway"
 REFERENCES = {"human": human(GAME)}  # lines in its figures
 FREEWAY_VALUE = dict(target="discounted-sum", reward_steps=150, discount=0.97)
 UP = 1  # Freeway's actions: NOOP, UP, DOWN
 BASELINES = ("planet", "random", "always-up")  # in the order their episodes are saved
-# What would make the planner dodge cars? Each variant is measured against UP at every step, in a
-# folder of its own, on the same model and episodes. A variant with a ``model`` of its own plays its
-# baselines on it; one that builds on another copies that run's baselines, and its value unless it
-# fits one of its own. The numbers of those that left the code: docs/findings/planet-freeway-value.md.
-TD = dict(target="td", reward_steps=30, discount=0.99)
-VALUE_VARIANTS = Variants(
-    NAMES.planet_freeway_value,
-    Variant("default", "the discounted sum of the next 150 rewards on freeway-tuned's model, CEM 3 steps before it",
-            default=True),
-    # a collision's delay of 10-20 steps costs 10-20% of the value at 0.99
-    Variant("td", "the time to the next crossing, bootstrapped through the model", dict(value=TD), builds_on="default"),
-    Variant("horizon-12", "the default's value at the end of the thesis's 12 steps", dict(planner=dict(horizon=12)),
-            builds_on="default"),
-    # that agent's own episodes hold almost no crossing: the first data are freeway-tuned's
-    Variant("freeway-adam", "the default on the model that sees the cars (planet-freeway's freeway-adam)",
-            dict(model="freeway-adam", data=VARIANT)),
-    Variant("adam-td", "the td value on the model that sees the cars", dict(value=TD), builds_on="freeway-adam"),
-    # a step nearer the far side weighs the same at the foot of the road as at its top
-    Variant("adam-log", "the discounted sum's logarithm on the model that sees the cars, CEM 12 steps before it",
-            dict(planner=dict(horizon=12), value=dict(target="log-discounted-sum")), builds_on="freeway-adam"),
-    root="default")  # the default's runs keep the experiment's own folders
 
 
 def model_variant(variant: str | None = None) -> str:
     """The ``planet-freeway`` variant whose model a value ``variant`` is fitted on (its first
     data: that agent's episodes, or those of the variant's ``data``)."""
-    return VALUE_VARIANTS.changes(variant).get("model", VARIANT)
+    return FREEWAY_VALUE_VARIANTS.changes(variant).get("model", FREEWAY_MODEL)
 
 
 def base_variant(variant: str | None = None) -> str | None:
     """The value run whose model a ``variant`` shares and whose baselines it copies: the first of
     its lineage (None for the default's, on ``freeway-tuned``'s model)."""
-    root = VALUE_VARIANTS.lineage(variant)[0].name
+    root = FREEWAY_VALUE_VARIANTS.lineage(variant)[0].name
     return None if root == "default" else root
 
 
 def value_variant(variant: str | None = None) -> str | None:
     """The run whose value a ``variant`` plays with: itself where it fits one (a ``value`` of its
     own, or a base), else the base it copies the value from."""
-    name = None if VALUE_VARIANTS.check(variant).name == "default" else variant
-    return name if "value" in VALUE_VARIANTS[variant or "default"].changes or name == base_variant(name) \
+    name = None if FREEWAY_VALUE_VARIANTS.check(variant).name == "default" else variant
+    return name if "value" in FREEWAY_VALUE_VARIANTS[variant or "default"].changes or name == base_variant(name) \
         else base_variant(name)
 
 
-def frozen_model(profile: str, seed: int, model: str = VARIANT, progress: bool = True) -> Path:
+def frozen_model(profile: str, seed: int, model: str = FREEWAY_MODEL, progress: bool = True) -> Path:
     """The frozen run of ``planet-freeway``'s variant ``model``, trained first if need be."""
     built_on(NAMES.planet_freeway, profile, seed, model, progress)
     return work_folder(profile, NAMES.planet_freeway, seed, model)
@@ -141,13 +120,13 @@ def planet_freeway_value(profile: str | None = None, seed: int = 0, variant: str
     :func:`model_variant`, trained first if need be)
     frozen; a value fitted on its episodes, then rounds of its own (:data:`FREEWAY_VALUE`); the
     value alone, CEM with the value and the thesis's CEM on :data:`EPISODES` evaluation episodes
-    beside random play and UP at every step. A ``variant`` of :data:`VALUE_VARIANTS` changes the
+    beside random play and UP at every step. A ``variant`` of :data:`FREEWAY_VALUE_VARIANTS` changes the
     value or the planner in a folder of its own, beside the run on the same model
     (:func:`base_variant`): its baselines are copied from that run, not played again, and one that keeps the
     value starts from a copy of its value. Returns the metrics of :func:`~wmthesis.value.comparison.fit_and_compare`."""
-    own = VALUE_VARIANTS.check(variant).changes
-    variant = VALUE_VARIANTS.folder_name(variant)
-    changes = VALUE_VARIANTS.changes(variant)
+    own = FREEWAY_VALUE_VARIANTS.check(variant).changes
+    variant = FREEWAY_VALUE_VARIANTS.folder_name(variant)
+    changes = FREEWAY_VALUE_VARIANTS.changes(variant)
     profile = profile_name(profile)
     started = time.time()
     planet_run = frozen_model(profile, seed, model_variant(variant), progress)
@@ -191,7 +170,7 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
                 b.get("returns")) for name, b in first["baselines"].items()]
     for variant, m in by_variant.items():
         label = variant or "default"
-        if label == "default" or {"value", "model"} & set(VALUE_VARIANTS[label].changes):
+        if label == "default" or {"value", "model"} & set(FREEWAY_VALUE_VARIANTS[label].changes):
             rows.append(row(f"value alone ({label})", m["value"], m.get("value_first", {}).get("mean", float("nan")),
                             m["returns"]))
         planner = m["value_planner"]
@@ -200,27 +179,22 @@ def value_rows(by_variant: dict[str | None, dict]) -> list[list[str]]:
     return rows
 
 
-# Which planner ends in a Freeway value, each measured on the value's validation episodes (never
-# on the evaluation episodes): CEM's horizon, and its imagined states drawn or the prior's mean.
-PLANNER_LEVERS = {"H3": {}, "H12": dict(horizon=12), "H12 from the prior's mean": dict(horizon=12, imagine="mean")}
-
-
 def validate_planners(profile: str | None = None, seed: int = 0, levers: tuple[str, ...] | None = None,
                       bouts: int | None = None, progress: bool = True, variant: str | None = None,
                       executor=None) -> dict[str, dict]:
     """CEM with the value agent of ``variant``'s run (:func:`planet_freeway_value`, run first if
-    need be) under each of ``levers`` (names in :data:`PLANNER_LEVERS`; all by default) on
+    need be) under each of ``levers`` (names in :data:`FREEWAY_PLANNER_LEVERS`; all by default) on
     ``bouts`` (the profile's ``ValueEvaluationConfig.freeway_lever_episodes`` by default) of the value's validation
     episodes (:func:`~wmthesis.value.play.validation_seeds`: apart from the evaluation
     episodes), in one pool (``executor``, :func:`~wmthesis.utils.process_pool`; two at a time by default), each lever cached in the folder of the run that fitted the value
     (:func:`value_variant`: a variant that changes the planner alone shares its base's levers).
     Returns lever -> the planner's ``config`` and its ``full`` and ``first``-500-step scores."""
     profile = profile_name(profile)
-    levers, episodes = checked_levers("Freeway planner lever", levers, PLANNER_LEVERS, bouts, for_profile(ValueEvaluationConfig, profile).freeway_lever_episodes)
+    levers, episodes = checked_levers("Freeway planner lever", levers, FREEWAY_PLANNER_LEVERS, bouts, for_profile(ValueEvaluationConfig, profile).freeway_lever_episodes)
     fitted = value_variant(variant)
     metrics = planet_freeway_value(profile, seed, fitted, progress)
     work, _ = value_folders(profile, seed, fitted)
-    planners = {lever: for_profile(ValuePlannerConfig, profile, discount=metrics["config"]["discount"], **PLANNER_LEVERS[lever])
+    planners = {lever: for_profile(ValuePlannerConfig, profile, discount=metrics["config"]["discount"], **FREEWAY_PLANNER_LEVERS[lever])
                 for lever in levers}
     return lever_scores(frozen_model(profile, seed, model_variant(fitted), progress), work, metrics, planners,
                         [validation_seeds(seed, k) for k in range(episodes)], progress, game=GAME, executor=executor)
@@ -230,7 +204,7 @@ CHECK_VERSION = 2  # open_loop_check's cache: 2 added the diagnostics' embedding
 
 
 def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = True,
-                    model: str = VARIANT) -> dict:
+                    model: str = FREEWAY_MODEL) -> dict:
     """Can the frozen Freeway model imagine the cars a planner must dodge? Its open-loop error on
     the moving pixels of held-out random episodes (:func:`~wmthesis.planet.study.score_run`, as in
     notebook 05's model study: the profile's context frames filtered, then its horizon predicted
@@ -246,7 +220,7 @@ def open_loop_check(profile: str | None = None, seed: int = 0, progress: bool = 
     ``files`` (the figure)."""
     profile = profile_name(profile)
     planet_run = frozen_model(profile, seed, model, progress)
-    _, out = value_folders(profile, seed, None if model == VARIANT else model)
+    _, out = value_folders(profile, seed, None if model == FREEWAY_MODEL else model)
     sizes, (_, config, meta) = study_sizes(profile), load_planet(planet_run)
     key = {"updates": meta["updates"], "sizes": sizes, "version": CHECK_VERSION}
     cached = read_json(out / "open_loop_check.json")
@@ -373,4 +347,4 @@ def freeway_plan_choices(profile: str | None = None, seed: int = 0, variant: str
 
 
 __all__ = ["planet_freeway_value", "value_folders", "model_variant", "base_variant", "value_variant", "validate_planners",
-           "PLANNER_LEVERS", "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "hold_back_shares", "LOOKAHEAD_HORIZONS", "baseline_scores", "VALUE_VARIANTS", "BASELINES", "UP", "FREEWAY_VALUE", "GAME", "VARIANT", "REFERENCES"]
+           "frozen_model", "value_rows", "freeway_plan_choices", "open_loop_check", "lookahead_ceiling", "lookahead_bout", "when_to_wait", "hold_back_shares", "LOOKAHEAD_HORIZONS", "baseline_scores", "BASELINES", "UP", "FREEWAY_VALUE", "GAME", "REFERENCES"]

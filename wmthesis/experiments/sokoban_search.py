@@ -25,10 +25,10 @@ from wmthesis.sokoban_search.iteration import (evaluation_search, load_run, poli
                                                train_search_agent)
 from wmthesis.sokoban_search.report import (BOXOBAN_AGENTS, EVAL_PARTS, boxoban_job, boxoban_reference, boxoban_row,
                                             evaluation_record, generated_job, level_plays, merged_parts)
-from wmthesis.variants import Variant, Variants, no_variant
+from wmthesis.sokoban_search.variants import GENERATED, LEVERS
+from wmthesis.variants import no_variant
 from wmthesis.viz import save_figure
 
-GENERATED = ("sokoban-small", "sokoban")  # our generator's variants: each evaluated on unseen levels
 
 
 def evaluation_levels(profile: str | None) -> SokobanEvaluationConfig:
@@ -110,25 +110,6 @@ def sokoban_search(profile: str | None = None, seed: int = 0, variant: str | Non
     return metrics
 
 
-# Levers of the pixel agent, each a change to its config, trained in a folder of its own (one that
-# changes the search alone searches the baseline's run) and measured on the validation files only
-# (``validate``), never on the report files. The levers that left the code, with their numbers:
-# docs/findings/sokoban-search.md.
-THREE_ROUNDS = dict(rounds=3, model_updates=3000, round_updates=500)  # quick's default until 2026-11-25
-LEVERS = Variants(
-    NAMES.sokoban_search,
-    Variant("baseline", "the pixel run of sokoban_search itself: the curriculum, two rounds a variant in quick",
-            default=True),
-    Variant("no-backups", "its value from solved levels alone: the baseline before backed-up values", dict(backups=0)),
-    Variant("generated", "our 5x5 and 10x10 levels, not Boxoban's (three rounds a variant, as measured)",
-            dict(variants=GENERATED, **THREE_ROUNDS)),
-    Variant("small-model", "a quarter of the model's arithmetic: faster searches (three rounds a variant, as measured)",
-            dict(channels=32, **THREE_ROUNDS)),
-    Variant("strong-expert", "three times the rounds' search budget, 1.5 times the evaluation's",
-            dict(round_budget=60_000)),
-    Variant("prior-afterwards", "a policy prior fitted once on the baseline's own solutions orders the expansions",
-            dict(prior_weight=1.0)),
-)
 AFTERWARDS = ("prior-afterwards",)  # on the baseline's run with a policy prior fitted after it
 SEARCH_FIELDS = ("budget", "eval_budget", "batch", "weights", "doubt", "replans")  # a lever of these alone needs no training
 
@@ -290,5 +271,5 @@ def _figures(out: Path, runs: dict, generated: list, solutions: dict):
     return figures, record_solution(out / "solved.rrd", variant, record)
 
 
-__all__ = ["sokoban_search", "validate", "evaluate_report", "work_folder", "training_seconds", "evaluation_seconds", "LEVERS", "GENERATED",
+__all__ = ["sokoban_search", "validate", "evaluate_report", "work_folder", "training_seconds", "evaluation_seconds",
            "evaluation_levels"]
