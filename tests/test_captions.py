@@ -52,6 +52,13 @@ def test_every_quote_is_verbatim_in_the_thesis_and_in_the_section_it_names():
         for passage in found.says:
             assert normalised(passage) in flat, (figure, passage)
             assert section_of(passage) == found.section, (figure, passage)
+    from wmthesis import references
+
+    quoted = [r for r in vars(references).values() if isinstance(r, references.Reference) and r.quote]
+    assert len(quoted) >= 3  # the chapters' boxes quote the thesis's words, then read a figure in them
+    for reference in quoted:
+        assert normalised(reference.quote) in flat, reference
+        assert reference.source.startswith(f"thesis {section_of(reference.quote)}"), reference
 
 
 @pytest.mark.parametrize("name", sorted(DRAWN))

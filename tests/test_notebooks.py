@@ -266,9 +266,13 @@ def test_a_chapters_box_prints_the_summarys_verdict():
     assert judge(bar, None) == "not run yet"
     judged = next(h for h in CHAPTER_ROWS if h.notebook == "04")
     row = {"mean": -11.5, "ci_low": -12.0, "ci_high": -11.0, "n": 3, "wall_seconds": [60.0] * 3}
-    assert judge(judged, row) == "reproduced (by eye)"
+    assert judge(judged, row) == "reproduced (by eye, over 3 seeds)"
+    one = {**row, "ci_low": None, "ci_high": None, "n": 1, "wall_seconds": [3600.0], "experiment": "planet-sokoban",
+           "variant": "unchanged", "profile": "quick"}  # the eye alone settles nothing
+    assert judge(judged, one) == ("not settled at 1 seed (one seed gives no interval; by eye on its figure: "
+                                  "reproduced); 4 more seeds cost about 4.0 h of one core")
     box = chapter_box("04", folder=ROOT / "data" / "results")  # a chapter row opens its notebook
-    assert "**PlaNet on Sokoban-small" in box and "**Verdict**: reproduced (by eye);" in box
+    assert "**PlaNet on Sokoban-small" in box and "**Verdict**: not settled at " in box
     box = chapter_box("02", folder=ROOT / "data" / "results")
     assert "**Verdict** on the claim \"above 18\": reproduced." in box and "*The verdict's rule:*" in box
     with pytest.raises(ValueError, match="holds no headline; those that do: 01, 02, 03, 04, 05, 06, 07, 08, 09, 10"):

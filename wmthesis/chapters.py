@@ -27,8 +27,8 @@ def chapter_box(notebook: str, profile: str = "quick", folder=None) -> str:
             thesis = "the thesis gives no figure"
         elif h.thesis.quote:  # its words, then the figure we read in them
             thesis = f"\"{h.thesis.quote}\" ({h.thesis.source}); as a figure: {h.thesis.value}"
-        else:
-            thesis = f"\"{h.thesis.value}\" ({h.thesis.source})"
+        else:  # its figure in our words
+            thesis = f"{h.thesis.value} ({h.thesis.source})"
         if row is None:
             ours = "not run yet"
         else:

@@ -23,7 +23,7 @@ from wmthesis.references import (BOXOBAN, RANDOM, THESIS_ALPHAZERO, THESIS_PLANE
                                  THESIS_PLANET_FREEWAY, THESIS_PLANET_SEARCH, THESIS_PLANET_SOKOBAN, THESIS_SOKOBAN,
                                  THESIS_SOKOBAN_VISION,
                                  THESIS_WORLD_MODELS, Reference, best_atari_100k)
-from wmthesis.verdicts import Claim, verdict
+from wmthesis.verdicts import Claim, Verdict, verdict
 
 BEGIN, END = "<!-- results: written by `python -m wmthesis summary` -->", "<!-- end of results -->"
 
@@ -88,11 +88,11 @@ CHAPTER_ROWS = (
                  "usable abstract Sokoban representation\" (5.3.1)"),
     Headline(NAMES.planet_sokoban, "unchanged", "PlaNet on Sokoban-small (greedy return)", "5.5.1", "04",
              THESIS_PLANET_SOKOBAN, None, judged="reproduced",
-             why="its open-loop predictions blur and lose the player from the first "
-                 "imagined steps on (Fig. 5.8 below), as the thesis's did"),
+             why="its open-loop predictions blur and show no player from the first imagined steps on (Fig. 58 "
+                 "below), where the thesis saw blurred predictions with several players"),
     Headline(NAMES.planet_boxing_search, None, "KL scale x free nats: the best trial's open-loop error x 1000 on held-out "
              "bouts (lower is better)", "5.6.3-5.6.5", "06", THESIS_PLANET_SEARCH, None,
-             judged="not reproduced",
+             judged="not settled",
              why="its best and worst settings differ by less than one setting's two seeds do (below), so its trials "
                  "choose no setting"),
     Headline(NAMES.planet_boxing_value, None, "Boxing: a learned value alone on PlaNet's model (the round chosen on "
@@ -129,8 +129,17 @@ def judge(headline: Headline, row: dict | None, rows: list[dict] = ()) -> str:
     if row is None:
         return "not run yet"
     if headline.claim is None:
-        return f"{headline.judged} (by eye)"
+        return judged_by_eye(headline, row, rows)
     return str(verdict(headline.claim, row["mean"], row["ci_low"], row["ci_high"], row["n"], seed_hours(row, list(rows))))
+
+
+def judged_by_eye(headline: Headline, row: dict, rows) -> str:
+    """The verdict of a row the thesis judged by eye: ours on the figure beside it, ``judged``,
+    settled only over 2 seeds or more (one seed gives no interval, whatever the eye says)."""
+    if row["n"] >= 2:
+        return f"{headline.judged} (by eye, over {row['n']} seeds)"
+    eye = "" if headline.judged == "not settled" else f"; by eye on its figure: {headline.judged}"
+    return str(Verdict("not settled", row["n"], seed_hours(row, list(rows)), f"one seed gives no interval{eye}"))
 
 
 def _ours(row: dict | None) -> str:

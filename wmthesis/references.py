@@ -40,7 +40,9 @@ THESIS_SOKOBAN_VISION = Reference("thesis", "reconstructions that show the frame
                                   "thesis 5.3.1 (Fig. 54)", quote="The vision model successfully learned to encode high "
                                   "dimensional observations into low dimensional latent states")
 THESIS_PLANET_SOKOBAN = Reference("thesis PlaNet", "did not capture Sokoban dynamics: future predictions are blurred, "
-                                  "multiple agents appear", "thesis 5.5.1 (Fig. 58)")
+                                  "multiple agents appear", "thesis 5.5.1 (Fig. 58)", quote="PlaNet did not capture "
+                                  "Sokoban dynamics too. In the figure below (Fig. 58) future predictions are blurred, "
+                                  "multiple agents appear and other artifacts, like changing block type, are present")
 THESIS_PLANET_SEARCH = Reference("thesis PlaNet", "Random search resulted in the best divergence scale being around 0.03 "
                                  "[...] The best free nats turned out to be 12", "thesis 5.6.3-5.6.4; the trials judged "
                                  "by eye, the author's note there says")
