@@ -26,7 +26,7 @@ def test_every_figure_the_notebooks_draw_again_has_the_thesis_s_words():
     assert set(FIGURES) == {f"5.{n}" for n in range(4, 12)}
     for figure, found in FIGURES.items():
         said = thesis_says(figure)
-        assert said.startswith(f"> **The thesis on its Fig. {figure}** (section {found.section}):")
+        assert said.startswith(f"> **The thesis on its Fig. {figure.replace('.', '')}** (section {found.section}):")
         assert all(line.startswith(">") for line in said.splitlines()) and found.caption in said
         assert all(passage in said for passage in found.says)
     with pytest.raises(ValueError, match="known: 5.4, 5.5"):

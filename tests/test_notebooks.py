@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from wmthesis.stamp import git_commit, read_stamp, stamp
-from wmthesis.summary import HEADLINE_LINE
+from wmthesis.summary import HEADLINE_LINE, variant_label
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
@@ -110,7 +110,7 @@ def missing_headlines(path: Path, outputs: str) -> set[str]:
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_a_committed_notebook_s_headline_numbers_are_the_summary_s(path):
     summary = json.loads((ROOT / "data" / "results" / "summary.json").read_text())["rows"]
-    rows = {(r["experiment"], r["variant"] or "default", r["profile"]): r for r in summary}
+    rows = {(r["experiment"], variant_label(r["experiment"], r["variant"]), r["profile"]): r for r in summary}
     outputs = "\n".join(output_text(cell) for cell in code_cells(path))
     assert not missing_headlines(path, outputs), f"{path.name}: declares {missing_headlines(path, outputs)} and prints no headline line for it"
     for cell in code_cells(path):

@@ -443,9 +443,12 @@ def test_the_value_curve_is_drawn_from_a_run_s_metrics_alone():
     assert [list(line.get_ydata()) for line in ax.lines if line.get_marker() == "."] == [[4.0, 6.0]]  # one round: no mean
     assert ax.get_title() == "Boxing: the value agent after each round"
     lean = {**metrics, "curve": [{k: v for k, v in e.items() if k not in ("mean", "std")} for e in metrics["curve"]]}
-    ax = value_curve_figure(lean, {}).axes[0]  # a lean run scores no round: its agent, one point, titled so
-    assert [list(line.get_ydata()) for line in ax.lines if line.get_marker() == "."] == [[7.0]]
-    assert ax.get_title() == "Boxing: the value agent, the mean of rounds 2-3"
+    ax = value_curve_figure(lean, {"human": 12.1}).axes[0]  # a lean run scores no round: its agent beside the lines
+    rows = {t.get_text(): tick for tick, t in enumerate(ax.get_yticklabels())}
+    assert list(rows) == ["random play", "PlaNet (CEM)", "the value agent (mean of rounds 2-3)",
+                          "CEM, H3, with the value at its end", "human"]  # by score, best at the top
+    assert {t.get_text(): t.xy for t in ax.texts} == {f"{x:.1f}": (x, y) for x, y in
+                                                      [(-1.0, 0), (2.0, 1), (7.0, 2), (9.0, 3), (12.1, 4)]}
 
 
 def test_imagined_features_follow_the_actions_taken_from_each_posterior_and_their_signal_is_a_correlation():

@@ -15,7 +15,7 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
-from wmthesis.summary import HEADLINE_LINE
+from wmthesis.summary import HEADLINE_LINE, variant_label
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ("00_environments", "01_sokoban_world_models", "02_boxing_world_models", "03_boxing_world_models_alphazero",
@@ -55,7 +55,7 @@ def opens_as_a_reader_opens_it(name: str, shipped: Path, monkeypatch) -> None:
     assert "TRAIN = True" not in outputs
     path = ROOT / "notebooks" / f"{name}.ipynb"
     assert not missing_headlines(path, outputs), f"{name}: prints no headline line for {missing_headlines(path, outputs)}"
-    summary = {(r["experiment"], r["variant"] or "default", r["profile"]): r
+    summary = {(r["experiment"], variant_label(r["experiment"], r["variant"]), r["profile"]): r
                for r in json.loads((ROOT / "data" / "results" / "summary.json").read_text())["rows"]}
     for line in HEADLINE_LINE.finditer(outputs):
         row = summary[line["experiment"], line["variant"], line["profile"]]

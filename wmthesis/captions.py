@@ -1,4 +1,4 @@
-"""What the thesis says about each of its figures that a notebook draws again (Fig. 5.4-5.11).
+"""What the thesis says about each of its figures that a notebook draws again (Fig. 54-511).
 
 For each figure: its section, the thesis's own caption, and the sentences of that section that
 make a claim about it, all quoted verbatim from the thesis's text (its figure numbers lost their
@@ -21,7 +21,7 @@ class ThesisFigure(NamedTuple):
     says: tuple[str, ...]
 
 
-# Fig. 5.8 to 5.11 share most of their caption: PlaNet's open-loop rollouts after five true frames.
+# Fig. 58 to 511 share most of their caption: PlaNet's open-loop rollouts after five true frames.
 _ROLLOUT = ("Each row depicts the model rollout in one episode. The first five columns include original consecutive "
             "observations from the evaluation dataset from which the rollouts start. The model hidden state was "
             "initialized on these transitions. Each subsequent reconstruction was obtained by first predicting the "
@@ -77,7 +77,7 @@ def thesis_says(figure: str) -> str:
         raise ValueError(f"no figure {figure!r} of the thesis is drawn again here; known: {', '.join(FIGURES)}")
     found = FIGURES[figure]
     says = " … ".join(found.says)
-    return (f"> **The thesis on its Fig. {figure}** (section {found.section}): \"{says}\"\n>\n"
+    return (f"> **The thesis on its Fig. {figure.replace('.', '')}** (section {found.section}): \"{says}\"\n>\n"
             f"> *Its caption:* \"{found.caption}\"")
 
 

@@ -45,7 +45,7 @@ def agent_score(metrics: dict) -> dict:
 def sokoban_world_models_scores(metrics: dict) -> dict:
     """World Models on Sokoban: the percent of evaluation levels its controller solved (the thesis's
     measure: "failed to learn how to solve any level"), and its vision's, the percent of frames
-    whose reconstruction shows exactly one player (Fig. 5.4's claim: the vision "successfully learned")."""
+    whose reconstruction shows exactly one player (Fig. 54's claim: the vision "successfully learned")."""
     episodes = int(number(metrics["score"]["episodes"], "episodes"))
     one_player = metrics["baselines"]["vae reconstruction"]["at_cutoff"]["one_player"]
     return {None: 100.0 * number(metrics["controllers"]["mdn"]["solved"], "levels solved") / episodes,

@@ -306,6 +306,15 @@ HEADLINE_LINE = re.compile(r"headline · (?P<experiment>[\w-]+) · (?P<variant>.
                            r"(?P<mean>-?[\d.]+) .*?over (?P<n>\d+) seeds? \((?P<seeds>[\d ]+)\)")
 
 
+def variant_label(experiment: str, variant: str | None) -> str:
+    """A row's variant as a headline line names it: its own name; for the runs in the experiment's
+    own folders (``None``), the variant they are (its registry's root), else ``default``."""
+    if variant is not None:
+        return variant
+    registry = VARIANTS.get(experiment)
+    return registry.root if registry is not None and registry.root else "default"
+
+
 def headline_line(experiment: str, variant: str | None = None, profile: str = "quick",
                   folder: str | Path | None = None) -> str:
     """The line a notebook prints for a headline number: the summary's row of ``experiment``'s
@@ -318,7 +327,7 @@ def headline_line(experiment: str, variant: str | None = None, profile: str = "q
                          f"{folder or data_dir('results')}: run `python -m wmthesis reproduce {experiment}` first")
     row = rows[0]
     interval = "" if row["ci_low"] is None else f" [{row['ci_low']:.1f}, {row['ci_high']:.1f}]"
-    return (f"headline · {experiment} · {variant or 'default'} · {profile}: {row['mean']:.1f}{interval} "
+    return (f"headline · {experiment} · {variant_label(experiment, variant)} · {profile}: {row['mean']:.1f}{interval} "
             f"over {row['n']} seed{'s' if row['n'] > 1 else ''} ({' '.join(map(str, row['seeds']))})")
 
 
@@ -411,4 +420,4 @@ def _seeds_shown(table: str) -> dict[str, int]:
 
 
 __all__ = ["check_not_fewer", "headlines", "Run", "run_scores", "read_runs", "report_runs", "aggregate", "summarise", "markdown_table", "summary_figure",
-           "write_summary", "headline_line", "model_fingerprint", "HEADLINE_LINE", "INTERVAL"]
+           "write_summary", "headline_line", "variant_label", "model_fingerprint", "HEADLINE_LINE", "INTERVAL"]

@@ -165,11 +165,35 @@ def value_curve_figure(metrics: dict, references: dict[str, float]):
     lines.update({f"CEM, H{planner['config']['horizon']}, with the value at its end": planner["full"]["mean"], **references})
     rounds = chosen_rounds(metrics)
     scored = any("mean" in entry for entry in metrics["curve"])  # a lean run scores no round: one point, its agent
+    if not scored:
+        return agent_beside_figure(metrics, rounds, lines)
     return learning_curve_figure(_value_curves(metrics["curve"], rounds, metrics["value"]),
                                  references=lines, x="episodes",
                                  title=f"{metrics['env'].capitalize()}: the value agent" + (
                                      " after each round" if scored else f", the mean of rounds {rounds[0]}-{rounds[-1]}"
                                      if len(rounds) > 1 else f" of round {rounds[0]}"))
+
+
+def agent_beside_figure(metrics: dict, rounds: list[int], lines: dict[str, float]):
+    """A run that scored no round: its agent (the mean of ``rounds``' values, mean ± std over the
+    evaluation bouts) as one row beside ``lines`` (label -> score), best at the top."""
+    import matplotlib.pyplot as plt
+
+    value = metrics["value"]
+    agent = f"the value agent (mean of rounds {rounds[0]}-{rounds[-1]})" if len(rounds) > 1 else \
+        f"the value agent (round {rounds[0]})"
+    rows = sorted([(agent, value["mean"], value["std"]), *((name, score, None) for name, score in lines.items())],
+                  key=lambda row: row[1])
+    fig, ax = plt.subplots(figsize=(7.5, 0.35 * len(rows) + 1.0))
+    for y, (name, score, std) in enumerate(rows):
+        ax.errorbar(score, y, xerr=std, fmt="o", color="C0" if std is not None else "gray", capsize=3)
+        ax.annotate(f"{score:.1f}", (score, y), textcoords="offset points", xytext=(0, 6), ha="center", fontsize=7)
+    ax.set_yticks(range(len(rows)), [name for name, _, _ in rows], fontsize=8)
+    ax.set_xlabel("score over the evaluation bouts (the agent: mean ± std)")
+    ax.set_ylim(-0.6, len(rows) - 0.3)
+    ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
+    return fig
 
 
 def _value_curves(curve: list[dict], rounds: list[int], value: dict) -> dict[str, dict]:
