@@ -116,7 +116,7 @@ def plot_budget_curves(rows: list[dict]):
         for seed in sorted({r["seed"] for r in mine}):
             line = sorted((r for r in mine if r["seed"] == seed), key=lambda r: r["budget"])
             ax.plot([x[r["budget"]] for r in line], [r["score"] for r in line], "o-", lw=1, ms=3, alpha=0.6,
-                    label=f"seed {seed}")
+                    color=f"C{seed % 10}", label=f"seed {seed}")  # a seed's colour is the same in every panel
         over = [aggregate([r["score"] for r in mine if r["budget"] == b]) for b in x]
         ax.plot(list(x.values()), [a["mean"] for a in over], "k-", lw=2, label="mean")
         if all(a["ci_low"] is not None for a in over):
@@ -128,7 +128,12 @@ def plot_budget_curves(rows: list[dict]):
         ax.set_xlabel("search budget")
         ax.set_ylabel("score")
         ax.set_title(f"{planner} on {game}", fontsize=9)
-        ax.legend(fontsize=7)
+    shown = {}  # every panel's seeds, the mean and the band, once each, under the panels
+    for ax in axes[0]:
+        shown.update(zip(*reversed(ax.get_legend_handles_labels())))
+    order = sorted(shown, key=lambda label: (not label.startswith("seed"), label))
+    fig.legend([shown[label] for label in order], order, fontsize=7, loc="lower center", ncol=len(order),
+               bbox_to_anchor=(0.5, -0.06))
     fig.tight_layout()
     return fig
 

@@ -250,6 +250,6 @@ def score_figure(scores: dict):
         ax.axvline(value, color="0.4", ls=style, lw=1, label=label)
     ax.invert_yaxis()
     ax.set_xlabel("Boxing score (mean ± std)")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))  # beside the bars, over none
     fig.tight_layout()
     return fig

@@ -67,9 +67,7 @@ def learning_curve_figure(curves: dict[str, dict], *, references: dict[str, floa
             ax.scatter([entry[x] for entry in train], [entry["return"] for entry in train], s=6, alpha=0.4,
                        color=None if line is None else line.get_color(),
                        label=None if line is not None else f"{label} (train)")
-    for name, value in (references or {}).items():
-        ax.axhline(value, linestyle="--", linewidth=0.8, color="gray")
-        ax.annotate(name, (ax.get_xlim()[0], value), fontsize=7, color="gray", va="bottom")
+    reference_lines(ax, references or {})
     ax.set_xlabel({"env_steps": "agent steps", "frames": "frames"}.get(x, x))
     ax.set_ylabel("score")
     ax.grid(alpha=0.3)
@@ -78,6 +76,20 @@ def learning_curve_figure(curves: dict[str, dict], *, references: dict[str, floa
         ax.set_title(title, fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def reference_lines(ax, references: dict[str, float]) -> None:
+    """Dashed gray lines at ``references`` (label -> score), each labelled at the panel's right
+    edge; labels of close lines are moved apart (upwards) so none prints over another."""
+    for value in references.values():
+        ax.axhline(value, linestyle="--", linewidth=0.8, color="gray")
+    low, high = ax.get_ylim()
+    gap, right, placed = 0.06 * (high - low), ax.get_xlim()[1], -np.inf
+    for name, value in sorted(references.items(), key=lambda item: item[1]):
+        placed = max(value, placed + gap)
+        ax.annotate(name, (right, value), xytext=(right, placed), textcoords="data", fontsize=7, color="gray",
+                    va="bottom", ha="right")
+    ax.set_ylim(low, max(high, placed + gap))
 
 
 def study_error_figure(scores: dict[str, list[dict]], *, title: str | None = None):
