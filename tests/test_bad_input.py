@@ -519,3 +519,37 @@ def test_play_plays_the_controller_as_changed_and_refuses_nan_weights_naming_the
         next(agent.memory.parameters()).view(-1)[0] = float("nan")
     with pytest.raises(ValueError, match=r"the memory's weights hold NaN or infinity \(lstm\.weight_ih_l0"):
         agent.play(bouts=1)
+
+
+def test_a_failed_write_names_the_users_file_never_its_temporary_one(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    from wmthesis.runs import write_json
+
+    target = tmp_path / "summary.json"
+
+    def refuse(self, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(Path, "write_text", refuse)
+    with pytest.raises(PermissionError) as caught:
+        write_json(target, {"rows": []})
+    assert caught.value.filename == str(target) and ".tmp" not in str(caught.value)
+    assert not any(tmp_path.iterdir())  # nothing partial left
+
+
+def test_solve_sokoban_checks_free_space_for_its_output_before_it_plays(tmp_path, monkeypatch, capsys):
+    import shutil
+    from collections import namedtuple
+
+    import wmthesis.sokoban_search.evaluation as evaluation
+
+    levels = tmp_path / "levels.txt"
+    levels.write_text("#####\n#@$.#\n#####\n")
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda folder: usage(10**9, 10**9 - 10**5, 10**5))
+    monkeypatch.setattr(evaluation, "solve_boards", lambda *a, **k: pytest.fail("played before the space was checked"))
+    assert main(["solve-sokoban", str(levels), "--out", str(tmp_path / "out.json")]) != 0
+    said = capsys.readouterr().err
+    assert "out.json, the solutions of 1 level, needs about" in said and "MiB are free" in said
+    assert not (tmp_path / "out.json").exists()

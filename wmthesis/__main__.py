@@ -48,7 +48,7 @@ from pathlib import Path
 
 from wmthesis.config import (ATARI_ENVIRONMENTS, PLANNERS, CollectConfig, ENVIRONMENTS, EXPERIMENTS, PROFILES, check_storage,
                              for_profile, profile_name)
-from wmthesis.runs import DiskFull, FolderHeld, check_writable, write_json
+from wmthesis.runs import DiskFull, FolderHeld, check_space, check_writable, write_json
 from wmthesis.declarations import NAMES, Declared, check_run
 from wmthesis.utils import MAX_SEED, data_dir, parse_seeds
 
@@ -150,12 +150,20 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
+SOLUTION_BYTES = 4096  # a solved level's record in solve-sokoban's JSON, at most (its moves, its search's counts)
+
+
 def cmd_solve_sokoban(args) -> int:
     from wmthesis.envs.boxoban import load_levels  # light: numpy and gymnasium, no torch
 
     if args.out:  # the user's path and the levels, checked before any model loads or level is played
         check_writable(args.out, ".json")
     boards = load_levels(args.levels)
+    boxoban = args.levels.startswith("boxoban-")
+    out = Path(args.out) if args.out else data_dir("results", "solutions") / f"{args.levels.replace(':', '_')}.json" \
+        if boxoban else Path(args.levels).with_suffix(".solutions.json")
+    check_writable(out, ".json")
+    check_space(out.parent, len(boards) * SOLUTION_BYTES, f"{out}, the solutions of {len(boards):,} level{'s' * (len(boards) != 1)},")
     from wmthesis.experiments.sokoban_search import work_folder
     from wmthesis.sokoban_search.config import SokobanSearchConfig
     from wmthesis.sokoban_search.evaluation import solve_boards
@@ -169,9 +177,6 @@ def cmd_solve_sokoban(args) -> int:
                          f"--profile {profile} --seed {args.seed}` first")
     cfg = for_profile(SokobanSearchConfig, profile, seed=args.seed, inputs="pixels")
     results = solve_boards(run.agent(evaluation_search(cfg)), boards, max_steps=args.max_steps)
-    boxoban = args.levels.startswith("boxoban-")
-    out = Path(args.out) if args.out else data_dir("results", "solutions") / f"{args.levels.replace(':', '_')}.json" \
-        if boxoban else Path(args.levels).with_suffix(".solutions.json")
     write_json(out, results)
     print(f"{out}: {sum(r['solved'] for r in results)} of {len(results)} levels solved")
     return 0

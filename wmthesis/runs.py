@@ -133,6 +133,8 @@ def atomic_path(path: str | os.PathLike):
     except Exception as error:
         if not isinstance(error, DiskFull) and is_disk_full(error, path.parent):
             raise DiskFull(path.parent, f"{path.name} was not written") from error
+        if isinstance(error, OSError) and str(getattr(error, "filename", "")) == str(tmp):  # name the user's file
+            raise type(error)(error.errno, error.strerror, str(path)) from None
         raise
     finally:
         if tmp.exists():
