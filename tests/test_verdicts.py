@@ -3,6 +3,7 @@ over every headline row the summary writes."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -119,7 +120,9 @@ def test_the_summarys_json_carries_each_headlines_verdict(tmp_path):
 
 
 @pytest.mark.parametrize("field, value", [("score", True), ("score", "34.4"), ("score", float("nan")),
-                                          ("seed", -5), ("seed", 5.7), ("seed", True)])
+                                          ("score", float("inf")), ("seed", -5), ("seed", 5.7), ("seed", True),
+                                          ("wall_seconds", True), ("wall_seconds", -3.0), ("threads", 0),
+                                          ("profile", "big"), ("schema_version", 99)])
 def test_a_metrics_file_with_a_wrong_score_or_seed_is_skipped_and_never_reaches_the_readme(tmp_path, field, value):
     """A score of ``true`` once read as 1.0 and moved the README's main number: such a file is
     refused by name, and the summary's rows stand on the good files alone."""
@@ -136,7 +139,7 @@ def test_a_metrics_file_with_a_wrong_score_or_seed_is_skipped_and_never_reaches_
     if field == "score":
         bad["score"]["mean"] = value
     else:
-        bad["seed"] = value
+        bad[field] = value
     folder = tmp_path / "boxing-wm" / "quick-seed2" / "separable-64"
     folder.mkdir(parents=True)
     (folder / "metrics.json").write_text(json.dumps(bad))
@@ -145,3 +148,19 @@ def test_a_metrics_file_with_a_wrong_score_or_seed_is_skipped_and_never_reaches_
         rows = summarise(read_runs(tmp_path))
     assert [(r["seeds"], r["scores"]) for r in rows] == [([0, 1], [30.0, 40.0])]
     assert any(str(folder / "metrics.json") in str(w.message) and field in str(w.message) for w in caught)
+
+
+def test_a_metrics_file_is_checked_against_its_versioned_schema_naming_the_file_and_the_field():
+    from wmthesis.runs import run_header
+    from wmthesis.schemas import METRICS_VERSION, check_metrics
+
+    header = run_header("boxing-wm", "quick", 3, 12.34, variant="separable-64")
+    assert header["schema_version"] == METRICS_VERSION and check_metrics(header, "m.json") is header
+    for field, value, says in [("seed", 2**31, "seed: 2147483648 is greater than the maximum"),
+                               ("threads", True, "threads: True is not of type 'integer', 'null'"),
+                               ("date", "yesterday", "date: 'yesterday' does not match"),
+                               ("returns", [1.0, float("nan")], "returns.1: not a finite number")]:
+        with pytest.raises(ValueError, match=re.escape(f"runs/m.json: {says}")):
+            check_metrics({**header, field: value}, "runs/m.json")
+    with pytest.raises(ValueError, match="m.json: \\(the file\\): 'seed' is a required property"):
+        check_metrics({k: v for k, v in header.items() if k != "seed"}, "m.json")

@@ -194,12 +194,15 @@ def run_header(experiment: str, profile: str, seed: int, seconds: float, **run) 
     a CPU only with the same number: reductions split differently) and the wall time of ``seconds``."""
     import torch  # heavy: loaded when a run writes its metrics, not when the command line starts
 
-    return {"experiment": experiment, **run, "profile": profile, "seed": seed, "date": date.today().isoformat(),
+    from wmthesis.schemas import METRICS_VERSION
+
+    return {"schema_version": METRICS_VERSION, "experiment": experiment, **run, "profile": profile, "seed": seed,
+            "date": date.today().isoformat(),
             "machine": machine_name(),
             "threads": torch.get_num_threads(), "wall_seconds": round(seconds, 1)}
 
 
-RUN_CIRCUMSTANCES = ("date", "machine", "threads", "wall_seconds", "files")  # when, where and how long; not what
+RUN_CIRCUMSTANCES = ("date", "machine", "threads", "wall_seconds", "files", "schema_version")  # when, where, how long, how written; not what
 
 
 def unchanged_run(path: str | os.PathLike, metrics: dict) -> dict | None:

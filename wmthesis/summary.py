@@ -31,6 +31,7 @@ from wmthesis.headline import BEGIN, END, ablation_table, headline_rows, headlin
 from wmthesis.metrics import aggregate
 from wmthesis.notebook_index import BEGIN as NOTEBOOKS_BEGIN, END as NOTEBOOKS_END, notebook_rows, notebook_table
 from wmthesis.references import published_figures
+from wmthesis.schemas import check_metrics
 from wmthesis.scores import number
 from wmthesis.runs import atomic_path
 from wmthesis.utils import data_dir, shipped_dir
@@ -150,14 +151,15 @@ def read_runs(folder: str | Path | None = None) -> list[Run]:
     own: dict[str, Steps | None] = {}
     for path in sorted((p for f in folders for p in f.rglob("metrics.json")), key=lambda p: p.stat().st_mtime):
         try:
-            metrics = json.loads(path.read_text())
+            metrics = check_metrics(json.loads(path.read_text()), path)
             if metrics["experiment"] not in EXPERIMENTS:
                 raise ValueError(f"unknown experiment {metrics['experiment']!r}")
             header = (str(metrics["profile"]), run_seed(metrics["seed"]),
                       metrics.get("first_run_wall_seconds", metrics.get("wall_seconds")))
             scores = run_scores(metrics)
         except (ValueError, KeyError, TypeError, AttributeError, IndexError) as error:
-            warnings.warn(f"{path}: skipped, not a run's metrics ({type(error).__name__}: {error})", stacklevel=2)
+            said = str(error).removeprefix(f"{path}: ")
+            warnings.warn(f"{path}: skipped, not a run's metrics ({type(error).__name__}: {said})", stacklevel=2)
             continue
         broken = {variant: score for variant, score in scores.items() if not math.isfinite(float(score))}
         if broken:

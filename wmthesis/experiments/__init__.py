@@ -34,6 +34,7 @@ from wmthesis.planet.profiles import ATARI_CHANGES, SOKOBAN_CHANGES
 from wmthesis.planet.search_run import planet_boxing_search
 from wmthesis.value.variants import VALUE_VARIANTS as BOXING_VALUE_VARIANTS
 from wmthesis.planet.variants import REGISTRIES as PLANET_REGISTRIES
+from wmthesis.schemas import check_metrics
 from wmthesis.runs import read_json, register_runner, results_folder
 from wmthesis.utils import check_choice, check_seed, worker_init
 from wmthesis.variants import no_variant
@@ -84,13 +85,14 @@ def seed_runs(name: str, profile: str | None, seeds, variant: str | None = None,
     if name not in VARIANTS:
         no_variant(name, variant)
     folder = VARIANTS[name].folder_name(variant) if name in VARIANTS else None
-    found = {seed: read_json(results_folder(name, profile, seed, folder) / "metrics.json") for seed in seeds}
+    paths = {seed: results_folder(name, profile, seed, folder) / "metrics.json" for seed in seeds}
+    found = {seed: read_json(path) for seed, path in paths.items()}
     missing = [seed for seed, metrics in found.items() if metrics is None]
     if missing and say is not None:
         say(f"no committed {profile} run of {name}{f' {variant}' if variant else ''} for seed(s) "
             f"{', '.join(map(str, missing))}: TRAIN = True, or `python -m wmthesis reproduce {name} --profile {profile} "
             f"--seed {missing[0]}{f' --variant {variant}' if variant else ''}`")
-    return {seed: metrics for seed, metrics in found.items() if metrics is not None}
+    return {seed: check_metrics(metrics, paths[seed]) for seed, metrics in found.items() if metrics is not None}
 
 
 def reproduce_all(runs, profile: str | None = None, seed: int = 0, workers: int = 1) -> dict:
