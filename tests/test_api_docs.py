@@ -46,7 +46,7 @@ def test_every_block_of_the_api_page_runs_and_prints_what_the_page_shows(tmp_pat
     monkeypatch.setenv("WMTHESIS_DATA", str(REPO / "data"))  # the agents the repository ships
     checker = doctest.OutputChecker()
     ran = run_blocks(tmp_path)
-    assert len(ran) == 7
+    assert len(ran) == 8
     for code, expected, printed in ran:
         assert len(code.strip().splitlines()) <= 15, code
         if expected:

@@ -312,3 +312,42 @@ def test_the_headlines_read_the_committed_results_whatever_the_data_folder_and_s
     with pytest.warns(UserWarning, match=rf"no results under {tmp_path}: every headline reads 'not run yet'"):
         empty = headlines(folder=tmp_path)
     assert all(h["ours"] is None for h in empty)
+
+
+def test_every_agent_plans_from_an_episode_you_give_it_as_it_would_have_while_playing(shipped):
+    from wmthesis.core import Transition
+
+    def episode(agent, steps=12):
+        env = agent.env()
+        frame, _ = env.reset(seed=3)
+        frames, actions, rng = [frame], [], np.random.default_rng(3)
+        for _ in range(steps):
+            actions.append(int(rng.integers(env.action_space.n)))
+            frames.append(env.step(actions[-1])[0])
+        return frames, actions
+
+    def played(mind, frames, actions):
+        """The mind driven as loop drives it: plan at each frame, then the action taken."""
+        mind.reset()
+        for t, (frame, action) in enumerate(zip(frames[:-1], actions)):
+            mind.plan(frame)
+            mind.on_step_taken(t, Transition(frame, action, 0.0, frames[t + 1], False), {})
+        return mind
+
+    world_models = wmthesis.load("boxing-wm")
+    frames, actions = episode(world_models)
+    filtered = world_models.filter(frames, actions)
+    assert np.array_equal(filtered.plan(frames[-1]), played(world_models.mind(), frames, actions).plan(frames[-1]))
+    alphazero = wmthesis.load("boxing-wm-alphazero")
+    frames, actions = episode(alphazero)
+    filtered, by_loop = alphazero.filter(frames, actions, simulations=16), played(alphazero.mind(simulations=16), frames, actions)
+    assert np.array_equal(filtered.h, by_loop.h) and np.array_equal(filtered.c, by_loop.c)  # the same memory state
+    assert filtered.plan(frames[-1]).shape == (18,)
+    planet = wmthesis.load("planet-boxing-agent")
+    frames, actions = episode(planet)
+    once, again = (planet.filter(frames, actions).plan(frames[-1]) for _ in range(2))
+    assert once.shape == (18,) and np.array_equal(once, again)  # a fresh mind each time, seeded alike
+    with pytest.raises(ValueError, match=r"the frames seen \(T \+ 1\) and the actions taken at all but the last"):
+        planet.filter(frames, actions + [0])
+    with pytest.raises(ValueError, match=r"a valid action is an integer in \[0, 17\]"):
+        planet.filter(frames, actions[:-1] + [18])

@@ -227,6 +227,29 @@ class TrainedAgent:
             return self.play_scored(bouts)
         return self.loop_bouts(bouts, policy, max_steps)
 
+    def filter(self, frames, actions, **mind_options):
+        """A fresh mind (:meth:`mind`, with ``mind_options``) that has seen an episode's ``frames``
+        (T + 1, as :meth:`env` gives them) and the T ``actions`` taken at all but the last, as it
+        would have while playing it: ``mind.plan(frames[-1])`` then plans from that state. The
+        scores a plan returns: World Models' controller's, PlaNet's CEM mean for the first step,
+        MCTS's root visit counts (plus half the prior where counts tie)."""
+        if len(frames) != len(actions) + 1:
+            raise ValueError(f"pass the frames seen (T + 1) and the actions taken at all but the last (T): got "
+                             f"{len(frames)} frames and {len(actions)} actions")
+        mind = self.mind(**mind_options)
+        if not hasattr(mind, "observe_step"):
+            raise ValueError(f"{self.experiment}'s mind plans from the board it sees: `agent.solve(board)`")
+        from wmthesis.envs.actions import check_actions
+
+        env = self.env()
+        n_actions = int(env.action_space.n)
+        env.close()
+        actions = check_actions(np.asarray(actions, dtype=None if len(actions) else np.int64), n_actions, len(actions))
+        mind.reset()
+        for frame, action in zip(frames[:-1], actions):
+            mind.observe_step(frame, action)
+        return mind
+
     def check_weights(self) -> None:
         """ValueError naming the part (``vision``, ``memory``, ``controller``, ...) whose weights hold
         NaN or infinity: a damaged agent is refused, not played."""

@@ -149,6 +149,18 @@ class AlphaZeroMind(Mind, Callback):
         if self.mcts is not None:
             self.mcts.reset()
 
+    def reset(self) -> None:
+        """A fresh episode: zero memory state, an empty tree (the search's seed kept)."""
+        self.on_episode_start(self.index, False)
+
+    def observe_step(self, frame, action: int) -> None:
+        """One step of an episode seen and taken: ``frame`` encoded, the memory stepped on it and
+        ``action`` (no search: the next :meth:`plan` searches from there)."""
+        if not hasattr(self, "h"):
+            self.reset()
+        next_state, _ = self.mdp.transition(State(self.encode(frame), self.h, self.c), int(action))
+        self.h, self.c = next_state.h, next_state.c
+
     def on_step_taken(self, step, transition, info) -> None:
         next_state, predicted = self.mdp.transition(self._root, transition.action)
         self.h, self.c = next_state.h, next_state.c

@@ -45,6 +45,15 @@ class BeliefFilter(Mind, Callback):
         self.prev_action = F.one_hot(torch.tensor([transition.action], device=self.belief.device),
                                      self.model.n_actions).float()
 
+    def observe_step(self, frame: np.ndarray, action: int) -> None:
+        """One step of an episode seen and taken: ``frame`` filtered into the belief, then
+        ``action`` taken at it (what :func:`~wmthesis.core.loop` does through :meth:`plan` and the
+        callback); the next :meth:`plan` starts from there."""
+        self.observe(frame, **self.observe_options)
+        self.prev_action = F.one_hot(torch.tensor([int(action)], device=self.belief.device), self.model.n_actions).float()
+
+    observe_options: dict = {}  # how plan() observes (the value's mind takes the posterior's mean)
+
     @torch.inference_mode()
     def observe(self, frame: np.ndarray, sample: bool = True) -> None:
         """Advance ``(h, s)`` with a (size, size, 3) uint8 frame (``bits`` bits, dequantisation

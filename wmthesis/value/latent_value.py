@@ -136,6 +136,8 @@ class ValueMind(BeliefFilter):
         super().__init__(model, bits, torch.Generator(next(model.parameters()).device).manual_seed(int(seed)))
         self.value = value
 
+    observe_options = {"sample": False}  # as plan() observes
+
     @torch.inference_mode()
     def plan(self, frame: np.ndarray, train_mode: bool = True, debug_mode: bool = False) -> np.ndarray:
         self.observe(frame, sample=False)

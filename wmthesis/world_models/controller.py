@@ -123,6 +123,16 @@ class ControllerMind(Mind, Callback):
         self.reset()
 
     @torch.inference_mode()
+    def observe_step(self, frame, action: int) -> None:
+        """One step of an episode seen and taken: ``frame`` encoded, the memory stepped on it and
+        ``action`` (what :func:`~wmthesis.core.loop` does through :meth:`plan` and the callback)."""
+        self.z = self.vision(torch.as_tensor(np.asarray(frame))[None])
+        if self.memory is not None:
+            out = self.memory.step(self.z, torch.tensor([int(action)], device=self.z.device), self.state)
+            self.h, self.state = out.hidden, out.state
+        self.z = None
+
+    @torch.inference_mode()
     def on_step_taken(self, step, transition, info) -> None:
         if self.memory is not None:
             played = info.get("action", transition.action) if info else transition.action  # ScoredStart's no-ops
