@@ -467,6 +467,9 @@ def test_play_plays_by_default_ten_bouts_or_every_scored_one_where_fewer(scored,
         def score_line(self, plays):
             return f"{len(plays)} bouts"
 
+        def check_weights(self):
+            pass
+
     monkeypatch.setattr(wmthesis.agents, "load", lambda *a, **k: Scored())
     lines = []
     play("boxing-wm", bouts=asked, on_play=lines.append)

@@ -156,9 +156,7 @@ SOLUTION_BYTES = 4096  # a solved level's record in solve-sokoban's JSON, at mos
 def cmd_solve_sokoban(args) -> int:
     from wmthesis.envs.boxoban import load_levels  # light: numpy and gymnasium, no torch
 
-    if args.out:  # the user's path and the levels, checked before any model loads or level is played
-        check_writable(args.out, ".json")
-    boards = load_levels(args.levels)
+    boards = load_levels(args.levels)  # the levels and the output's path and space, checked before any model loads
     boxoban = args.levels.startswith("boxoban-")
     out = Path(args.out) if args.out else data_dir("results", "solutions") / f"{args.levels.replace(':', '_')}.json" \
         if boxoban else Path(args.levels).with_suffix(".solutions.json")

@@ -66,10 +66,10 @@ def parse_budgets(planner: str, text: str) -> tuple:
     return tuple(dict.fromkeys(budgets))  # each once, in the order given
 
 
-# the largest budget a curve takes: 64 times the largest measured (256 simulations, 160,000 nodes;
-# CEM: horizon, candidates, iterations)
-MOST = {"mcts": 16_384, "sokoban-search": 10_000_000, "cem": (100, 100_000, 100)}
-_EXAMPLES = {"sokoban-search": "1000,5000,40000", "mcts": "16,64,256", "cem": "6x100x3,12x100x3"}
+# per planner (PLANNERS' order): the largest budget a curve takes, 64 times the largest measured
+# (160,000 nodes, 256 simulations; CEM: horizon, candidates, iterations), and budgets to give
+MOST = dict(zip(PLANNERS, (10_000_000, 16_384, (100, 100_000, 100))))
+_EXAMPLES = dict(zip(PLANNERS, ("1000,5000,40000", "16,64,256", "6x100x3,12x100x3")))
 
 
 def _budget(planner: str, item: str):
