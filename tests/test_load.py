@@ -351,3 +351,16 @@ def test_every_agent_plans_from_an_episode_you_give_it_as_it_would_have_while_pl
         planet.filter(frames, actions + [0])
     with pytest.raises(ValueError, match=r"a valid action is an integer in \[0, 17\]"):
         planet.filter(frames, actions[:-1] + [18])
+
+
+def test_sokobans_one_step_prediction_is_one_call_beside_the_truth(shipped):
+    sokoban = wmthesis.load("sokoban-search")
+    level = "#######\n#@$ . #\n#  $. #\n#######"
+    pushed, walked = sokoban.predict(level, 3), sokoban.predict(level, 5)  # push right; move down
+    for out in (pushed, walked):
+        assert out["frame"].dtype == np.uint8 and out["frame"].shape == out["truth"].shape == (16, 40, 3)
+        assert np.array_equal(out["frame"], out["truth"])  # the shipped model gets these steps right
+        assert out["reward"] == pytest.approx(-0.1, abs=1e-6) and out["done"] is False
+    assert not np.array_equal(pushed["frame"], walked["frame"])
+    with pytest.raises(ValueError, match=r"a valid action is an integer in \[0, 7\]"):
+        sokoban.predict(level, 8)

@@ -181,9 +181,8 @@ class SokobanAgent(TrainedAgent):
     def replay(self, board, actions, max_steps: int = 120) -> dict:
         """``actions`` played on ``board`` in the package's real environment: its ``frames``
         (T + 1, H, W, 3) uint8 and whether they ``solved`` it."""
-        from wmthesis.sokoban_search.evaluation import board_env
-
         from wmthesis.envs.actions import check_actions
+        from wmthesis.sokoban_search.evaluation import board_env
 
         board = as_board(board)
         env = board_env(board, max_steps, observation="rgb")
@@ -197,6 +196,24 @@ class SokobanAgent(TrainedAgent):
             if solved or truncated:
                 break
         return {"frames": np.stack(frames), "solved": bool(solved)}
+
+
+    def predict(self, board, action: int) -> dict:
+        """The learned model's step from ``board`` (as :meth:`solve` takes it) under ``action``: the
+        ``frame`` it predicts (the cells' codes drawn back, (h*t, w*t, 3) uint8, the wall ring
+        cropped, as the model sees frames), beside the real ``truth`` frame, and the ``reward`` and
+        ``done`` it predicts."""
+        from wmthesis.envs.actions import check_actions
+        from wmthesis.sokoban_search.cells import crop_ring
+        from wmthesis.sokoban_search.evaluation import board_env
+
+        board, inputs = as_board(board), self.search.inputs
+        env = board_env(board, 1, **inputs.env_options)
+        (action,) = check_actions(np.asarray([action]), env.action_space.n, 1)
+        observation, _ = env.reset(options={"board": board})
+        codes, reward, done = self.search.model.step(inputs.observe(env.unwrapped, observation)[None], [action])
+        truth = crop_ring(env.step(int(action))[0], inputs.coder.tile_size)
+        return {"frame": inputs.coder.decode(codes)[0], "truth": truth, "reward": float(reward[0]), "done": bool(done[0])}
 
 
 def replayed_boards(record: dict) -> np.ndarray:
