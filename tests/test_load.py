@@ -364,3 +364,20 @@ def test_sokobans_one_step_prediction_is_one_call_beside_the_truth(shipped):
     assert not np.array_equal(pushed["frame"], walked["frame"])
     with pytest.raises(ValueError, match=r"a valid action is an integer in \[0, 7\]"):
         sokoban.predict(level, 8)
+
+
+@pytest.mark.parametrize("name", ["boxing-wm", "boxing-wm-alphazero", "planet-boxing-agent"])
+def test_every_model_predicts_the_next_frame_and_reward_of_an_episode_you_give_it(name, shipped):
+    agent = wmthesis.load(name)
+    env = agent.env()
+    frame, _ = env.reset(seed=5)
+    frames, actions, rng = [frame], [], np.random.default_rng(5)
+    for _ in range(16):
+        actions.append(int(rng.integers(env.action_space.n)))
+        frames.append(env.step(actions[-1])[0])
+    out = agent.predict(frames[:-1], actions)
+    truth = frames[-1].astype(float)
+    assert out["frame"].dtype == np.uint8 and out["frame"].shape == frames[-1].shape and np.isfinite(out["reward"])
+    assert np.abs(out["frame"] - truth).mean() < 0.5 * np.abs(truth).mean()  # the picture, not a blank
+    with pytest.raises(ValueError, match="pass one action per frame, the last the one whose outcome is predicted"):
+        agent.predict(frames[:-1], actions[:-1])

@@ -250,6 +250,26 @@ class TrainedAgent:
             mind.observe_step(frame, action)
         return mind
 
+    def predict(self, frames, actions) -> dict:
+        """The model's next step after an episode you give it: ``frames`` (T + 1) seen and one action
+        taken at each (T + 1, the last at the last frame): the ``frame`` it predicts next, decoded
+        ((H, W, 3) uint8; None without a decoder), and the ``reward`` it predicts (World Models,
+        MCTS in its memory, PlaNet; Sokoban: ``predict(level, action)``)."""
+        if len(actions) != len(frames):
+            raise ValueError(f"pass one action per frame, the last the one whose outcome is predicted: got "
+                             f"{len(frames)} frames and {len(actions)} actions")
+        mind = self.filter(frames, list(actions)[:-1])
+        env = self.env()
+        from wmthesis.envs.actions import check_actions
+
+        (action,) = check_actions(np.asarray(list(actions)[-1:]), int(env.action_space.n), 1)
+        env.close()
+        return self.step_prediction(mind, frames[-1], int(action))
+
+    def step_prediction(self, mind, frame, action: int) -> dict:
+        """The family's one step from a filtered ``mind`` at ``frame`` under ``action`` (:meth:`predict`)."""
+        raise ValueError(f"{self.experiment}'s agent has no model that predicts a step")
+
     def check_weights(self) -> None:
         """ValueError naming the part (``vision``, ``memory``, ``controller``, ...) whose weights hold
         NaN or infinity: a damaged agent is refused, not played."""

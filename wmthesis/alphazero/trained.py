@@ -105,6 +105,14 @@ class AlphaZeroAgent(TrainedAgent):
             thought.seen, thought.imagined = frames[0], {j + 1: f for j, f in enumerate(frames[1:])}
         return thought
 
+    def step_prediction(self, mind, frame, action: int) -> dict:
+        """The search's model's step from the frame: the memory's next latent, decoded, and its reward."""
+        from wmthesis.alphazero.latent_mdp import State
+
+        following, reward = mind.mdp.transition(State(mind.encode(frame), mind.h, mind.c), action)
+        shown = self.vision.decode(np.stack([following.z]))[0] if self.decoder_info is not None else None
+        return {"frame": None if shown is None else np.asarray(shown), "reward": float(reward)}
+
     def score_line(self, plays: list[dict]) -> str:
         return super().score_line(plays)[:-1] + f", {self.config.simulations} simulations an action)"
 

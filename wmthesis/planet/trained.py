@@ -81,6 +81,18 @@ class PlanetAgent(TrainedAgent):
             raise ValueError(f"{self.path} was scored on {len(self.info['bouts'])} bouts, not {bouts}")
 
     @torch.inference_mode()
+    def step_prediction(self, mind, frame, action: int) -> dict:
+        """The RSSM's step from the frame filtered into the belief: the prior's mean, decoded, and its reward."""
+        from wmthesis.planet.prediction import planned_path
+        from wmthesis.planet.rssm import frames_out
+
+        mind.observe(frame, **mind.observe_options)
+        beliefs, states, rewards = planned_path(self.model, mind.belief, mind.state, torch.tensor([action]))
+        shown = frames_out(self.model.decode(beliefs, states), self.config.bits)[0].cpu().numpy() \
+            if self.decoder_info is not None else None
+        return {"frame": shown, "reward": float(rewards.reshape(-1)[0])}
+
+    @torch.inference_mode()
     def thought(self, mind):
         """What the planner chose and what the model imagines along it: the plan (the final CEM
         mean's argmax at each of its steps) rolled out from the belief on the prior's means, with

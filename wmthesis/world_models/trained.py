@@ -114,6 +114,16 @@ class WorldModelsAgent(TrainedAgent):
                 thought.seen, thought.imagined = shown[0], dict(zip(ahead, shown[1:]))
         return thoughts
 
+    @torch.inference_mode()
+    def step_prediction(self, mind: ControllerMind, frame, action: int) -> dict:
+        """The memory's step from the frame: its mixture's most likely next latent, decoded, and its reward."""
+        from wmthesis.world_models.prediction import most_likely
+
+        z = self.vision(torch.as_tensor(np.asarray(frame))[None])
+        out = self.memory.step(z, torch.tensor([action], device=z.device), mind.state)
+        shown = self.vision.decode(most_likely(out.next_latent))[0] if self.decoder_info is not None else None
+        return {"frame": None if shown is None else np.asarray(shown), "reward": float(out.reward.reshape(-1)[0])}
+
     def thought(self, mind: ControllerMind):
         """The :meth:`thoughts` of ``mind`` now."""
         return self.thoughts([self.snapshot(mind)])[0]
