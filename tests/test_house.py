@@ -115,7 +115,7 @@ def test_no_module_imports_another_modules_underscore_names_and_no_recipe_a_sibl
 def test_no_file_of_the_package_runs_over_450_lines_and_the_recipes_stay_thin():
     lengths = {str(p.relative_to(PACKAGE)): len(p.read_text().splitlines()) for p in PACKAGE.rglob("*.py")}
     assert {name: n for name, n in lengths.items() if n > 450} == {}
-    assert sum(n for name, n in lengths.items() if name.startswith("experiments/")) <= 2000
+    assert sum(n for name, n in lengths.items() if name.startswith("experiments/")) <= 1950  # today's 1,944
 
 
 def test_the_committed_results_of_kept_variants_still_read():
@@ -232,7 +232,7 @@ def test_experiment_names_are_written_in_the_declarations_alone():
         if path.name != "declarations.py":
             written += [f"{path.relative_to(PACKAGE)}:{node.lineno}" for node in ast.walk(ast.parse(path.read_text()))
                         if isinstance(node, ast.Constant) and node.value in names]
-    assert len(written) <= 4, written  # today's: the Sokoban planner's name in the budget curves
+    assert len(written) <= 3, written  # today's: the Sokoban planner's name among the planners and in its curve
 
 
 def test_each_profiles_sizes_are_written_in_the_config_modules_alone():
