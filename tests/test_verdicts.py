@@ -164,3 +164,11 @@ def test_a_metrics_file_is_checked_against_its_versioned_schema_naming_the_file_
             check_metrics({**header, field: value}, "runs/m.json")
     with pytest.raises(ValueError, match="m.json: \\(the file\\): 'seed' is a required property"):
         check_metrics({k: v for k, v in header.items() if k != "seed"}, "m.json")
+
+
+def test_another_seed_costs_its_wall_time_times_its_threads_in_hours_of_one_core():
+    from wmthesis.headline import seed_hours
+
+    row = {"experiment": "planet-boxing-search", "variant": None, "profile": "quick", "wall_seconds": [3600.0, 1800.0],
+           "threads": [2, None]}
+    assert seed_hours(row, [row]) == pytest.approx((7200 + 1800) / 2 / 3600)  # a 2-thread hour is 2 hours of one core

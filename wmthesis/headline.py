@@ -102,11 +102,15 @@ CHAPTER_ROWS = (
 
 
 def seed_hours(row: dict | None, rows: list[dict]) -> float | None:
-    """What another seed of ``row`` costs, in hours of one core: its seeds' mean wall time, plus
+    """What another seed of ``row`` costs, in hours of one core: its seeds' mean wall time (times the
+    torch threads each ran on), plus
     that of the default row of each experiment it builds on, of the same profile (a new seed
     trains those too). None where a time is not recorded."""
     def hours(r: dict | None) -> float | None:
-        walls = [w for w in (r or {}).get("wall_seconds", []) if w is not None]
+        """Its seeds' mean wall time in hours of one core: a run on n torch threads counts n times."""
+        r = r or {}
+        threads = r.get("threads") or [None] * len(r.get("wall_seconds", []))
+        walls = [w * (t or 1) for w, t in zip(r.get("wall_seconds", []), threads) if w is not None]
         return None if not walls else float(np.mean(walls)) / 3600
 
     own = hours(row)
