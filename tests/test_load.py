@@ -381,3 +381,20 @@ def test_every_model_predicts_the_next_frame_and_reward_of_an_episode_you_give_i
     assert np.abs(out["frame"] - truth).mean() < 0.5 * np.abs(truth).mean()  # the picture, not a blank
     with pytest.raises(ValueError, match="pass one action per frame, the last the one whose outcome is predicted"):
         agent.predict(frames[:-1], actions[:-1])
+
+
+def test_the_alphazero_agent_dreams_as_the_world_models_agent_does(shipped):
+    alphazero, world_models = wmthesis.load("boxing-wm-alphazero"), wmthesis.load("boxing-wm")
+    env = alphazero.env()
+    frame, _ = env.reset(seed=2)
+    frames, actions, rng = [frame], [], np.random.default_rng(2)
+    for _ in range(24):
+        actions.append(int(rng.integers(18)))
+        frames.append(env.step(actions[-1])[0])
+    frames, actions = np.stack(frames[:-1]), np.asarray(actions)
+    ours, theirs = alphazero.dream(frames, actions, 16, 8), world_models.dream(frames, actions, 16, 8)
+    assert set(ours) == set(theirs) and ours["prediction"].shape == theirs["prediction"].shape == (8, 64, 64, 3)
+    assert np.array_equal(ours["truth"], theirs["truth"]) and np.all(np.isfinite(ours["pixel_error"]))
+    assert ours["latent_error"][0] < ours["latent_error"][-1]  # its own predictions drift
+    with pytest.raises(ValueError, match="context \\+ horizon needs 30"):
+        alphazero.dream(frames, actions, 20, 10)

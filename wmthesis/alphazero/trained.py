@@ -105,6 +105,31 @@ class AlphaZeroAgent(TrainedAgent):
             thought.seen, thought.imagined = frames[0], {j + 1: f for j, f in enumerate(frames[1:])}
         return thought
 
+    def dream(self, frames, actions, context: int = 60, horizon: int = 10) -> dict:
+        """The search's memory warmed on ``context`` real steps of an episode (``frames`` (T, 64, 64, 3)
+        uint8, ``actions`` (T,), ``actions[t]`` taken at ``frames[t]``), then stepping ``horizon``
+        steps on its own predictions along the actions taken, as the search imagines: ``truth`` and
+        ``prediction`` frames (horizon, 64, 64, 3), ``pixel_error`` and ``latent_error`` per step
+        (World Models' :meth:`~wmthesis.world_models.trained.WorldModelsAgent.dream`, for this memory)."""
+        from wmthesis.agents import check_episode
+        from wmthesis.alphazero.latent_mdp import State
+        from wmthesis.metrics import horizon_errors
+
+        frames = np.asarray(frames)
+        actions = check_episode(frames, actions, context + horizon, self.memory.n_actions)
+        if context < 1:
+            raise ValueError(f"a dream starts from at least one real step: context {context}")
+        mind = self.filter(frames[:context], actions[:context - 1])
+        state, predicted = State(mind.encode(frames[context - 1]), mind.h, mind.c), []
+        for t in range(context - 1, context + horizon - 1):
+            state, _ = mind.mdp.transition(state, int(actions[t]))
+            predicted.append(np.asarray(state.z, np.float32))
+        truth, predicted = frames[context:context + horizon], np.stack(predicted)
+        prediction = np.asarray(self.vision.decode(predicted))
+        seen = np.stack([mind.encode(frame) for frame in truth])
+        return {"truth": truth, "prediction": prediction, "pixel_error": horizon_errors(truth, prediction),
+                "latent_error": horizon_errors(seen, predicted)}
+
     def step_prediction(self, mind, frame, action: int) -> dict:
         """The search's model's step from the frame: the memory's next latent, decoded, and its reward."""
         from wmthesis.alphazero.latent_mdp import State
