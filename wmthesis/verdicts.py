@@ -37,7 +37,8 @@ VERDICTS = ("reproduced", "beyond", "not reproduced", "not settled")
 RULE = ("A claim holds where our seeds' 95% interval holds it and nothing that would deny it; where the interval "
         "holds both, the verdict is \"not settled at n seeds\" (one seed settles nothing). \"Around X\" is denied "
         "by a score as far from X as half of it; \"failed at F\" by a score above F; a gain by 0. A verdict of "
-        "\"beyond\" also needs 5 seeds or an interval within a tenth of its mean.")
+        "\"beyond\" also needs 5 seeds or an interval within a tenth of its mean. A figure the thesis judged by eye is "
+        "judged by eye here too, and settled only over 2 seeds or more.")
 
 
 @dataclass(frozen=True)
