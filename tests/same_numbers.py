@@ -28,7 +28,7 @@ RUNS = ("boxing-wm:None", "boxing-wm:population-16", "boxing-wm-alphazero:None",
         "planet-boxing:None", "planet-boxing:unchanged", "planet-boxing-agent:None", "planet-boxing-study:None",
         "planet-boxing-search:None", "planet-boxing-value:None", "planet-boxing-value:lean",
         "planet-boxing-value:scored-rounds", "planet-freeway:None", "planet-freeway-value:None", "planet-sokoban:None",
-        "sokoban-search:None", "sokoban-wm:None", "planning-budget:None")
+        "sokoban-search:None", "sokoban-wm:None", "planning-budget:None", "boxing-wm-dream:None")
 KEPT = ("score", "value", "value_planner", "agent", "random", "summary", "open_loop", "scores", "controller_curve",
         "curve", "tables", "boxoban", "budgets", "rows")
 SHIPPED = Path(__file__).resolve().parents[1] / "data"
@@ -134,20 +134,28 @@ def versions() -> dict:
     return {p: importlib.metadata.version(p) for p in VERSIONS}
 
 
-def record(path: Path = GOLDEN) -> None:
-    """Measure everything in a temporary data folder and write it to ``path``."""
+def record(path: Path = GOLDEN, only: tuple[str, ...] = ()) -> None:
+    """Measure everything in a temporary data folder and write it to ``path``; ``only``: measure
+    those runs again (a behaviour changed on purpose, or a run added), keeping the rest as recorded."""
     import tempfile
 
     import torch
 
     torch.set_num_threads(1)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    kept = json.loads(path.read_text()) if only else None
     with tempfile.TemporaryDirectory() as folder:
         os.environ["WMTHESIS_DATA"] = folder
-        numbers = {"commit": commit, "versions": versions(), "runs": {run: run_numbers(run) for run in RUNS},
-                   "signals": signals()}
+        if only:
+            numbers = {**kept, "runs": {run: run_numbers(run) if run in only else kept["runs"][run] for run in RUNS}}
+            numbers["remeasured"] = {**kept.get("remeasured", {}), **{run: commit for run in only}}
+        else:
+            numbers = {"commit": commit, "versions": versions(), "runs": {run: run_numbers(run) for run in RUNS},
+                       "signals": signals()}
     path.write_text(json.dumps(numbers, indent=1) + "\n")
 
 
 if __name__ == "__main__":
-    record()
+    import sys
+
+    record(only=tuple(sys.argv[1:]))  # python tests/same_numbers.py [RUN ...]

@@ -143,7 +143,7 @@ def test_bad_planners_and_budgets_are_refused_in_one_line_before_anything_plays(
                         (["mcts", "--search", "root=gumbel"], "with --validation"),
                         (["mcts", "--validation", "--search", "root=chess"], "unknown root 'chess'"),
                         (["mcts", "--validation", "--search", "depth=3"], "is not NAME=VALUE"),
-                        (["mcts", "--validation", "--search", "root=gumbel,c_scale=0"], "c_scale > 0")]:
+                        (["mcts", "--validation", "--search", "root=gumbel,c_scale=0"], "c_scale='0': it must be a finite number above 0")]:
         assert main(["budget-curve", *argv, "--profile", "smoke"]) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err

@@ -127,7 +127,7 @@ def test_the_summary_matches_a_hand_computation(tmp_path, monkeypatch):
     assert "| World Models on Boxing | 5.4.1 | above 18 on average across 5 runs | 15.0 [1.2, 28.8] (3 seeds) | above 18: " \
            "not settled at 3 seeds (the interval holds both the claim and its denial)" in headline
     assert "of one core | 93.5 (Simulus" in headline and "[^1]: leor-c/Simulus results/data/atari/Simulus.json" in headline
-    assert "| World Models on Sokoban (controller's return) | 5.3 | 0 levels solved | not run yet |" in headline
+    assert "| World Models on Sokoban: % of levels its controller solves | 5.3 | 0 levels solved | not run yet |" in headline
     assert "| 02 | 0 with 2 threads, 1-60 with 1 (x86_64, 2 cores) |" in headline  # minutes a seed, by thread count
     csv_lines = (tmp_path / "results" / "summary.csv").read_text().splitlines()
     assert csv_lines[0].startswith("experiment,variant,profile,n,mean,std,ci_low,ci_high")
@@ -282,7 +282,7 @@ def test_the_summary_skips_corrupt_and_foreign_files_naming_them(tmp_path):
     assert [(r.experiment, r.seed, r.score, r.path) for r in runs] == [("boxing-wm", 0, 5.0, str(good))]
     warned = " ".join(str(w.message) for w in caught)
     assert all(f"{path}: skipped" in warned for path in (corrupt, foreign, alien, not_a_number, wrong_shape))
-    assert f"{not_a_number}: skipped, its score is not a number" in warned
+    assert f"{not_a_number}: skipped, not a run's metrics (TypeError: its score is nan, not a finite number)" in warned
 
 
 # ---------------------------------------------------------------------------- on a local Ray

@@ -2,9 +2,9 @@
 
 A run writes its header with ``schema_version`` (:data:`METRICS_VERSION`); files written before
 the field existed are version 1, the same shape. What a reader relies on is checked: the
-experiment, profile and seed, the date, machine, threads and wall times, and every number in the
-file finite (JSON's ``NaN`` and ``Infinity`` parse to floats, which jsonschema's "number" would
-take). A file that fails is refused in one line naming the file and the field:
+experiment, profile and seed, the date, machine, threads and wall times, each number finite
+(JSON's ``NaN`` and ``Infinity`` parse to floats, which jsonschema's "number" would take). A file
+that fails is refused in one line naming the file and the field:
 
     check_metrics(json.loads(path.read_text()), path)   # ValueError: "...metrics.json: seed: -5 is ..."
 """
@@ -50,28 +50,15 @@ def _validator():
     return validators.extend(Draft202012Validator, type_checker=checker)(METRICS_SCHEMA)
 
 
-def _non_finite(value, where: str = "") -> str | None:
-    """The path of the first NaN or infinity anywhere in ``value`` (None: there is none)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return where or "(the file)"
-    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
-    for key, item in items:
-        found = _non_finite(item, f"{where}.{key}" if where else str(key))
-        if found:
-            return found
-    return None
-
-
 def check_metrics(metrics, path: str | Path) -> dict:
-    """``metrics`` (a parsed ``metrics.json``) if it fits :data:`METRICS_SCHEMA` and holds no NaN or
-    infinity anywhere; ValueError in one line naming ``path`` and the first field that does not."""
+    """``metrics`` (a parsed ``metrics.json``) if it fits :data:`METRICS_SCHEMA`; ValueError in one
+    line naming ``path`` and the first field that does not. (Its score is read, and a NaN or
+    infinite one refused, by :mod:`wmthesis.scores`; a diagnosis may hold NaN where it is undefined,
+    a correlation of constants.)"""
     error = next(iter(sorted(_validator().iter_errors(metrics), key=lambda e: list(e.absolute_path))), None)
     if error is not None:
         field = ".".join(map(str, error.absolute_path)) or "(the file)"
         raise ValueError(f"{path}: {field}: {error.message}")
-    broken = _non_finite(metrics)
-    if broken:
-        raise ValueError(f"{path}: {broken}: not a finite number (NaN or infinity)")
     return metrics
 
 
